@@ -1,0 +1,478 @@
+"""The spec language: what an app developer writes (``../shared/docs/interfaces.md``).
+
+These pydantic models are the schema of record: ``catanc schema`` exports them
+as JSON Schema.  They check the *shape* of a spec (types, ranges, unknown
+keys).  Checks that need the whole spec (names, the DAG, subchain paths) live
+in :mod:`catanc.problem`, which turns a valid ``Spec`` into the solver's view.
+
+Units: milliseconds for times, hertz for rates.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Annotated, Any, Literal
+
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Discriminator,
+    Field,
+    PrivateAttr,
+    Tag,
+    field_validator,
+    model_validator,
+)
+
+SPEC_VERSIONS = (1,)
+"""The ``catan:`` versions this catanc reads."""
+
+MODE_SHARE_TOLERANCE = 1e-6
+
+IDENTIFIER_PATTERN = r"^[A-Za-z_][A-Za-z0-9_]*$"
+APP_NAME_PATTERN = r"^[A-Za-z_][A-Za-z0-9_.-]*$"
+
+Name = Annotated[str, Field(pattern=IDENTIFIER_PATTERN, description="An identifier.")]
+PositiveMs = Annotated[float, Field(gt=0, description="Milliseconds, > 0.")]
+PositiveHz = Annotated[float, Field(gt=0, description="Hertz, > 0.")]
+
+
+class _Model(BaseModel):
+    """Base of every spec model: unknown keys are errors, no silent coercion."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        strict=True,
+        allow_inf_nan=False,
+        frozen=True,
+        populate_by_name=True,
+    )
+
+
+# --------------------------------------------------------------------------- nodes
+
+
+class Mode(_Model):
+    """One mode of a multimodal compute profile."""
+
+    share: float = Field(gt=0, le=1, description="Fraction of runs in this mode.")
+    ms: PositiveMs
+
+
+class ModalCompute(_Model):
+    """A multimodal compute time: runs fall into modes with given shares."""
+
+    modes: list[Mode] = Field(min_length=1)
+
+    @field_validator("modes")
+    @classmethod
+    def _shares_sum_to_one(cls, modes: list[Mode]) -> list[Mode]:
+        total = math.fsum(mode.share for mode in modes)
+        if abs(total - 1.0) > MODE_SHARE_TOLERANCE:
+            shares = " + ".join(f"{mode.share:g}" for mode in modes)
+            raise ValueError(f"mode shares must sum to 1, got {shares} = {total:g}")
+        return modes
+
+    @property
+    def mean_ms(self) -> float:
+        return math.fsum(mode.share * mode.ms for mode in self.modes)
+
+
+def _compute_kind(value: Any) -> str | None:
+    if isinstance(value, bool):
+        return None
+    if isinstance(value, (int, float)):
+        return "<ms>"
+    if isinstance(value, dict):
+        return "<modes>"
+    return None
+
+
+Compute = Annotated[
+    Annotated[PositiveMs, Tag("<ms>")] | Annotated[ModalCompute, Tag("<modes>")],
+    Discriminator(
+        _compute_kind,
+        custom_error_type="compute_kind",
+        custom_error_message="expected a time in ms (e.g. 2.5) or {modes: [{share, ms}, ...]}",
+    ),
+]
+
+
+class Threads(_Model):
+    """How a node's compute time scales with threads."""
+
+    max: int = Field(default=1, ge=1, le=1024, description="Most threads the node can use.")
+    speedup: list[Annotated[float, Field(gt=0)]] | None = Field(
+        default=None,
+        description=(
+            "speedup[q-1] = (time on 1 thread) / (time on q threads), for q = 1..max; "
+            "speedup[0] is 1.  Omitted: perfect scaling (speedup q on q threads)."
+        ),
+    )
+
+    @model_validator(mode="after")
+    def _speedup_fits_max(self) -> Threads:
+        if self.speedup is None:
+            return self
+        if len(self.speedup) != self.max:
+            raise ValueError(
+                f"speedup lists {len(self.speedup)} value(s) but threads.max is {self.max}: "
+                f"give one speedup per thread count 1..{self.max}"
+            )
+        if self.speedup[0] != 1.0:
+            raise ValueError(f"speedup[0] is the 1-thread speedup and must be 1.0, got {self.speedup[0]:g}")
+        return self
+
+    def speedup_at(self, threads: int) -> float:
+        """Best speedup with at most ``threads`` threads (more threads never forced)."""
+        usable = max(1, min(threads, self.max))
+        if self.speedup is None:
+            return float(usable)
+        return max(self.speedup[:usable])
+
+
+class Batch(_Model):
+    """A batch node consumes every buffered input per run (like GL in nav2d)."""
+
+    output_rate_hz: PositiveHz | None = Field(
+        default=None,
+        description="Observed rate of useful outputs; chains that start at this node use its period.",
+    )
+
+
+def _batch_kind(value: Any) -> str | None:
+    if isinstance(value, bool):
+        return "<flag>"
+    if isinstance(value, dict):
+        return "<options>"
+    return None
+
+
+BatchFlag = Annotated[
+    Annotated[bool, Tag("<flag>")] | Annotated[Batch, Tag("<options>")],
+    Discriminator(
+        _batch_kind,
+        custom_error_type="batch_kind",
+        custom_error_message="expected true/false or {output_rate_hz: ...}",
+    ),
+]
+
+
+class Node(_Model):
+    """One task of the app DAG."""
+
+    compute_ms: Compute | None = Field(
+        default=None, description="Time of one run (ms), or a multimodal profile. Required when scheduled."
+    )
+    threads: Threads = Field(default_factory=Threads)
+    scheduled: bool = Field(default=True, description="false: the scheduler never triggers this node.")
+    rate_hz: PositiveHz | None = Field(
+        default=None, description="Fixed rate of an unscheduled node (omit for a pure sink)."
+    )
+    batch: BatchFlag = Field(default=False, description="true or {output_rate_hz}: batch-processes inputs.")
+
+    @model_validator(mode="after")
+    def _fields_fit_scheduling(self) -> Node:
+        if self.scheduled:
+            if self.compute_ms is None:
+                raise ValueError("a scheduled node needs compute_ms (or set scheduled: false)")
+            if self.rate_hz is not None:
+                raise ValueError(
+                    "rate_hz fixes the rate of an unscheduled node; for a scheduled node "
+                    "use a constraint {node: ..., rate_hz: ...} or set scheduled: false"
+                )
+        elif self.is_batch:
+            raise ValueError("an unscheduled node cannot be batch: batch applies to nodes the scheduler triggers")
+        return self
+
+    @property
+    def is_batch(self) -> bool:
+        return self.batch is not False
+
+    @property
+    def batch_output_rate_hz(self) -> float | None:
+        return self.batch.output_rate_hz if isinstance(self.batch, Batch) else None
+
+    @property
+    def mean_compute_ms(self) -> float:
+        """Planning compute time: the value, or the share-weighted mean of the modes."""
+        if self.compute_ms is None:
+            return 0.0
+        if isinstance(self.compute_ms, ModalCompute):
+            return self.compute_ms.mean_ms
+        return float(self.compute_ms)
+
+    def compute_ms_with(self, threads: int) -> float:
+        """Compute time with at most ``threads`` threads (``c^q_j`` of Eq. 1)."""
+        return self.mean_compute_ms / self.threads.speedup_at(threads)
+
+
+# --------------------------------------------------------------------------- edges
+
+EDGE_ARROW = "->"
+
+
+def _edge_kind(value: Any) -> str | None:
+    if isinstance(value, str):
+        return "<arrow>"
+    if isinstance(value, list):
+        return "<pair>"
+    return None
+
+
+def _parse_arrow(value: str) -> tuple[str, str]:
+    parts = [part.strip() for part in value.split(EDGE_ARROW)]
+    if len(parts) != 2 or not all(parts):
+        raise ValueError(f"expected 'a -> b', got {value!r}")
+    return parts[0], parts[1]
+
+
+ArrowEdge = Annotated[str, Field(pattern=r"^\s*[A-Za-z_][A-Za-z0-9_]*\s*->\s*[A-Za-z_][A-Za-z0-9_]*\s*$")]
+PairEdge = Annotated[list[Name], Field(min_length=2, max_length=2)]
+
+Edge = Annotated[
+    Annotated[ArrowEdge, Tag("<arrow>")] | Annotated[PairEdge, Tag("<pair>")],
+    Discriminator(
+        _edge_kind,
+        custom_error_type="edge_kind",
+        custom_error_message="expected an edge as [a, b] or 'a -> b'",
+    ),
+]
+
+
+# --------------------------------------------------------------------------- chains
+
+
+def _through_kind(value: Any) -> str | None:
+    if isinstance(value, str):
+        return "<one>"
+    if isinstance(value, list):
+        return "<many>"
+    return None
+
+
+Through = Annotated[
+    Annotated[Name, Tag("<one>")] | Annotated[list[Name], Tag("<many>")],
+    Discriminator(
+        _through_kind,
+        custom_error_type="through_kind",
+        custom_error_message="expected a node name or a list of node names",
+    ),
+]
+
+
+class ChainSelector(_Model):
+    """Every DAG path that starts at ``from``, visits ``through`` and ends at ``to``."""
+
+    from_: Name | None = Field(default=None, alias="from", description="Start node (default: any source).")
+    through: Through = Field(default_factory=list, description="Node(s) every path visits.")
+    to: Name | None = Field(default=None, description="End node (default: any sink).")
+
+    @property
+    def through_nodes(self) -> list[str]:
+        return [self.through] if isinstance(self.through, str) else list(self.through)
+
+
+ChainPath = Annotated[list[Name], Field(min_length=1, description="Nodes of a DAG path, in order.")]
+Weight = Annotated[float, Field(ge=0, description="Weight in the objective, >= 0.")]
+
+
+class ChainTerm(_Model):
+    """Minimise the response time of one chain."""
+
+    chain: ChainPath
+    weight: Weight
+
+
+class NodeTerm(_Model):
+    """Minimise a node's period (maximise its throughput)."""
+
+    node: Name
+    weight: Weight
+
+
+class ChainsTerm(_Model):
+    """Minimise the response time of every chain a selector matches (each with this weight)."""
+
+    chains: ChainSelector
+    weight: Weight
+
+
+def _term_kind(value: Any) -> str | None:
+    if isinstance(value, dict):
+        for key in ("chain", "node", "chains"):
+            if key in value:
+                return f"<{key}>"
+    return None
+
+
+ObjectiveTerm = Annotated[
+    Annotated[ChainTerm, Tag("<chain>")] | Annotated[NodeTerm, Tag("<node>")] | Annotated[ChainsTerm, Tag("<chains>")],
+    Discriminator(
+        _term_kind,
+        custom_error_type="term_kind",
+        custom_error_message="an objective term needs one of chain: [...], node: NAME or chains: {from, through, to}",
+    ),
+]
+
+
+class RateConstraint(_Model):
+    """Bounds on a scheduled node's rate (hence on its subchain's)."""
+
+    node: Name
+    max_rate_hz: PositiveHz | None = None
+    min_rate_hz: PositiveHz | None = None
+    rate_hz: PositiveHz | None = Field(default=None, description="Fixed rate.")
+
+    @model_validator(mode="after")
+    def _bounds_consistent(self) -> RateConstraint:
+        if self.max_rate_hz is None and self.min_rate_hz is None and self.rate_hz is None:
+            raise ValueError("a node constraint needs max_rate_hz, min_rate_hz or rate_hz")
+        low, high = self.bounds_hz
+        if low > high:
+            raise ValueError(f"contradictory rate bounds: needs a rate >= {low:g} Hz and <= {high:g} Hz")
+        return self
+
+    @property
+    def bounds_hz(self) -> tuple[float, float]:
+        """The allowed rate interval ``[low, high]`` (Hz) this constraint states."""
+        low = max(x for x in (self.min_rate_hz, self.rate_hz, 0.0) if x is not None)
+        high = min(x for x in (self.max_rate_hz, self.rate_hz, math.inf) if x is not None)
+        return low, high
+
+
+class ChainConstraint(_Model):
+    """An upper bound on one chain's response time."""
+
+    chain: ChainPath
+    max_response_ms: PositiveMs
+
+
+class ChainsConstraint(_Model):
+    """An upper bound on the response time of every chain a selector matches."""
+
+    chains: ChainSelector
+    max_response_ms: PositiveMs
+
+
+def _constraint_kind(value: Any) -> str | None:
+    if isinstance(value, dict):
+        for key in ("node", "chain", "chains"):
+            if key in value:
+                return f"<{key}>"
+    return None
+
+
+Constraint = Annotated[
+    Annotated[RateConstraint, Tag("<node>")]
+    | Annotated[ChainConstraint, Tag("<chain>")]
+    | Annotated[ChainsConstraint, Tag("<chains>")],
+    Discriminator(
+        _constraint_kind,
+        custom_error_type="constraint_kind",
+        custom_error_message=(
+            "a constraint needs node: NAME (with max_rate_hz/min_rate_hz/rate_hz) "
+            "or chain: [...] / chains: {...} (with max_response_ms)"
+        ),
+    ),
+]
+
+
+# --------------------------------------------------------------------------- settings
+
+
+class Schedule(_Model):
+    """How shared cores run their periodic schedule."""
+
+    order: list[Name] | None = Field(
+        default=None, description="Subchain order inside one period (default: by descending weight)."
+    )
+    priorities: dict[Name, int] = Field(
+        default_factory=dict, description="Stealing priority per subchain; higher steals from lower."
+    )
+    slack: float = Field(default=0.05, ge=0, lt=1, description="Idle share of each period (Linux caps FIFO at 95%).")
+    switch_ms: float = Field(default=0.12, ge=0, description="Cost of one switch between subchains.")
+    min_slice_ms: float = Field(default=1.0, ge=0, description="Smallest slice a subchain gets per period.")
+
+
+class Runtime(_Model):
+    """How the runtime enforcer measures and re-solves."""
+
+    window: int = Field(default=50, ge=1, description="Compute-time samples kept per node.")
+    percentile: float = Field(default=95, gt=0, le=100, description="Percentile of the window planned with.")
+    stage1_every_s: float = Field(default=20, gt=0)
+    stage2_every_s: float = Field(default=5, gt=0)
+    first_solve_after_s: float = Field(default=2, ge=0)
+    bootstrap_ms: float = Field(default=5, gt=0, description="Compute time assumed per node before measuring.")
+
+
+class Baseline(_Model):
+    """The hand-tuned configuration catanc is compared with."""
+
+    rates_hz: dict[Name, PositiveHz] = Field(
+        default_factory=dict,
+        description="Timer rate per node; unlisted nodes run when an input arrives.",
+    )
+
+
+class Deploy(_Model):
+    """How one node is started and named in deployment artifacts."""
+
+    ros_node: str | None = Field(default=None, description="Fully qualified ROS node name, e.g. /local_mapper.")
+    rate_param: str | None = Field(default=None, description="Parameter that sets the node's rate.")
+    rate_unit: Literal["hz", "s", "ms"] = Field(
+        default="hz", description="Unit of rate_param: a rate in hz, or a period in s or ms."
+    )
+    package: str | None = Field(default=None, description="ROS 2 package (for launch.py).")
+    executable: str | None = Field(default=None, description="ROS 2 executable (for launch.py).")
+    command: str | None = Field(default=None, description="Shell-free command line that starts the process.")
+
+
+# --------------------------------------------------------------------------- spec
+
+
+class Spec(_Model):
+    """A catanc app spec."""
+
+    catan: int = Field(description="Spec language version.")
+    app: str = Field(pattern=APP_NAME_PATTERN, description="App name; names the output folder.")
+    nodes: dict[Name, Node] = Field(min_length=1)
+    edges: list[Edge] = Field(default_factory=list)
+    subchains: dict[Name, Annotated[list[Name], Field(min_length=1)]] = Field(default_factory=dict)
+    objective: list[ObjectiveTerm] = Field(default_factory=list)
+    constraints: list[Constraint] = Field(default_factory=list)
+    schedule: Schedule = Field(default_factory=Schedule)
+    runtime: Runtime = Field(default_factory=Runtime)
+    baseline: Baseline = Field(default_factory=Baseline)
+    deploy: dict[Name, Deploy] = Field(default_factory=dict)
+
+    _source: Any = PrivateAttr(default=None)
+
+    @field_validator("catan")
+    @classmethod
+    def _known_version(cls, version: int) -> int:
+        if version not in SPEC_VERSIONS:
+            known = ", ".join(str(v) for v in SPEC_VERSIONS)
+            raise ValueError(f"this catanc reads spec version {known}, not {version}")
+        return version
+
+    @property
+    def edge_pairs(self) -> list[tuple[str, str]]:
+        """Edges normalised to ``(a, b)`` pairs, in spec order."""
+        return [_parse_arrow(edge) if isinstance(edge, str) else (edge[0], edge[1]) for edge in self.edges]
+
+    @property
+    def source(self) -> Any:
+        """Where each field came from (a :class:`catanc.source.SourceMap`), if loaded from YAML."""
+        return self._source
+
+
+def json_schema() -> dict[str, Any]:
+    """The JSON Schema of the spec, for editors (``catanc schema``)."""
+    schema = Spec.model_json_schema(by_alias=True, mode="validation")
+    return {"$schema": "https://json-schema.org/draft/2020-12/schema", **schema, "title": "catanc spec"}
+
+
+def json_schema_text() -> str:
+    return json.dumps(json_schema(), indent=2, sort_keys=True) + "\n"

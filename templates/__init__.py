@@ -1,0 +1,1 @@
+"""jinja2 templates of the deployment artifacts, shipped as package data."""
