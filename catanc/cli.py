@@ -1,0 +1,164 @@
+"""The ``catanc`` command line: parse options, call the core, map errors to exit codes.
+
+Every command reports a :class:`~catanc.errors.CatancError` as a short
+message with its exit code; anything else is a bug and exits with
+``ExitCode.INTERNAL`` (set ``CATANC_DEBUG=1`` for the traceback).
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import os
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Annotated, Any, ParamSpec, TypeVar
+
+import typer
+from rich.console import Console
+
+from catanc.errors import CatancError, Diagnostic, ExitCode, SpecError
+
+P = ParamSpec("P")
+R = TypeVar("R")
+
+app = typer.Typer(
+    name="catanc",
+    help="Compile semantic specs of robotics and XR task graphs into CPU schedules.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+SpecArg = Annotated[Path, typer.Argument(metavar="SPEC", help="A spec file (YAML).", show_default=False)]
+
+
+def _stdout() -> Console:
+    return Console(highlight=False, soft_wrap=True)
+
+
+def _stderr() -> Console:
+    return Console(stderr=True, highlight=False, soft_wrap=True)
+
+
+def _print_diagnostics(diagnostics: Sequence[Diagnostic], *, warning: bool = False) -> None:
+    console = _stderr()
+    for diagnostic in diagnostics:
+        text = str(diagnostic)
+        if warning:
+            where = f"{diagnostic.location}: " if diagnostic.location else ""
+            what = f"{diagnostic.field}: " if diagnostic.field else ""
+            text = f"{where}warning: {what}{diagnostic.message}"
+        console.print(text, markup=False)
+
+
+def _reporting(command: Callable[P, R]) -> Callable[P, R]:
+    """Turn catanc errors into messages and exit codes; never show a traceback for them."""
+
+    @functools.wraps(command)
+    def wrapper(*args: P.args, **kwargs: P.kwargs) -> R:
+        try:
+            return command(*args, **kwargs)
+        except typer.Exit:
+            raise
+        except SpecError as exc:
+            _print_diagnostics(exc.diagnostics)
+            raise typer.Exit(int(exc.exit_code)) from None
+        except CatancError as exc:
+            _stderr().print(f"catanc: {exc}", markup=False)
+            raise typer.Exit(int(exc.exit_code)) from None
+        except Exception as exc:
+            if os.environ.get("CATANC_DEBUG"):
+                raise
+            _stderr().print(
+                f"catanc: internal error: {type(exc).__name__}: {exc}\n"
+                "This is a bug in catanc; rerun with CATANC_DEBUG=1 for the traceback and report it.",
+                markup=False,
+            )
+            raise typer.Exit(int(ExitCode.INTERNAL)) from None
+
+    return wrapper
+
+
+@app.command()
+@_reporting
+def validate(
+    specs: Annotated[list[Path], typer.Argument(metavar="SPEC...", help="Spec files.", show_default=False)],
+) -> None:
+    """Check specs: YAML, fields, names, the DAG, subchains, objective and constraints."""
+    from catanc.load import load_spec
+    from catanc.problem import build_problem
+
+    failed = False
+    out = _stdout()
+    for path in specs:
+        try:
+            spec = load_spec(path)
+        except SpecError as exc:
+            _print_diagnostics(exc.diagnostics)
+            failed = True
+            continue
+        problem = build_problem(spec)
+        _print_diagnostics(problem.warnings, warning=True)
+        out.print(
+            f"{path}: ok: app {spec.app}, {len(spec.nodes)} nodes, {len(problem.subchains)} subchains, "
+            f"{len(problem.chains)} chains in the objective and constraints",
+            markup=False,
+        )
+    if failed:
+        raise typer.Exit(int(ExitCode.BAD_INPUT))
+
+
+@app.command()
+@_reporting
+def chains(
+    spec_path: SpecArg,
+    limit: Annotated[int, typer.Option(min=1, help="List at most this many source-to-sink chains.")] = 10_000,
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
+) -> None:
+    """List the app's chains, their subchain sequences and the terms that use them."""
+    from catanc.describe import chain_listing, chains_table
+    from catanc.load import load_spec
+    from catanc.problem import build_problem
+
+    spec = load_spec(spec_path)
+    problem = build_problem(spec)
+    listing = chain_listing(spec, problem, limit)
+    _print_diagnostics([*problem.warnings, *listing.warnings], warning=True)
+    if as_json:
+        rows: list[dict[str, Any]] = [
+            {
+                "nodes": list(r.nodes),
+                "subchains": list(r.stages),
+                "used_by": list(r.uses),
+                "source_to_sink": r.source_to_sink,
+            }
+            for r in listing.rows
+        ]
+        payload = {"app": spec.app, "total_source_to_sink": listing.total_paths, "chains": rows}
+        sys.stdout.write(json.dumps(payload, indent=2, sort_keys=True) + "\n")
+        return
+    _stdout().print(chains_table(listing, f"{spec.app}: {listing.total_paths} source-to-sink chains"))
+
+
+@app.command()
+@_reporting
+def schema() -> None:
+    """Print the JSON Schema of the spec language (for editors)."""
+    from catanc.spec import json_schema_text
+
+    sys.stdout.write(json_schema_text())
+
+
+@app.command()
+def version() -> None:
+    """Print catanc's version."""
+    from catanc import __version__
+
+    sys.stdout.write(f"catanc {__version__}\n")
+
+
+def main() -> None:
+    """Console-script entry point."""
+    app()
