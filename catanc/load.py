@@ -162,7 +162,10 @@ def _message(error: Any, loc: tuple[Hashable, ...]) -> str:
     if kind == "too_long":
         return f"{error['msg'].lower()}"
     if kind in _TYPE_NAMES:
-        return f"expected {_TYPE_NAMES[kind]}, got {_describe(value)}"
+        hint = ""
+        if kind == "string_type" and (value is None or isinstance(value, bool)):
+            hint = " (YAML reads unquoted yes/no/on/off/true/false/null that way: quote the name)"
+        return f"expected {_TYPE_NAMES[kind]}, got {_describe(value)}{hint}"
     text: str = error["msg"]
     if isinstance(value, dict) and kind.endswith("_kind"):
         keys = [str(key) for key in value]

@@ -8,7 +8,7 @@ an error at ``FILE:LINE:COL`` given a field path such as
 
 from __future__ import annotations
 
-from collections.abc import Hashable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -88,6 +88,10 @@ def _mark(node: yaml.Node) -> tuple[int, int]:
     return node.start_mark.line + 1, node.start_mark.column + 1
 
 
+def _yaml_kind(value: Any) -> str:
+    return "null" if value is None else "a boolean"
+
+
 def _syntax_diagnostic(exc: yaml.MarkedYAMLError, file: str) -> Diagnostic:
     mark = exc.problem_mark or exc.context_mark
     location = Location(file, mark.line + 1, mark.column + 1) if mark else Location(file, 1, 1)
@@ -106,6 +110,7 @@ class _Builder:
         self.diagnostics: list[Diagnostic] = []
         self.count = 0
         self.merged_counts: dict[int, int] = {}  # id(mapping node) -> merged pairs in front
+        self.reported_keys: set[int] = set()
 
     def _fail(self, node: yaml.Node, path: FieldPath, message: str) -> SpecError:
         return SpecError([Diagnostic(Location(self.file, *_mark(node)), format_path(path), message)])
@@ -141,7 +146,7 @@ class _Builder:
         except yaml.MarkedYAMLError as exc:
             raise self._fail(node, path, f"cannot read value: {exc.problem}") from None
 
-    def _mapping(self, node: yaml.MappingNode, path: FieldPath) -> dict[Hashable, Any]:
+    def _mapping(self, node: yaml.MappingNode, path: FieldPath) -> dict[str, Any]:
         if id(node) not in self.merged_counts:  # an aliased mapping is flattened once
             explicit = sum(1 for key_node, _ in node.value if key_node.tag != _MERGE)
             try:
@@ -150,10 +155,10 @@ class _Builder:
                 raise self._fail(node, path, f"bad merge key: {exc.problem}") from None
             self.merged_counts[id(node)] = len(node.value) - explicit
         merged_count = self.merged_counts[id(node)]
-        pairs: dict[Hashable, tuple[yaml.Node, yaml.Node]] = {}
+        pairs: dict[str, tuple[yaml.Node, yaml.Node]] = {}
         for key_node, value_node in node.value[:merged_count]:
             pairs[self._key(key_node, path)] = (key_node, value_node)  # later merges win, as in YAML
-        first_seen: dict[Hashable, yaml.Node] = {}
+        first_seen: dict[str, yaml.Node] = {}
         for key_node, value_node in node.value[merged_count:]:
             key = self._key(key_node, path)
             if key in first_seen:
@@ -168,15 +173,31 @@ class _Builder:
                 continue
             first_seen[key] = key_node
             pairs[key] = (key_node, value_node)  # explicit keys override merged ones
-        result: dict[Hashable, Any] = {}
+        result: dict[str, Any] = {}
         for key, (key_node, value_node) in pairs.items():
             child: FieldPath = (*path, key)
             self.keys[child] = _mark(key_node)
             result[key] = self.build(value_node, child)
         return result
 
-    def _key(self, key_node: yaml.Node, path: FieldPath) -> Hashable:
+    def _key(self, key_node: yaml.Node, path: FieldPath) -> str:
+        """A mapping key as text: every key of a spec is a name or a field."""
         if not isinstance(key_node, yaml.ScalarNode):
             raise self._fail(key_node, path, "mapping keys must be plain names")
-        key: Hashable = self._scalar(key_node, path)
-        return key
+        key = self._scalar(key_node, path)
+        if isinstance(key, str):
+            return key
+        # A number is just an invalid name (later checks say so); a boolean or
+        # null key is YAML 1.1 reading `on`, `no`, `null` as values: quoting fixes it.
+        # (Reported once per key: an aliased mapping is visited more than once.)
+        if (key is None or isinstance(key, bool)) and id(key_node) not in self.reported_keys:
+            self.reported_keys.add(id(key_node))
+            self.diagnostics.append(
+                Diagnostic(
+                    Location(self.file, *_mark(key_node)),
+                    format_path((*path, key_node.value)),
+                    f"YAML reads the key {key_node.value} as {_yaml_kind(key)}, not a name; "
+                    f"quote it: '{key_node.value}'",
+                )
+            )
+        return str(key_node.value)
