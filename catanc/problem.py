@@ -134,8 +134,10 @@ def spec_dag(spec: Spec) -> nx.DiGraph:
 def collapse(path: Iterable[str], spec: Spec, membership: dict[str, str]) -> tuple[Stage, ...]:
     """A path's stages: runs of one subchain merge; rate-less unscheduled nodes drop out.
 
-    A path may enter a subchain after its first node (nav2d's NC -> LP): the
-    stage is still the whole subchain, which is triggered at its head.
+    A path may enter a subchain after its first node (nav2d's NC -> LP) or
+    leave it before its last (nav2d's scan -> GL): the stage is still the
+    whole subchain, triggered at its head and timed as one run, which is the
+    worst case the model assumes everywhere.
     """
     stages: list[Stage] = []
     for node in path:

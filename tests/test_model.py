@@ -7,10 +7,11 @@ from the code under test.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import pytest
 
-from catanc.load import parse_spec
+from catanc.load import load_spec, parse_spec
 from catanc.model import (
     Timing,
     chain_metrics,
@@ -22,20 +23,7 @@ from catanc.model import (
 from catanc.problem import build_problem
 from catanc.spec import Node
 
-FACE_TRACKING = """
-catan: 1
-app: face
-nodes:
-  camera: {compute_ms: 25}
-  detection: {compute_ms: 58}
-  planning: {compute_ms: 1}
-  motor: {scheduled: false}
-edges: [[camera, detection], [detection, planning], [planning, motor]]
-subchains:
-  tracking: [camera, detection, planning]
-objective:
-  - {chain: [camera, detection, planning, motor], weight: 1.0}
-"""
+ROOT = Path(__file__).parent.parent
 
 
 def node(ms: float, threads: int = 1, speedup: list[float] | None = None) -> Node:
@@ -48,9 +36,10 @@ def node(ms: float, threads: int = 1, speedup: list[float] | None = None) -> Nod
 #           q = 2 gives floor(2/2) = 1 run in flight, p = 84, R = 168: q = 1 wins.
 @pytest.mark.parametrize(("cores", "period", "response"), [(1, 84.0, 168.0), (2, 58.0, 142.0)])
 def test_face_tracking_worked_example(cores: int, period: float, response: float) -> None:
-    spec = parse_spec(FACE_TRACKING)
+    spec = load_spec(ROOT / "specs" / "face_tracking.yaml")
     problem = build_problem(spec)
     nodes = [spec.nodes[name] for name in problem.subchain("tracking").nodes]
+    assert [n.mean_compute_ms for n in nodes] == [25, 58, 1]  # the worked example's inputs
     timing = dedicated_timing(compute_by_threads(nodes, cores), cores)
     assert timing.threads == 1
     assert timing.period_ms == pytest.approx(period)
