@@ -38,15 +38,20 @@ class ExitCode(IntEnum):
     INTERNAL = 70  # a bug in catanc (EX_SOFTWARE)
 
 
-def did_you_mean(word: str, choices: Iterable[str], *, listing: bool = False) -> str:
-    """`` (did you mean 'LM'?)``, optionally listing the choices; empty if nothing fits."""
+def close_matches(word: str, choices: Iterable[str]) -> list[str]:
+    """The choices closest to a misspelt ``word`` (ties kept, in the given order)."""
     options = list(choices)
     scores = [difflib.SequenceMatcher(None, word, option).ratio() for option in options]
     best = max(scores, default=0.0)
-    # Every option as close as the best one, in the order the spec gives them.
     close = [option for option, score in zip(options, scores, strict=True) if score == best and best >= 0.5]
     same_start = [option for option in close if option[:1] == word[:1]]
-    close = same_start or close
+    return same_start or close
+
+
+def did_you_mean(word: str, choices: Iterable[str], *, listing: bool = False) -> str:
+    """`` (did you mean 'LM'?)``, optionally listing the choices; empty if nothing fits."""
+    options = list(choices)
+    close = close_matches(word, options)
     parts = []
     if close:
         parts.append("did you mean " + " or ".join(repr(option) for option in close[:3]) + "?")

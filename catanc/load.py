@@ -14,10 +14,10 @@ from typing import Annotated, Any, Union, get_args, get_origin
 
 from pydantic import BaseModel, Tag, ValidationError
 
-from catanc.errors import Diagnostic, FieldPath, Location, SpecError, did_you_mean, format_path
+from catanc.errors import Diagnostic, FieldPath, Location, SpecError, close_matches, did_you_mean, format_path
 from catanc.problem import build_problem
 from catanc.source import SourceMap, parse_yaml
-from catanc.spec import SPEC_VERSIONS, Spec
+from catanc.spec import ARROW_EDGE_PATTERN, SPEC_VERSIONS, Spec
 
 _TYPE_NAMES = {
     "float_type": "a number",
@@ -56,26 +56,27 @@ def load_spec(path: str | Path) -> Spec:
 
 def parse_spec(text: str, file: str = "<spec>") -> Spec:
     """Parse and check spec text; ``file`` is only used in messages."""
-    data, source, found = parse_yaml(text, file)
+    parsed = parse_yaml(text, file)
     try:
-        spec = validate_data(data, source)
+        spec = validate_data(parsed.data, parsed.source)
         build_problem(spec)  # meaning checks
     except SpecError as exc:
-        raise SpecError(found + exc.diagnostics) from None
-    if found:
-        raise SpecError(found)
+        raise SpecError(parsed.problems + exc.diagnostics) from None
+    if parsed.problems:
+        raise SpecError(parsed.problems)
     return spec
 
 
 def validate_data(data: Any, source: SourceMap) -> Spec:
     """Check the shape of plain data against the spec models; raise :class:`SpecError`."""
     if not isinstance(data, dict):
-        location = Location(source.file, 1, 1)
-        raise SpecError([Diagnostic(location, "", "a spec is a mapping with catan, app, nodes, edges, ...")])
-    if "catan" in data and data["catan"] not in SPEC_VERSIONS and not isinstance(data["catan"], bool):
+        message = f"a spec is a mapping with catan, app, nodes, edges, ...; this document is {_describe(data)}"
+        raise SpecError([Diagnostic(source.locate(()), "", message)])
+    version = data.get("catan")
+    if isinstance(version, int) and not isinstance(version, bool) and version not in SPEC_VERSIONS:
         # An unknown version is reported alone: the rest may be a different language.
         known = ", ".join(str(v) for v in SPEC_VERSIONS)
-        message = f"unknown spec version {data['catan']!r}; this catanc reads version {known}"
+        message = f"unknown spec version {version}; this catanc reads version {known}"
         raise SpecError([Diagnostic(source.locate(("catan",)), "catan", message)])
     try:
         spec = Spec.model_validate(data)
@@ -86,9 +87,20 @@ def validate_data(data: Any, source: SourceMap) -> Spec:
 
 
 def _diagnostics(exc: ValidationError, data: Any, source: SourceMap) -> list[Diagnostic]:
+    errors = exc.errors(include_url=False)
+    # A misspelt required key is one problem: its "unknown field" message
+    # already suggests the right name, so the "missing" twin is dropped.
+    misspelt = {
+        (tuple(error["loc"][:-1]), suggestion)
+        for error in errors
+        if error["type"] == "extra_forbidden"
+        for suggestion in close_matches(str(error["loc"][-1]), _allowed_fields(tuple(error["loc"][:-1])))
+    }
     diagnostics = []
-    for error in exc.errors(include_url=False):
+    for error in errors:
         loc = tuple(error["loc"])
+        if error["type"] == "missing" and (loc[:-1], loc[-1]) in misspelt:
+            continue
         path, rest = _data_path(loc, data)
         on_key = rest[-1:] == ("[key]",)
         message = _message(error, loc)
@@ -155,8 +167,13 @@ def _message(error: Any, loc: tuple[Hashable, ...]) -> str:
         return f"must be {op} {bound:g}, got {_describe(value)}"
     if kind == "finite_number":
         return f"must be a finite number, got {_describe(value)}"
+    if kind == "string_pattern_mismatch" and ctx.get("pattern") == ARROW_EDGE_PATTERN:
+        return f"expected an edge as 'a -> b' (or [a, b]) between two node names, got {_describe(value)}"
     if kind == "string_pattern_mismatch":
         return f"{_describe(value)} is not a valid name: use letters, digits and _, not starting with a digit"
+    if kind in ("too_short", "too_long") and loc[:1] == ("edges",):
+        count = len(value) if isinstance(value, list) else 0
+        return f"an edge is [a, b]: two node names, got {count} (write a longer path as one edge per pair)"
     if kind == "too_short":
         return "must not be empty" if ctx.get("min_length") == 1 else error["msg"].lower()
     if kind == "too_long":

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import networkx as nx
 
 from catanc import graph
-from catanc.errors import Diagnostic, FieldPath, SpecError, did_you_mean, format_path
+from catanc.errors import Diagnostic, FieldPath, SpecError, close_matches, did_you_mean, format_path
 from catanc.spec import (
     ChainConstraint,
     ChainsConstraint,
@@ -246,10 +246,18 @@ class _Builder:
     def check_subchains(self) -> None:
         spec = self.spec
         first_path: dict[str, FieldPath] = {}
+        # Nodes a subchain meant to list, though it names them wrongly (a typo) or
+        # under a duplicated key: both already reported, so no "in no subchain" twin.
+        meant: set[str] = set()
+        shadowed = spec.source.shadowed if spec.source is not None else {}
+        for dropped_path, value in shadowed.items():
+            if dropped_path[:1] == ("subchains",) and isinstance(value, list):
+                meant.update(str(item) for item in value)
         for sub_name, nodes in spec.subchains.items():
             for index, node in enumerate(nodes):
                 path: FieldPath = ("subchains", sub_name, index)
                 if not self.known(node, path):
+                    meant.update(close_matches(node, self.node_names))
                     continue
                 if node in first_path:
                     other = first_path[node]
@@ -274,7 +282,7 @@ class _Builder:
                         at_key=True,
                     )
         for name, node_spec in spec.nodes.items():
-            if node_spec.scheduled and name not in first_path:
+            if node_spec.scheduled and name not in first_path and name not in meant:
                 self.error(
                     ("nodes", name),
                     f"scheduled node {name!r} is in no subchain (add it to one, e.g. `{name}: [{name}]`, "

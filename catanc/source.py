@@ -29,30 +29,42 @@ _PLAIN_SCALARS = frozenset(f"tag:yaml.org,2002:{kind}" for kind in ("str", "int"
 
 @dataclass(frozen=True)
 class SourceMap:
-    """Positions of the values (and mapping keys) of one YAML document."""
+    """Positions of the values (and mapping keys) of one YAML document.
+
+    A mapping or list written under a key is located at its key: that line
+    names the field, while the collection itself may start lines below.
+    """
 
     file: str
     values: Mapping[FieldPath, tuple[int, int]] = field(default_factory=dict)
     keys: Mapping[FieldPath, tuple[int, int]] = field(default_factory=dict)
+    shadowed: Mapping[FieldPath, Any] = field(default_factory=dict)
+    """Values of duplicate keys, dropped in favour of the first (already reported)."""
 
     def locate(self, path: FieldPath, *, at_key: bool = False) -> Location:
         """Where ``path`` is written; falls back to the nearest enclosing field."""
         if at_key and path in self.keys:
             return Location(self.file, *self.keys[path])
-        for length in range(len(path), 0, -1):
+        for length in range(len(path), -1, -1):
             prefix = path[:length]
             if prefix in self.values:
                 return Location(self.file, *self.values[prefix])
         return Location(self.file, 1, 1)
 
-    def has(self, path: FieldPath) -> bool:
-        return path in self.values
+
+@dataclass(frozen=True)
+class ParsedYaml:
+    """A document's data, where each value came from, and its non-fatal problems."""
+
+    data: Any
+    source: SourceMap
+    problems: list[Diagnostic]  # duplicate keys, keys YAML reads as booleans
 
 
-def parse_yaml(text: str, file: str) -> tuple[Any, SourceMap, list[Diagnostic]]:
-    """Parse one YAML document into plain data, its source map and non-fatal problems.
+def parse_yaml(text: str, file: str) -> ParsedYaml:
+    """Parse one YAML document into plain data and its source map.
 
-    Duplicate keys are returned as diagnostics (the first value is kept) so
+    Duplicate keys are reported as problems (the first value is kept) so
     later checks still run; syntax errors, unsupported tags and documents
     that expand too far raise :class:`SpecError`.
     """
@@ -73,7 +85,8 @@ def parse_yaml(text: str, file: str) -> tuple[Any, SourceMap, list[Diagnostic]]:
             raise SpecError([Diagnostic(Location(file, 1, 1), "", "the file is empty; a spec starts with `catan: 1`")])
         builder = _Builder(loader, file)
         data = builder.build(root, ())
-        return data, SourceMap(file, builder.values, builder.keys), builder.diagnostics
+        source = SourceMap(file, builder.values, builder.keys, builder.shadowed)
+        return ParsedYaml(data, source, builder.problems)
     finally:
         if loader is not None:
             loader.dispose()
@@ -88,15 +101,27 @@ def _mark(node: yaml.Node) -> tuple[int, int]:
     return node.start_mark.line + 1, node.start_mark.column + 1
 
 
-def _yaml_kind(value: Any) -> str:
-    return "null" if value is None else "a boolean"
+_INDENT_HINTS = ("expected <block end>", "could not find expected ':'", "mapping values are not allowed here")
 
 
 def _syntax_diagnostic(exc: yaml.MarkedYAMLError, file: str) -> Diagnostic:
-    mark = exc.problem_mark or exc.context_mark
+    """PyYAML's error, pointed at the line a person has to fix."""
+    problem = exc.problem or "invalid YAML"
+    context_mark, problem_mark = exc.context_mark, exc.problem_mark
+    context = exc.context or ""
+    if "flow" in context and context_mark and problem_mark and context_mark.line != problem_mark.line:
+        # A [ or { left open: the parser notices lines later (or at the end of the file).
+        opener = "[" if "sequence" in context else "{"
+        message = (
+            f"YAML syntax error: the '{opener}' opened here is not closed ({problem} on line {problem_mark.line + 1})"
+        )
+        return Diagnostic(Location(file, context_mark.line + 1, context_mark.column + 1), "", message)
+    mark = problem_mark or context_mark
     location = Location(file, mark.line + 1, mark.column + 1) if mark else Location(file, 1, 1)
-    parts = [part for part in (exc.context, exc.problem) if part]
-    return Diagnostic(location, "", "YAML syntax error: " + ", ".join(parts))
+    message = "YAML syntax error: " + ", ".join(part for part in (context, problem) if part)
+    if any(hint in problem for hint in _INDENT_HINTS):
+        message += " (check this line's indentation: keys of one mapping must line up, values need a space after ':')"
+    return Diagnostic(location, "", message)
 
 
 class _Builder:
@@ -107,30 +132,59 @@ class _Builder:
         self.file = file
         self.values: dict[FieldPath, tuple[int, int]] = {}
         self.keys: dict[FieldPath, tuple[int, int]] = {}
-        self.diagnostics: list[Diagnostic] = []
+        self.problems: list[Diagnostic] = []
+        self.shadowed: dict[FieldPath, Any] = {}
         self.count = 0
-        self.merged_counts: dict[int, int] = {}  # id(mapping node) -> merged pairs in front
-        self.reported_keys: set[int] = set()
+        self.visited: set[int] = set()  # ids of nodes built once: a second visit is an alias
+        self.stack: list[tuple[FieldPath, bool]] = []  # (path, reached through an alias)
+        self.resolved: dict[int, dict[str, tuple[yaml.Node, yaml.Node]]] = {}  # mapping id -> its pairs
+        self.resolving: set[int] = set()
 
     def _fail(self, node: yaml.Node, path: FieldPath, message: str) -> SpecError:
         return SpecError([Diagnostic(Location(self.file, *_mark(node)), format_path(path), message)])
 
-    def build(self, node: yaml.Node, path: FieldPath) -> Any:
+    def _bomb(self, node: yaml.Node) -> SpecError:
+        """Blame the field whose value an alias first made too big."""
+        for index, (_, aliased) in enumerate(self.stack):
+            if aliased and index > 0:
+                field_path = self.stack[index - 1][0]
+                location = Location(self.file, *self.values.get(field_path, _mark(node)))
+                message = f"expands to more than {MAX_VALUES} values through YAML aliases (an alias bomb?)"
+                return SpecError([Diagnostic(location, format_path(field_path), message)])
+        return self._fail(node, self.stack[-1][0], f"the document has more than {MAX_VALUES} values")
+
+    def build(
+        self, node: yaml.Node, path: FieldPath, key_mark: tuple[int, int] | None = None, *, record: bool = True
+    ) -> Any:
         self.count += 1
-        if self.count > MAX_VALUES:
-            raise self._fail(node, path, f"the document expands to more than {MAX_VALUES} values (alias bomb?)")
-        if len(path) > MAX_DEPTH:
-            raise self._fail(node, path, f"nested deeper than {MAX_DEPTH} levels")
-        self.values.setdefault(path, _mark(node))
-        if isinstance(node, yaml.ScalarNode):
-            return self._scalar(node, path)
-        if isinstance(node, yaml.SequenceNode):
-            self._check_tag(node, path, _PLAIN_SEQ)
-            return [self.build(item, (*path, index)) for index, item in enumerate(node.value)]
-        if isinstance(node, yaml.MappingNode):
-            self._check_tag(node, path, _PLAIN_MAP)
-            return self._mapping(node, path)
-        raise self._fail(node, path, "unsupported YAML node")  # pragma: no cover - composer makes only these
+        aliased = id(node) in self.visited
+        self.visited.add(id(node))
+        self.stack.append((path, aliased))
+        try:
+            if self.count > MAX_VALUES:
+                raise self._bomb(node)
+            if len(path) > MAX_DEPTH:
+                raise self._fail(node, path, f"nested deeper than {MAX_DEPTH} levels")
+            is_collection = isinstance(node, (yaml.MappingNode, yaml.SequenceNode))
+            if record:
+                self.values.setdefault(path, key_mark if key_mark and is_collection else _mark(node))
+            if isinstance(node, yaml.ScalarNode):
+                return self._scalar(node, path)
+            if isinstance(node, yaml.SequenceNode):
+                self._check_tag(node, path, _PLAIN_SEQ)
+                return [self.build(item, (*path, i), record=record) for i, item in enumerate(node.value)]
+            if isinstance(node, yaml.MappingNode):
+                self._check_tag(node, path, _PLAIN_MAP)
+                result: dict[str, Any] = {}
+                for key, (key_node, value_node) in self._pairs(node, path).items():
+                    child: FieldPath = (*path, key)
+                    if record:
+                        self.keys.setdefault(child, _mark(key_node))
+                    result[key] = self.build(value_node, child, _mark(key_node), record=record)
+                return result
+            raise self._fail(node, path, "unsupported YAML node")  # pragma: no cover - composer makes only these
+        finally:
+            self.stack.pop()
 
     def _check_tag(self, node: yaml.Node, path: FieldPath, plain: str) -> None:
         if node.tag != plain:
@@ -146,39 +200,49 @@ class _Builder:
         except yaml.MarkedYAMLError as exc:
             raise self._fail(node, path, f"cannot read value: {exc.problem}") from None
 
-    def _mapping(self, node: yaml.MappingNode, path: FieldPath) -> dict[str, Any]:
-        if id(node) not in self.merged_counts:  # an aliased mapping is flattened once
-            explicit = sum(1 for key_node, _ in node.value if key_node.tag != _MERGE)
-            try:
-                self.loader.flatten_mapping(node)  # puts `<<` merged pairs first
-            except yaml.MarkedYAMLError as exc:
-                raise self._fail(node, path, f"bad merge key: {exc.problem}") from None
-            self.merged_counts[id(node)] = len(node.value) - explicit
-        merged_count = self.merged_counts[id(node)]
-        pairs: dict[str, tuple[yaml.Node, yaml.Node]] = {}
-        for key_node, value_node in node.value[:merged_count]:
-            pairs[self._key(key_node, path)] = (key_node, value_node)  # later merges win, as in YAML
-        first_seen: dict[str, yaml.Node] = {}
-        for key_node, value_node in node.value[merged_count:]:
-            key = self._key(key_node, path)
-            if key in first_seen:
-                line = _mark(first_seen[key])[0]
-                self.diagnostics.append(
-                    Diagnostic(
-                        Location(self.file, *_mark(key_node)),
-                        format_path((*path, key)),
-                        f"duplicate key {key!r} (first given on line {line})",
-                    )
-                )
+    def _pairs(self, node: yaml.MappingNode, path: FieldPath) -> dict[str, tuple[yaml.Node, yaml.Node]]:
+        """A mapping's key -> (key node, value node), with ``<<`` merges resolved.
+
+        Explicit keys override merged ones; among merged mappings the first
+        listed wins (YAML's merge-key rules).  Resolved once per node, so
+        merges that repeat a mapping cost nothing extra (no merge bombs).
+        """
+        if id(node) in self.resolved:
+            return self.resolved[id(node)]
+        if id(node) in self.resolving:
+            raise self._fail(node, path, "a mapping merges itself through `<<`")
+        self.resolving.add(id(node))
+        merged: dict[str, tuple[yaml.Node, yaml.Node]] = {}
+        explicit: dict[str, tuple[yaml.Node, yaml.Node]] = {}
+        for key_node, value_node in node.value:
+            if key_node.tag == _MERGE:
+                for source in self._merge_sources(value_node, path):
+                    for key, pair in self._pairs(source, path).items():
+                        merged.setdefault(key, pair)
                 continue
-            first_seen[key] = key_node
-            pairs[key] = (key_node, value_node)  # explicit keys override merged ones
-        result: dict[str, Any] = {}
-        for key, (key_node, value_node) in pairs.items():
-            child: FieldPath = (*path, key)
-            self.keys[child] = _mark(key_node)
-            result[key] = self.build(value_node, child)
-        return result
+            key = self._key(key_node, path)
+            if key in explicit:
+                self._duplicate(key, key_node, value_node, explicit[key][0], path)
+                continue
+            explicit[key] = (key_node, value_node)
+        self.resolving.discard(id(node))
+        self.resolved[id(node)] = pairs = {**merged, **explicit}
+        return pairs
+
+    def _merge_sources(self, value: yaml.Node, path: FieldPath) -> list[yaml.MappingNode]:
+        if isinstance(value, yaml.MappingNode):
+            return [value]
+        if isinstance(value, yaml.SequenceNode) and all(isinstance(item, yaml.MappingNode) for item in value.value):
+            return list(value.value)
+        raise self._fail(value, path, "a merge key `<<` takes a mapping or a list of mappings")
+
+    def _duplicate(
+        self, key: str, key_node: yaml.Node, value_node: yaml.Node, first: yaml.Node, path: FieldPath
+    ) -> None:
+        child: FieldPath = (*path, key)
+        message = f"duplicate key {key!r} (first given on line {_mark(first)[0]})"
+        self.problems.append(Diagnostic(Location(self.file, *_mark(key_node)), format_path(child), message))
+        self.shadowed.setdefault(child, self.build(value_node, child, record=False))
 
     def _key(self, key_node: yaml.Node, path: FieldPath) -> str:
         """A mapping key as text: every key of a spec is a name or a field."""
@@ -189,15 +253,13 @@ class _Builder:
             return key
         # A number is just an invalid name (later checks say so); a boolean or
         # null key is YAML 1.1 reading `on`, `no`, `null` as values: quoting fixes it.
-        # (Reported once per key: an aliased mapping is visited more than once.)
-        if (key is None or isinstance(key, bool)) and id(key_node) not in self.reported_keys:
-            self.reported_keys.add(id(key_node))
-            self.diagnostics.append(
+        if key is None or isinstance(key, bool):
+            kind = "null" if key is None else "a boolean"
+            self.problems.append(
                 Diagnostic(
                     Location(self.file, *_mark(key_node)),
                     format_path((*path, key_node.value)),
-                    f"YAML reads the key {key_node.value} as {_yaml_kind(key)}, not a name; "
-                    f"quote it: '{key_node.value}'",
+                    f"YAML reads the key {key_node.value} as {kind}, not a name; quote it: '{key_node.value}'",
                 )
             )
         return str(key_node.value)

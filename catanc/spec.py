@@ -21,9 +21,11 @@ from pydantic import (
     Field,
     PrivateAttr,
     Tag,
+    ValidationError,
     field_validator,
     model_validator,
 )
+from pydantic_core import InitErrorDetails, PydanticCustomError
 
 SPEC_VERSIONS = (1,)
 """The ``catan:`` versions this catanc reads."""
@@ -36,6 +38,12 @@ APP_NAME_PATTERN = r"^[A-Za-z_][A-Za-z0-9_.-]*$"
 Name = Annotated[str, Field(pattern=IDENTIFIER_PATTERN, description="An identifier.")]
 PositiveMs = Annotated[float, Field(gt=0, description="Milliseconds, > 0.")]
 PositiveHz = Annotated[float, Field(gt=0, description="Hertz, > 0.")]
+
+
+def field_error(model: str, loc: tuple[str | int, ...], message: str, value: Any) -> ValidationError:
+    """An error at a field below the model being validated (pydantic prefixes the model's own place)."""
+    detail = InitErrorDetails(type=PydanticCustomError("value_error", message), loc=loc, input=value)
+    return ValidationError.from_exception_data(model, [detail])
 
 
 class _Model(BaseModel):
@@ -116,12 +124,14 @@ class Threads(_Model):
         if self.speedup is None:
             return self
         if len(self.speedup) != self.max:
-            raise ValueError(
+            message = (
                 f"speedup lists {len(self.speedup)} value(s) but threads.max is {self.max}: "
                 f"give one speedup per thread count 1..{self.max}"
             )
+            raise field_error("Threads", ("speedup",), message, self.speedup)
         if self.speedup[0] != 1.0:
-            raise ValueError(f"speedup[0] is the 1-thread speedup and must be 1.0, got {self.speedup[0]:g}")
+            message = f"speedup[0] is the 1-thread speedup and must be 1.0, got {self.speedup[0]:g}"
+            raise field_error("Threads", ("speedup", 0), message, self.speedup[0])
         return self
 
     def speedup_at(self, threads: int) -> float:
@@ -178,12 +188,14 @@ class Node(_Model):
             if self.compute_ms is None:
                 raise ValueError("a scheduled node needs compute_ms (or set scheduled: false)")
             if self.rate_hz is not None:
-                raise ValueError(
+                message = (
                     "rate_hz fixes the rate of an unscheduled node; for a scheduled node "
                     "use a constraint {node: ..., rate_hz: ...} or set scheduled: false"
                 )
+                raise field_error("Node", ("rate_hz",), message, self.rate_hz)
         elif self.is_batch:
-            raise ValueError("an unscheduled node cannot be batch: batch applies to nodes the scheduler triggers")
+            message = "an unscheduled node cannot be batch: batch applies to nodes the scheduler triggers"
+            raise field_error("Node", ("batch",), message, self.batch)
         return self
 
     @property
@@ -228,7 +240,8 @@ def _parse_arrow(value: str) -> tuple[str, str]:
     return parts[0], parts[1]
 
 
-ArrowEdge = Annotated[str, Field(pattern=r"^\s*[A-Za-z_][A-Za-z0-9_]*\s*->\s*[A-Za-z_][A-Za-z0-9_]*\s*$")]
+ARROW_EDGE_PATTERN = r"^\s*[A-Za-z_][A-Za-z0-9_]*\s*->\s*[A-Za-z_][A-Za-z0-9_]*\s*$"
+ArrowEdge = Annotated[str, Field(pattern=ARROW_EDGE_PATTERN)]
 PairEdge = Annotated[list[Name], Field(min_length=2, max_length=2)]
 
 Edge = Annotated[
