@@ -34,8 +34,13 @@ app = typer.Typer(
 SpecArg = Annotated[Path, typer.Argument(metavar="SPEC", help="A spec file (YAML).", show_default=False)]
 
 
+PIPED_WIDTH = 160
+"""Table width when stdout is not a terminal (rich would assume 80 and wrap every chain)."""
+
+
 def _stdout() -> Console:
-    return Console(highlight=False, soft_wrap=True)
+    width = None if sys.stdout.isatty() else PIPED_WIDTH
+    return Console(highlight=False, soft_wrap=True, width=width)
 
 
 def _stderr() -> Console:
