@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from typing import Annotated, Any, Literal
 
 from pydantic import (
@@ -312,18 +313,23 @@ class ChainsTerm(_Model):
     weight: Weight
 
 
-def _term_kind(value: Any) -> str | None:
-    if isinstance(value, dict):
-        for key in ("chain", "node", "chains"):
-            if key in value:
-                return f"<{key}>"
-    return None
+def _kind_by_key(*keys: str) -> Callable[[Any], str | None]:
+    """A union discriminator: the tag of the first of ``keys`` a mapping has."""
+
+    def kind(value: Any) -> str | None:
+        if isinstance(value, dict):
+            for key in keys:
+                if key in value:
+                    return f"<{key}>"
+        return None
+
+    return kind
 
 
 ObjectiveTerm = Annotated[
     Annotated[ChainTerm, Tag("<chain>")] | Annotated[NodeTerm, Tag("<node>")] | Annotated[ChainsTerm, Tag("<chains>")],
     Discriminator(
-        _term_kind,
+        _kind_by_key("chain", "node", "chains"),
         custom_error_type="term_kind",
         custom_error_message="an objective term needs one of chain: [...], node: NAME or chains: {from, through, to}",
     ),
@@ -369,20 +375,12 @@ class ChainsConstraint(_Model):
     max_response_ms: PositiveMs
 
 
-def _constraint_kind(value: Any) -> str | None:
-    if isinstance(value, dict):
-        for key in ("node", "chain", "chains"):
-            if key in value:
-                return f"<{key}>"
-    return None
-
-
 Constraint = Annotated[
     Annotated[RateConstraint, Tag("<node>")]
     | Annotated[ChainConstraint, Tag("<chain>")]
     | Annotated[ChainsConstraint, Tag("<chains>")],
     Discriminator(
-        _constraint_kind,
+        _kind_by_key("node", "chain", "chains"),
         custom_error_type="constraint_kind",
         custom_error_message=(
             "a constraint needs node: NAME (with max_rate_hz/min_rate_hz/rate_hz) "
