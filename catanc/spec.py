@@ -28,6 +28,8 @@ from pydantic import (
 )
 from pydantic_core import InitErrorDetails, PydanticCustomError
 
+from catanc.source import SourceMap
+
 SPEC_VERSIONS = (1,)
 """The ``catan:`` versions this catanc reads."""
 
@@ -458,7 +460,7 @@ class Spec(_Model):
     baseline: Baseline = Field(default_factory=Baseline)
     deploy: dict[Name, Deploy] = Field(default_factory=dict)
 
-    _source: Any = PrivateAttr(default=None)
+    _source: SourceMap | None = PrivateAttr(default=None)
 
     @field_validator("catan")
     @classmethod
@@ -474,8 +476,8 @@ class Spec(_Model):
         return [_parse_arrow(edge) if isinstance(edge, str) else (edge[0], edge[1]) for edge in self.edges]
 
     @property
-    def source(self) -> Any:
-        """Where each field came from (a :class:`catanc.source.SourceMap`), if loaded from YAML."""
+    def source(self) -> SourceMap | None:
+        """Where each field came from, if the spec was loaded from YAML."""
         return self._source
 
 

@@ -41,7 +41,7 @@ def check_outcome(text: str) -> None:
         spec = parse_spec(text, "fuzz.yaml")
     except SpecError as exc:
         assert exc.diagnostics
-        lines = text.count("\n") + 2
+        lines = len(text.splitlines()) + 1  # YAML breaks lines at \r, NEL, U+2028/9 too, as splitlines does
         for diagnostic in exc.diagnostics:
             assert diagnostic.message
             if diagnostic.location is not None:
