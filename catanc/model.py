@@ -19,7 +19,6 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 from catanc.problem import Chain, Problem, Stage
-from catanc.spec import Node
 
 
 @dataclass(frozen=True)
@@ -83,11 +82,6 @@ def dedicated_timing(compute_by_threads: Sequence[Sequence[float]], cores: int) 
             best = candidate
     assert best is not None
     return best
-
-
-def compute_by_threads(nodes: Sequence[Node], cores: int) -> list[list[float]]:
-    """``c^q_j`` for q = 1..cores, from each node's thread speedups."""
-    return [[node.compute_ms_with(q) for node in nodes] for q in range(1, cores + 1)]
 
 
 def fixed_timing(period_ms: float) -> Timing:

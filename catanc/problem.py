@@ -27,6 +27,7 @@ from catanc.spec import (
     NodeTerm,
     RateConstraint,
     Spec,
+    best_speedup,
 )
 
 MAX_SELECTOR_PATHS = 10_000
@@ -40,6 +41,7 @@ class Subchain:
     name: str
     nodes: tuple[str, ...]
     node_compute_ms: tuple[float, ...]  # per node, planning value, one thread
+    node_speedups: tuple[tuple[float, ...], ...]  # per node, speedup with 1..max threads
     batch: bool
     min_period_ms: float = 0.0  # from max_rate_hz / rate_hz
     max_period_ms: float = math.inf  # from min_rate_hz / rate_hz
@@ -48,6 +50,13 @@ class Subchain:
     def compute_ms(self) -> float:
         """``c(S)``: the subchain's total compute per run."""
         return math.fsum(self.node_compute_ms)
+
+    def compute_by_threads(self, cores: int) -> list[list[float]]:
+        """``c^q_j`` (Eq. 1): node j's compute with at most q threads, for q = 1..cores."""
+        return [
+            [c / best_speedup(s, q) for c, s in zip(self.node_compute_ms, self.node_speedups, strict=True)]
+            for q in range(1, cores + 1)
+        ]
 
 
 @dataclass(frozen=True)
@@ -347,6 +356,7 @@ class _Builder:
                     name=name,
                     nodes=tuple(nodes),
                     node_compute_ms=tuple(spec.nodes[n].mean_compute_ms for n in nodes),
+                    node_speedups=tuple(spec.nodes[n].threads.speedups for n in nodes),
                     batch=head.is_batch,
                     min_period_ms=1000.0 / high if high < math.inf else 0.0,
                     max_period_ms=1000.0 / low if low > 0 else math.inf,

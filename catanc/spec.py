@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Annotated, Any, Literal
 
 from pydantic import (
@@ -110,6 +110,11 @@ Compute = Annotated[
 ]
 
 
+def best_speedup(speedups: Sequence[float], threads: int) -> float:
+    """Best speedup with *at most* ``threads`` threads: more threads are never forced."""
+    return max(speedups[: max(1, min(threads, len(speedups)))])
+
+
 class Threads(_Model):
     """How a node's compute time scales with threads."""
 
@@ -137,12 +142,15 @@ class Threads(_Model):
             raise field_error("Threads", ("speedup", 0), message, self.speedup[0])
         return self
 
-    def speedup_at(self, threads: int) -> float:
-        """Best speedup with at most ``threads`` threads (more threads never forced)."""
-        usable = max(1, min(threads, self.max))
+    @property
+    def speedups(self) -> tuple[float, ...]:
+        """Speedup with 1..max threads (perfect scaling when ``speedup`` is omitted)."""
         if self.speedup is None:
-            return float(usable)
-        return max(self.speedup[:usable])
+            return tuple(float(q) for q in range(1, self.max + 1))
+        return tuple(self.speedup)
+
+    def speedup_at(self, threads: int) -> float:
+        return best_speedup(self.speedups, threads)
 
 
 class Batch(_Model):

@@ -15,12 +15,11 @@ from catanc.load import load_spec, parse_spec
 from catanc.model import (
     Timing,
     chain_metrics,
-    compute_by_threads,
     dedicated_timing,
     evaluate_chain,
     objective,
 )
-from catanc.problem import build_problem
+from catanc.problem import Subchain, build_problem
 from catanc.spec import Node
 
 ROOT = Path(__file__).parent.parent
@@ -28,6 +27,18 @@ ROOT = Path(__file__).parent.parent
 
 def node(ms: float, threads: int = 1, speedup: list[float] | None = None) -> Node:
     return Node.model_validate({"compute_ms": ms, "threads": {"max": threads, "speedup": speedup}})
+
+
+def compute_by_threads(nodes: list[Node], cores: int) -> list[list[float]]:
+    """The ``c^q_j`` table of a subchain made of ``nodes``."""
+    subchain = Subchain(
+        name="s",
+        nodes=tuple(f"n{i}" for i in range(len(nodes))),
+        node_compute_ms=tuple(n.mean_compute_ms for n in nodes),
+        node_speedups=tuple(n.threads.speedups for n in nodes),
+        batch=False,
+    )
+    return subchain.compute_by_threads(cores)
 
 
 # Face tracking (paper 7.1): c = 25 + 58 + 1 = 84 ms, one subchain, one thread per node.
@@ -38,9 +49,9 @@ def node(ms: float, threads: int = 1, speedup: list[float] | None = None) -> Nod
 def test_face_tracking_worked_example(cores: int, period: float, response: float) -> None:
     spec = load_spec(ROOT / "specs" / "face_tracking.yaml")
     problem = build_problem(spec)
-    nodes = [spec.nodes[name] for name in problem.subchain("tracking").nodes]
-    assert [n.mean_compute_ms for n in nodes] == [25, 58, 1]  # the worked example's inputs
-    timing = dedicated_timing(compute_by_threads(nodes, cores), cores)
+    tracking = problem.subchain("tracking")
+    assert tracking.node_compute_ms == (25, 58, 1)  # the worked example's inputs
+    timing = dedicated_timing(tracking.compute_by_threads(cores), cores)
     assert timing.threads == 1
     assert timing.period_ms == pytest.approx(period)
     assert timing.latency_ms == pytest.approx(84.0)
