@@ -118,3 +118,19 @@ def objective(problem: Problem, timings: Mapping[str, Timing]) -> float:
         [term.weight * responses[term.chain] for term in problem.response_terms]
         + [term.weight * timings[term.subchain].period_ms for term in problem.period_terms]
     )
+
+
+def bound_scale(problem: Problem, timings: Mapping[str, Timing]) -> float:
+    """Smallest factor (>= 1) on the spec's bounds that these timings meet.
+
+    Chain bounds ``R <= B`` need ``R / B``; a subchain's rate floor (a longest
+    period) needs ``p / p_max``.  1.0 means every bound holds as written.
+    """
+    scale = 1.0
+    for bound in problem.response_bounds:
+        response = evaluate_chain(problem, problem.chains[bound.chain], timings).response_ms
+        scale = max(scale, response / bound.max_response_ms)
+    for sub in problem.subchains:
+        if sub.max_period_ms < math.inf:
+            scale = max(scale, timings[sub.name].period_ms / sub.max_period_ms)
+    return scale

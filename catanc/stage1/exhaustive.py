@@ -1,0 +1,101 @@
+"""Every Stage I allocation, scored: the MILP's test oracle, and a method for small apps.
+
+Allocations are set partitions of the subchains (a block of two or more is
+a shared group on one core; a singleton is dedicated) times the ways to hand
+the remaining cores to the dedicated singletons.  With ``N >= K`` subchains
+every core is used; with fewer, cores may stay idle.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Iterator, Sequence
+
+from catanc.errors import UsageError
+from catanc.problem import Problem
+from catanc.stage1.estimate import (
+    SCALE_SLACK,
+    Option,
+    allocation_from_options,
+    evaluate,
+    option_table,
+    tie_rank,
+)
+from catanc.stage1.result import Stage1Result
+
+MAX_EXHAUSTIVE_ALLOCATIONS = 2_000_000
+"""Refuse to enumerate more allocations than this (roughly a minute of scoring)."""
+
+
+def set_partitions(items: Sequence[str]) -> Iterator[list[list[str]]]:
+    """Every partition of ``items`` into non-empty blocks (restricted growth order)."""
+    if not items:
+        yield []
+        return
+    first, rest = items[0], items[1:]
+    for partition in set_partitions(rest):
+        yield [[first], *partition]
+        for index in range(len(partition)):
+            yield [*partition[:index], [first, *partition[index]], *partition[index + 1 :]]
+
+
+def _spreads(extra: int, bins: int, exact: bool) -> Iterator[tuple[int, ...]]:
+    """Ways to add ``extra`` cores (all of them if ``exact``, else up to) to ``bins`` subchains."""
+    totals = [extra] if exact else range(extra + 1)
+    for total in totals:
+        if bins == 0:
+            if total == 0:
+                yield ()
+            continue
+        # Stars and bars: choose bins - 1 dividers among total + bins - 1 places.
+        for dividers in itertools.combinations(range(total + bins - 1), bins - 1):
+            bounds = (-1, *dividers, total + bins - 1)
+            yield tuple(b - a - 1 for a, b in itertools.pairwise(bounds))
+
+
+def allocations(problem: Problem, cores: int) -> Iterator[dict[str, Option]]:
+    """Every distinct allocation, as options per subchain."""
+    names = [sub.name for sub in problem.subchains]
+    every_core_used = len(names) >= cores
+    seen: set[tuple[Option, ...]] = set()
+    for partition in set_partitions(names):
+        singles = [block[0] for block in partition if len(block) == 1]
+        groups = [block for block in partition if len(block) > 1]
+        extra = cores - len(singles) - len(groups)
+        if extra < 0:
+            continue
+        for spread in _spreads(extra, len(singles), exact=every_core_used):
+            options = {name: Option(False, 1 + more) for name, more in zip(singles, spread, strict=True)}
+            options.update({name: Option(True, len(group)) for group in groups for name in group})
+            key = tuple(options[name] for name in names)
+            if key not in seen:  # partitions that differ only in partners score the same
+                seen.add(key)
+                yield options
+
+
+def solve_exhaustive(problem: Problem, cores: int) -> Stage1Result:
+    """The best allocation by scoring every one (exact, for small apps)."""
+    table = option_table(problem, cores)
+    names = [sub.name for sub in problem.subchains]
+    scored: list[tuple[float, float, float, tuple[Option, ...]]] = []  # scale, objective, tie rank, options
+    for count, options in enumerate(allocations(problem, cores)):
+        if count >= MAX_EXHAUSTIVE_ALLOCATIONS:
+            raise UsageError(f"more than {MAX_EXHAUSTIVE_ALLOCATIONS:,} Stage I allocations to enumerate: use the MILP")
+        evaluation = evaluate(problem, table, options)
+        key = tuple(options[name] for name in names)
+        scored.append((evaluation.scale, evaluation.objective, tie_rank(problem, options, cores), key))
+    least_scale = min(entry[0] for entry in scored)
+    allowed = least_scale * (1 + SCALE_SLACK) if least_scale > 1 else 1.0
+    feasible = [entry for entry in scored if entry[0] <= allowed]
+    best_value = min(entry[1] for entry in feasible)
+    ties = [entry for entry in feasible if entry[1] <= best_value * (1 + 1e-12) + 1e-12]
+    scale, value, _, key = min(ties, key=lambda entry: entry[2])
+    return Stage1Result(
+        allocation=allocation_from_options(problem, dict(zip(names, key, strict=True))),
+        objective=value,
+        constraint_scale=scale,
+        optimal=True,
+        gap=0.0,
+        method="exhaustive",
+        candidates=len(scored),
+    )

@@ -1,0 +1,83 @@
+"""Hypothesis strategies for random apps (shared by the solver tests)."""
+
+from __future__ import annotations
+
+import itertools
+from typing import Any
+
+from hypothesis import strategies as st
+
+from catanc.load import parse_spec
+from catanc.problem import Problem, build_problem
+from catanc.spec import Spec
+
+
+@st.composite
+def spec_documents(
+    draw: st.DrawFn, max_subchains: int = 7, with_bounds: bool = True, max_threads: int = 3
+) -> dict[str, Any]:
+    """A random app: a layered DAG of subchains (1-3 nodes each), terms, caps and bounds."""
+    count = draw(st.integers(1, max_subchains))
+    subchains: dict[str, list[str]] = {}
+    nodes: dict[str, Any] = {}
+    for s in range(count):
+        length = draw(st.integers(1, 3))
+        members = [f"s{s}n{j}" for j in range(length)]
+        subchains[f"s{s}"] = members
+        for name in members:
+            node: dict[str, Any] = {"compute_ms": draw(st.floats(0.5, 50, allow_nan=False).map(lambda v: round(v, 2)))}
+            threads = draw(st.integers(1, max_threads))
+            if threads > 1:
+                gains = draw(st.lists(st.floats(0.0, 1.0), min_size=threads - 1, max_size=threads - 1))
+                speedup = [1.0]
+                for gain in gains:
+                    speedup.append(round(speedup[-1] + gain, 3))
+                node["threads"] = {"max": threads, "speedup": speedup}
+            nodes[name] = node
+    edges = [[a, b] for members in subchains.values() for a, b in itertools.pairwise(members)]
+    # Edges between subchains: from a subchain's last node to a later subchain's first node.
+    names = list(subchains)
+    for a, b in itertools.combinations(range(count), 2):
+        if draw(st.booleans()):
+            edges.append([subchains[names[a]][-1], subchains[names[b]][0]])
+    clock = draw(st.booleans())
+    if clock:
+        nodes["clock"] = {"scheduled": False, "rate_hz": draw(st.sampled_from([10, 50, 200]))}
+        edges.append(["clock", subchains[names[0]][0]])
+    nodes["sink"] = {"scheduled": False}
+    edges.append([subchains[names[-1]][-1], "sink"])
+    objective: list[dict[str, Any]] = [{"chains": {"to": "sink"}, "weight": draw(st.floats(0.01, 1.0))}]
+    for name in draw(st.lists(st.sampled_from(names), max_size=3, unique=True)):
+        objective.append({"node": subchains[name][0], "weight": draw(st.floats(0.0, 1.0))})
+    if draw(st.booleans()):
+        objective.append({"chains": {"from": subchains[names[0]][0]}, "weight": draw(st.floats(0.0, 0.5))})
+    constraints: list[dict[str, Any]] = []
+    capped = draw(st.lists(st.sampled_from(names), max_size=2, unique=True))
+    for name in capped:
+        constraints.append({"node": subchains[name][0], "max_rate_hz": draw(st.sampled_from([5, 20, 100, 500]))})
+    if with_bounds and draw(st.booleans()):
+        constraints.append({"chains": {"to": "sink"}, "max_response_ms": draw(st.floats(5, 2000))})
+    floorable = [name for name in names if name not in capped]
+    if with_bounds and floorable and draw(st.booleans()):
+        name = draw(st.sampled_from(floorable))
+        constraints.append({"node": subchains[name][0], "min_rate_hz": draw(st.sampled_from([1, 10, 40]))})
+    return {
+        "catan": 1,
+        "app": "random",
+        "nodes": nodes,
+        "edges": edges,
+        "subchains": subchains,
+        "objective": objective,
+        "constraints": constraints,
+    }
+
+
+def spec_of(document: dict[str, Any]) -> Spec:
+    import yaml
+
+    return parse_spec(yaml.safe_dump(document, sort_keys=False), "random.yaml")
+
+
+@st.composite
+def problems(draw: st.DrawFn, max_subchains: int = 7, with_bounds: bool = True) -> Problem:
+    return build_problem(spec_of(draw(spec_documents(max_subchains, with_bounds))))

@@ -1,0 +1,194 @@
+"""Stage I: the MILP against exhaustive enumeration, worked examples, edge cases, determinism."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from catanc.load import parse_spec
+from catanc.problem import Problem, build_problem
+from catanc.stage1 import Allocation, Option, allocate
+from catanc.stage1.estimate import option_timing
+from catanc.stage1.exhaustive import allocations, set_partitions
+from tests.strategies import problems
+
+REL = 1e-6
+
+
+def close(a: float, b: float) -> bool:
+    return abs(a - b) <= REL * max(1.0, abs(a), abs(b))
+
+
+def check_against_enumeration(problem: Problem, cores: int, solver: str) -> None:
+    oracle = allocate(problem, cores, method="exhaustive")
+    found = allocate(problem, cores, method="milp", solver=solver, time_limit_s=60)
+    assert found.optimal
+    assert close(found.constraint_scale, oracle.constraint_scale), (found, oracle)
+    assert close(found.objective, oracle.objective), (found, oracle)
+    # The MILP encodes the same function the model evaluates: its own value for
+    # the allocation it returns is the model's value of that allocation.
+    assert found.model_objective is not None
+    assert close(found.model_objective, found.objective), (found.model_objective, found.objective)
+    assert found.allocation.cores_used <= cores
+    if len(problem.subchains) >= cores:
+        assert found.allocation.cores_used == cores
+
+
+@settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(problem=problems(max_subchains=7), cores=st.integers(1, 4))
+def test_milp_highs_matches_enumeration(problem: Problem, cores: int) -> None:
+    check_against_enumeration(problem, cores, "highs")
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(problem=problems(max_subchains=6), cores=st.integers(1, 4))
+def test_milp_cbc_matches_enumeration(problem: Problem, cores: int) -> None:
+    check_against_enumeration(problem, cores, "cbc")
+
+
+def spec(text: str) -> Problem:
+    return build_problem(parse_spec("catan: 1\napp: t\n" + text))
+
+
+# Three one-node subchains a (10 ms) -> b (20 ms) -> c (30 ms) -> sink, on 2 cores; the chain's
+# response is the objective. Every core is used, so one subchain is alone (1 core) and two share:
+#   a alone: b, c share (m = 2): p = (10, 40, 60), L = 10 + (40 + 40) + (60 + 60) = 210, R = 270
+#   b alone: a, c share:         p = (20, 20, 60), L = 20 + 40 + 120 = 180, R = 240
+#   c alone: a, b share:         p = (20, 40, 30), L = 20 + 80 + 60 = 160, R = 200  <- best
+CHAIN3 = """
+nodes:
+  a: {compute_ms: 10}
+  b: {compute_ms: 20}
+  c: {compute_ms: 30}
+  sink: {scheduled: false}
+edges: [[a, b], [b, c], [c, sink]]
+subchains: {a: [a], b: [b], c: [c]}
+objective: [{chain: [a, b, c, sink], weight: 1}]
+"""
+
+
+@pytest.mark.parametrize("method", ["milp", "exhaustive"])
+def test_worked_example_three_subchains_two_cores(method: str) -> None:
+    result = allocate(spec(CHAIN3), 2, method=method)
+    assert result.objective == pytest.approx(200)
+    assert result.allocation == Allocation(dedicated=(("c", 1),), groups=(("a", "b"),))
+    assert result.allocation.core_indices() == {"c": (0,), "a": (1,), "b": (1,)}
+
+
+# The same chain with R <= 100 ms: no allocation meets it; the best reachable is R = 200 (above),
+# so every bound is scaled by 200 / 100 = 2 and the allocation is the same.
+@pytest.mark.parametrize("method", ["milp", "exhaustive"])
+def test_infeasible_bound_is_scaled(method: str) -> None:
+    result = allocate(
+        spec(CHAIN3 + "constraints: [{chain: [a, b, c, sink], max_response_ms: 100}]\n"), 2, method=method
+    )
+    assert result.constraint_scale == pytest.approx(2.0, rel=1e-5)
+    assert result.objective == pytest.approx(200)
+    assert any("scaled every bound by 2" in note for note in result.warnings)
+
+
+# b's rate floor of 40 Hz (p <= 25 ms) rules out "c alone" and "a alone" (b shares: p = 40), so
+# the best allowed allocation is "b alone", R = 240.
+@pytest.mark.parametrize("method", ["milp", "exhaustive"])
+def test_rate_floor_changes_the_allocation(method: str) -> None:
+    result = allocate(spec(CHAIN3 + "constraints: [{node: b, min_rate_hz: 40}]\n"), 2, method=method)
+    assert result.constraint_scale == 1.0
+    assert result.objective == pytest.approx(240)
+    assert result.allocation.dedicated == (("b", 1),)
+
+
+def test_fewer_subchains_than_cores_may_leave_cores_idle() -> None:
+    # One 10 ms subchain, single-threaded, on 3 cores: Eq. 1 gives p = 10 on any k, so the tie
+    # rule (fewer cores) keeps it on one core; the other two stay idle.
+    problem = spec("nodes: {a: {compute_ms: 10}}\nsubchains: {a: [a]}\nobjective: [{node: a, weight: 1}]\n")
+    for method in ("milp", "exhaustive"):
+        result = allocate(problem, 3, method=method)
+        assert result.allocation == Allocation(dedicated=(("a", 1),), groups=())
+        assert result.objective == pytest.approx(10)
+
+
+def test_one_subchain_takes_the_cores_it_can_use() -> None:
+    # 40 ms with a perfect 4-thread speedup: on 4 cores q = 4 gives p = 10, latency 10 (R = 20),
+    # against q = 1 with 4 runs in flight: p = max(40, 40 / 4) = 40, R = 80.
+    problem = spec(
+        "nodes: {a: {compute_ms: 40, threads: {max: 4}}}\nsubchains: {a: [a]}\nobjective: [{node: a, weight: 1}]\n"
+    )
+    result = allocate(problem, 4)
+    assert result.allocation == Allocation(dedicated=(("a", 4),), groups=())
+    assert result.objective == pytest.approx(10)
+
+
+def test_no_scheduled_nodes() -> None:
+    problem = spec("nodes: {imu: {scheduled: false, rate_hz: 100}, out: {scheduled: false}}\nedges: [[imu, out]]\n")
+    for method in ("milp", "exhaustive"):
+        result = allocate(problem, 2, method=method)
+        assert result.allocation == Allocation((), ())
+        assert result.objective == 0
+
+
+def test_ties_follow_the_documented_rule() -> None:
+    # Three identical independent subchains on 2 cores: one is alone, two share. Every choice
+    # scores the same; the rule keeps the earliest subchain off the shared core.
+    text = "nodes:\n" + "".join(f"  {n}: {{compute_ms: 5}}\n" for n in "xyz")
+    text += "subchains: {x: [x], y: [y], z: [z]}\n"
+    text += "objective: [{node: x, weight: 1}, {node: y, weight: 1}, {node: z, weight: 1}]\n"
+    problem = spec(text)
+    expected = Allocation(dedicated=(("x", 1),), groups=(("y", "z"),))
+    for method, solver in (("milp", "highs"), ("milp", "cbc"), ("exhaustive", None)):
+        for _ in range(3):
+            assert allocate(problem, 2, method=method, solver=solver).allocation == expected
+
+
+def test_option_estimates_by_hand() -> None:
+    problem = spec(
+        "nodes: {a: {compute_ms: 30, threads: {max: 2, speedup: [1, 1.5]}}, b: {compute_ms: 10}}\n"
+        "edges: [[a, b]]\nsubchains: {s: [a, b]}\nconstraints: [{node: a, max_rate_hz: 20}]\n"
+    )
+    sub = problem.subchain("s")
+    # Shared by 3: fair share 40 * 3 = 120 ms for both period and latency.
+    shared = option_timing(sub, Option(True, 3))
+    assert (shared.period_ms, shared.latency_ms) == (120, 120)
+    # 1 core: p = 40; raised to the 20 Hz cap's 50 ms; latency stays 40.
+    one = option_timing(sub, Option(False, 1))
+    assert (one.period_ms, one.latency_ms) == (50, 40)
+    # 2 cores: q = 1 -> p = max(30, 40 / 2) = 30, R = 70; q = 2 -> c = (20, 10), p = 30, R = 60: q = 2.
+    two = option_timing(sub, Option(False, 2))
+    assert (two.period_ms, two.latency_ms) == (50, 30)
+
+
+BELL = [1, 1, 2, 5, 15, 52, 203, 877]
+
+
+@pytest.mark.parametrize("n", range(8))
+def test_set_partitions_are_counted_by_bell_numbers(n: int) -> None:
+    items = [f"s{i}" for i in range(n)]
+    partitions = list(set_partitions(items))
+    assert len(partitions) == BELL[n]
+    assert len({tuple(sorted(tuple(sorted(b)) for b in p)) for p in partitions}) == BELL[n]
+
+
+def test_allocation_count_by_hand() -> None:
+    # 3 subchains on 2 cores, every core used: one alone and two sharing (3 ways), or none
+    # sharing needs 3 cores (no), or all three sharing leaves a core unused (no).
+    problem = spec(CHAIN3)
+    found = list(allocations(problem, 2))
+    assert len(found) == 3
+    assert all(sum(1 for o in options.values() if o.shared) == 2 for options in found)
+    # On 3 cores: all alone (1 way), or one alone with 2 cores while two share (3 ways).
+    assert len(list(allocations(problem, 3))) == 4
+
+
+def test_unknown_method_and_solver() -> None:
+    from catanc.errors import UsageError
+
+    problem = spec(CHAIN3)
+    with pytest.raises(UsageError):
+        allocate(problem, 2, method="greedy")
+    with pytest.raises(UsageError):
+        allocate(problem, 2, solver="gurobi")
+    with pytest.raises(UsageError):
+        allocate(problem, 0)
+    assert math.isfinite(allocate(problem, 2).objective)
