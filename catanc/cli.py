@@ -149,6 +149,38 @@ def chains(
 
 @app.command()
 @_reporting
+def allocate(
+    spec_path: SpecArg,
+    cores: Annotated[int, typer.Option("--cores", "-k", min=1, help="Identical CPU cores available.")],
+    stage1: Annotated[
+        str, typer.Option(help="Stage I method: auto (enumerate small apps, else MILP), milp or exhaustive.")
+    ] = "auto",
+    solver: Annotated[str, typer.Option(help="MILP solver: highs or cbc.")] = "highs",
+    time_limit: Annotated[
+        float | None, typer.Option(min=0.01, help="Stage I time limit in seconds (default 2.5).")
+    ] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
+) -> None:
+    """Stage I only: which subchains get cores of their own and which share one."""
+    from catanc.describe import allocation_payload, allocation_table
+    from catanc.load import load_spec
+    from catanc.problem import build_problem
+    from catanc.stage1 import allocate as allocate_cores
+
+    spec = load_spec(spec_path)
+    problem = build_problem(spec)
+    result = allocate_cores(problem, cores, method=stage1, solver=solver, time_limit_s=time_limit)
+    _print_diagnostics(problem.warnings, warning=True)
+    for note in result.warnings:
+        _stderr().print(f"{spec_path}: warning: {note}", markup=False)
+    if as_json:
+        sys.stdout.write(json.dumps(allocation_payload(problem, result, cores), indent=2, sort_keys=True) + "\n")
+        return
+    _stdout().print(allocation_table(problem, result, cores))
+
+
+@app.command()
+@_reporting
 def schema() -> None:
     """Print the JSON Schema of the spec language (for editors)."""
     from catanc.spec import json_schema_text

@@ -6,6 +6,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 from rich.table import Table
 
@@ -13,6 +14,8 @@ from catanc import graph
 from catanc.errors import Diagnostic, format_path
 from catanc.problem import Chain, Problem, collapse, spec_dag
 from catanc.spec import Spec
+from catanc.stage1 import Stage1Result
+from catanc.stage1.estimate import option_table
 
 DEFAULT_CHAIN_LIMIT = 10_000
 
@@ -83,3 +86,52 @@ def chains_table(listing: ChainListing, title: str) -> Table:
         chain = " -> ".join(row.nodes) + ("" if row.source_to_sink else "  (sub-path)")
         table.add_row(str(index), chain, " -> ".join(row.stages) or "-", "\n".join(row.uses) or "-")
     return table
+
+
+def allocation_payload(problem: Problem, result: Stage1Result, cores: int) -> dict[str, Any]:
+    """Stage I's answer as plain data (``catanc allocate --json``)."""
+    table = option_table(problem, cores)
+    options = result.allocation.options()
+    indices = result.allocation.core_indices()
+    subchains = {}
+    for sub in problem.subchains:
+        option = options[sub.name]
+        timing = table[sub.name][option]
+        subchains[sub.name] = {
+            "cores": list(indices[sub.name]),
+            "shared": option.shared,
+            "group_size" if option.shared else "dedicated_cores": option.size,
+            "period_ms": round(timing.period_ms, 6),
+            "latency_ms": round(timing.latency_ms, 6),
+        }
+    return {
+        "cores": cores,
+        "cores_used": result.allocation.cores_used,
+        "method": result.method,
+        "optimal": result.optimal,
+        "gap": result.gap,
+        "objective": round(result.objective, 6),
+        "constraint_scale": round(result.constraint_scale, 6),
+        "subchains": subchains,
+    }
+
+
+def allocation_table(problem: Problem, result: Stage1Result, cores: int) -> Table:
+    payload = allocation_payload(problem, result, cores)
+    status = "optimal" if result.optimal else f"not proven optimal (gap {_gap_text(result.gap)})"
+    title = (
+        f"Stage I on {cores} core{'s' if cores > 1 else ''}: objective {result.objective:.4g} ms "
+        f"(estimate), {status}, by {result.method}"
+    )
+    table = Table(title=title, title_justify="left")
+    for column in ("subchain", "cores", "how", "period ms", "latency ms"):
+        table.add_column(column, justify="right" if "ms" in column else "left")
+    for name, row in payload["subchains"].items():
+        how = f"shared by {row['group_size']}" if row["shared"] else f"{row['dedicated_cores']} of its own"
+        cores_text = ",".join(str(c) for c in row["cores"])
+        table.add_row(name, cores_text, how, f"{row['period_ms']:.3f}", f"{row['latency_ms']:.3f}")
+    return table
+
+
+def _gap_text(gap: float | None) -> str:
+    return "unknown" if gap is None else f"{gap:.2%}"

@@ -140,3 +140,21 @@ def test_python_m_catanc_runs_without_heavy_imports(good: Path) -> None:
         [sys.executable, "-m", "catanc", "validate", str(good)], capture_output=True, text=True, check=False
     )
     assert result.returncode == 0, result.stderr
+
+
+def test_allocate_json_and_errors() -> None:
+    nav2d = str(ROOT / "specs" / "nav2d.yaml")
+    result = runner.invoke(app, ["allocate", nav2d, "--cores", "2", "--json"])
+    assert result.exit_code == ExitCode.OK, result.output
+    payload = json.loads(result.stdout)
+    assert payload["optimal"] is True
+    assert payload["cores_used"] == 2
+    assert set(payload["subchains"]) == {"local", "GL", "GM", "GP", "NC"}
+    assert all(row["cores"][0] in (0, 1) for row in payload["subchains"].values())
+    table = runner.invoke(app, ["allocate", nav2d, "-k", "2", "--stage1", "milp", "--solver", "cbc"])
+    assert table.exit_code == ExitCode.OK, table.output
+    assert "optimal, by milp/cbc" in table.stdout
+    bad = runner.invoke(app, ["allocate", nav2d, "-k", "2", "--stage1", "greedy"])
+    assert bad.exit_code == ExitCode.BAD_INPUT
+    assert "unknown Stage I method 'greedy'" in bad.stderr
+    assert runner.invoke(app, ["allocate", nav2d, "-k", "0"]).exit_code == ExitCode.BAD_INPUT

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -192,3 +193,77 @@ def test_unknown_method_and_solver() -> None:
     with pytest.raises(UsageError):
         allocate(problem, 0)
     assert math.isfinite(allocate(problem, 2).objective)
+
+
+def layered(size: int, seed: int) -> Problem:
+    from bench.workloads import layered_spec
+
+    return build_problem(layered_spec(size, seed))
+
+
+def test_time_limit_returns_a_valid_allocation_with_its_gap() -> None:
+    # 30 subchains on 8 cores with almost no time: the MILP never starts, so the answer is the
+    # rounded LP relaxation after local search, reported as not proven optimal, with the LP's
+    # bound giving the gap. (No clock is asserted on: only what the result says about itself.)
+    problem = layered(30, 2)
+    quick = allocate(problem, 8, method="milp", time_limit_s=0.01)
+    assert not quick.optimal
+    assert quick.gap is not None
+    assert quick.gap >= 0
+    assert quick.allocation.cores_used == 8
+    assert any("time limit" in note and "gap" in note for note in quick.warnings)
+    best = allocate(problem, 8, method="milp", time_limit_s=120)
+    assert best.optimal
+    assert best.objective <= quick.objective * (1 + 1e-9)
+    # The proven gap is honest: the optimum lies within it.
+    assert quick.objective * (1 - quick.gap) <= best.objective * (1 + 1e-9)
+
+
+def test_local_search_allocations_are_valid() -> None:
+    from catanc.stage1.estimate import option_table
+    from catanc.stage1.search import local_search
+
+    for size, cores in [(12, 2), (12, 5), (3, 8), (30, 16)]:
+        problem = layered(size, 4)
+        table = option_table(problem, cores)
+        options = local_search(problem, table, cores, budget=200)
+        assert set(options) == {sub.name for sub in problem.subchains}
+        assert all(option in table[name] for name, option in options.items())
+        sizes = [o.size for o in options.values() if o.shared]
+        for group_size in set(sizes):
+            assert sizes.count(group_size) % group_size == 0  # whole groups only
+        groups = sum(sizes.count(m) // m for m in set(sizes))
+        used = sum(o.size for o in options.values() if not o.shared) + groups
+        assert used <= cores
+        if size >= cores:
+            assert used == cores
+
+
+def test_same_allocation_in_fresh_processes() -> None:
+    # Determinism across runs: two separate processes, MILP and enumerator, same bytes.
+    import subprocess
+    import sys
+
+    outputs = set()
+    for method in ("milp", "milp", "exhaustive"):
+        result = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "catanc",
+                "allocate",
+                "specs/nav2d_yolo.yaml",
+                "-k",
+                "3",
+                "--stage1",
+                method,
+                "--json",
+            ],
+            capture_output=True,
+            text=True,
+            check=True,
+            cwd=Path(__file__).parent.parent,
+        )
+        payload = result.stdout.replace('"method": "milp/highs"', "").replace('"method": "exhaustive"', "")
+        outputs.add(payload)
+    assert len(outputs) == 1

@@ -36,6 +36,7 @@ import pulp
 
 from catanc.errors import UsageError
 from catanc.problem import Problem
+from catanc.stage1 import SOLVERS
 from catanc.stage1.estimate import (
     SCALE_SLACK,
     TIE_WEIGHT,
@@ -49,11 +50,27 @@ from catanc.stage1.estimate import (
     option_table,
 )
 from catanc.stage1.result import Stage1Result
+from catanc.stage1.search import local_search
 
-SOLVERS = ("highs", "cbc")
 DEFAULT_SOLVER = "highs"
-DEFAULT_TIME_LIMIT_S = 2.0
-"""Keeps ``catanc compile`` of a 60-subchain app on 16 cores within 5 s (bench/RESULTS.md)."""
+DEFAULT_TIME_LIMIT_S = 2.5
+"""Stage I's whole budget (model, LP, search, MILP): keeps ``catanc compile`` of a 60-subchain app
+on 16 cores within 5 s (bench/RESULTS.md)."""
+
+MIN_SOLVE_S = 0.05
+"""Below this much time left, the MILP is not started: the search's allocation stands."""
+
+SEARCH_BUDGET = 60_000
+SEARCH_BUDGET_MIN = 300
+"""The local search polishes the rounded LP with SEARCH_BUDGET / N evaluations (at least the minimum):
+an evaluation costs about N microseconds, so this is about 60 ms."""
+
+LP_START_FROM = 20
+"""From this many subchains the LP relaxation is solved first (bound and start); below, the MILP
+alone is quicker than LP + MILP (bench/RESULTS.md)."""
+
+LP_TIME_LIMIT_S = 30.0
+"""A safety net only: the relaxation takes 0.5 s at 60 subchains, 2 s at 100."""
 
 RELATIVE_GAP = 1e-9
 ABSOLUTE_GAP = 1e-10  # below the tie-breaking term, so ties are decided by it
@@ -64,9 +81,34 @@ SEED = 1
 class _Model:
     prob: pulp.LpProblem
     choice: dict[tuple[str, Option], pulp.LpVariable]
+    groups: dict[int, pulp.LpVariable]
+    chain_periods: dict[int, pulp.LpVariable]
     scale: pulp.LpVariable | None
     objective: pulp.LpAffineExpression
     tie_coefficient: dict[tuple[str, Option], float]
+
+    def start_values(
+        self, problem: Problem, table: OptionTable, options: Mapping[str, Option]
+    ) -> dict[str, float] | None:
+        """Every variable's value for one allocation (a MIP start), if it meets the bounds as scaled now."""
+        scale = evaluate(problem, table, options).scale
+        if self.scale is not None and self.scale.upBound is not None and scale > self.scale.upBound:
+            return None
+        values = {var.name: float(options[name] == option) for (name, option), var in self.choice.items()}
+        for size, var in self.groups.items():
+            values[var.name] = sum(1 for o in options.values() if o == Option(True, size)) / size
+        timings = {name: table[name][option] for name, option in options.items()}
+        for index, var in self.chain_periods.items():
+            chain = problem.chains[index]
+            stages = [
+                timings[s.name].period_ms
+                for p, s in enumerate(chain.stages)
+                if not s.fixed and not (p == 0 and chain.head_period_ms is not None)
+            ]
+            values[var.name] = max([var.lowBound or 0.0, *stages])
+        if self.scale is not None:
+            values[self.scale.name] = max(1.0, scale)
+        return values
 
 
 def solve_milp(
@@ -76,42 +118,93 @@ def solve_milp(
     solver: str = DEFAULT_SOLVER,
     time_limit_s: float = DEFAULT_TIME_LIMIT_S,
 ) -> Stage1Result:
-    """The best allocation by the MILP; within ``time_limit_s``, else the best found with its gap."""
+    """The best allocation by the MILP; within ``time_limit_s``, else the best found with its gap.
+
+    Steps, all within the time limit: build the model; solve its LP
+    relaxation (a proven bound, and nearly integral); round it and polish it
+    by local search (:mod:`catanc.stage1.search`); give that to the MILP as
+    its first incumbent and let it prove or improve it.
+    """
     if solver not in SOLVERS:
         raise UsageError(f"unknown Stage I solver {solver!r}; choose one of {', '.join(SOLVERS)}")
     method = f"milp/{solver}"
     if not problem.subchains:
         return Stage1Result(Allocation((), ()), 0.0, 1.0, True, 0.0, method)
+    deadline = time.monotonic() + time_limit_s
     table = option_table(problem, cores)
     model = _build(problem, cores, table)
-    deadline = time.monotonic() + time_limit_s
-    outcome = _solve(model.prob, solver, deadline)
+    relaxed = _relaxation(model, solver) if len(problem.subchains) >= LP_START_FROM else None
+    budget = max(SEARCH_BUDGET_MIN, SEARCH_BUDGET // max(1, len(problem.subchains)))
+    start = local_search(problem, table, cores, relaxed.weights if relaxed else None, budget=budget)
+    lp_bound = relaxed.bound if relaxed else None
+    outcome = _solve(model.prob, solver, deadline, model.start_values(problem, table, start))
     if outcome.status == "infeasible" and model.scale is not None:
         # Soft bounds: find the smallest common scale, then optimise under it.
         model.scale.upBound = None
         model.prob.setObjective(model.scale + 0)
-        outcome = _solve(model.prob, solver, deadline)
-        least = float(model.scale.varValue)
-        model.scale.upBound = least * (1 + SCALE_SLACK)
+        outcome = _solve(model.prob, solver, deadline, model.start_values(problem, table, start))
+        if outcome.status == "solved":
+            model.scale.upBound = float(model.scale.varValue) * (1 + SCALE_SLACK)
         model.prob.setObjective(model.objective)
-        outcome = _solve(model.prob, solver, deadline)
-    if outcome.status != "solved":
-        raise RuntimeError(f"Stage I MILP ({solver}) found no allocation: {outcome.status}")
-    options = {name: option for (name, option), var in model.choice.items() if var.varValue > 0.5}
+        outcome = _solve(model.prob, solver, deadline, model.start_values(problem, table, start))
+    options = dict(start)
+    model_objective = None
+    if outcome.status == "solved":
+        found = {name: option for (name, option), var in model.choice.items() if var.varValue > 0.5}
+        mine, theirs = evaluate(problem, table, start), evaluate(problem, table, found)
+        if outcome.optimal or (theirs.scale, theirs.objective) <= (mine.scale, mine.objective):
+            options = found
+            model_objective = float(pulp.value(model.objective)) - sum(
+                model.tie_coefficient[key] * var.varValue for key, var in model.choice.items()
+            )
+    elif outcome.status != "time limit":
+        raise RuntimeError(f"Stage I MILP ({solver}) failed: {outcome.status}")
     evaluation = evaluate(problem, table, options)
-    tie_value = sum(model.tie_coefficient[key] * var.varValue for key, var in model.choice.items())
+    bounds = [b for b in (outcome.bound, lp_bound) if b is not None and math.isfinite(b)]
+    if evaluation.scale > 1.0:
+        bounds = [b for b in bounds if b is outcome.bound]  # the LP bounded the unscaled problem
     return Stage1Result(
         allocation=allocation_from_options(problem, options),
         objective=evaluation.objective,
         constraint_scale=evaluation.scale,
         optimal=outcome.optimal,
-        gap=0.0 if outcome.optimal else outcome.gap,
+        gap=0.0 if outcome.optimal else _gap(evaluation.objective, max(bounds, default=None)),
         method=method,
-        model_objective=float(pulp.value(model.objective)) - tie_value,
+        model_objective=model_objective,
     )
 
 
-def _build(problem: Problem, cores: int, table: OptionTable) -> _Model:
+@dataclass(frozen=True)
+class _Relaxation:
+    weights: dict[str, dict[Option, float]]  # each subchain's options, as the LP weighs them
+    bound: float  # the LP's value: a proven lower bound (to the tie term's 1e-8)
+
+
+def _relaxation(model: _Model, solver: str) -> _Relaxation | None:
+    """The LP relaxation: a proven bound and, rounded, a near-optimal start (HiGHS only).
+
+    It is solved to the end whatever the time limit (an LP is quick: 0.5 s at
+    60 subchains); through CBC's subprocess it costs more than it gives, so
+    CBC starts from the local search alone.
+    """
+    if solver != "highs":
+        return None
+    model.prob.solve(_DeadlineHiGHS(None, time.monotonic() + LP_TIME_LIMIT_S, msg=False, mip=False, threads=1))
+    if model.prob.status != pulp.LpStatusOptimal:
+        return None  # bounds that cannot all hold: the search starts from scratch
+    weights: dict[str, dict[Option, float]] = {}
+    for (name, option), var in model.choice.items():
+        weights.setdefault(name, {})[option] = float(var.varValue or 0.0)
+    return _Relaxation(weights, float(pulp.value(model.prob.objective)))
+
+
+def _gap(value: float, bound: float | None) -> float | None:
+    if bound is None:
+        return None
+    return max(0.0, value - bound) / max(abs(value), 1e-12)
+
+
+def _build(problem: Problem, cores: int, table: OptionTable, *, strengthen: bool = True) -> _Model:
     prob = pulp.LpProblem("catan_stage1", pulp.LpMinimize)
     subchains = problem.subchains
     count = len(subchains)
@@ -135,12 +228,19 @@ def _build(problem: Problem, cores: int, table: OptionTable) -> _Model:
     groups = {m: prob.add_variable(f"groups_{m}", lowBound=0, cat=pulp.LpInteger) for m in sizes}
     for m in sizes:
         prob += pulp.lpSum(choice[sub.name, Option(True, m)] for sub in subchains) == m * groups[m], f"groups_of_{m}"
+        # Implied for integer solutions, and what makes the LP tight: a subchain sharing at size m
+        # needs a whole group of size m. Without it the relaxation lets every subchain pick its own
+        # size at a fraction of a core (60 subchains: LP bound 94% of the optimum instead of 99.7%).
+        for i, sub in enumerate(subchains):
+            if strengthen:  # off only to measure what it buys (bench/solvers.py)
+                prob += groups[m] >= choice[sub.name, Option(True, m)], f"group_exists_{m}_{i}"
     used = pulp.lpSum(option.size * var for (_, option), var in choice.items() if not option.shared) + pulp.lpSum(
         groups.values()
     )
     prob += (used == cores) if count >= cores else (used <= cores), "cores"
 
     response: dict[int, pulp.LpAffineExpression] = {}
+    chain_periods: dict[int, pulp.LpVariable] = {}
     for index, chain in enumerate(problem.chains):
         floor = 0.0
         chain_period = prob.add_variable(f"P_{index}", lowBound=0)
@@ -157,6 +257,7 @@ def _build(problem: Problem, cores: int, table: OptionTable) -> _Model:
                 prob += chain_period >= period[stage.name], f"P_{index}_{position}"
             chain_latency += latency[stage.name] if position == 0 else period[stage.name] + latency[stage.name]
         chain_period.lowBound = floor
+        chain_periods[index] = chain_period
         response[index] = chain_latency + chain_period
 
     scale = None
@@ -180,7 +281,7 @@ def _build(problem: Problem, cores: int, table: OptionTable) -> _Model:
     }
     objective += pulp.lpSum(coefficient * choice[key] for key, coefficient in tie_coefficient.items())
     prob.setObjective(objective)
-    return _Model(prob, choice, scale, objective, tie_coefficient)
+    return _Model(prob, choice, groups, chain_periods, scale, objective, tie_coefficient)
 
 
 def _chain_weights(problem: Problem) -> dict[int, float]:
@@ -192,52 +293,92 @@ def _chain_weights(problem: Problem) -> dict[int, float]:
 
 @dataclass(frozen=True)
 class _Outcome:
-    status: str  # "solved", "infeasible", or what went wrong
+    status: str  # "solved", "infeasible", "time limit" (no solution found), or what went wrong
     optimal: bool = False
-    gap: float | None = None
+    bound: float | None = None  # the solver's proven lower bound, when it stopped early
 
 
-def _solve(prob: pulp.LpProblem, solver: str, deadline: float) -> _Outcome:
-    remaining = max(0.05, deadline - time.monotonic())
+def _solve(prob: pulp.LpProblem, solver: str, deadline: float, start: dict[str, float] | None) -> _Outcome:
+    if deadline - time.monotonic() < MIN_SOLVE_S:
+        return _Outcome("time limit")
     if solver == "highs":
-        return _solve_highs(prob, remaining)
-    return _solve_cbc(prob, remaining)
+        return _solve_highs(prob, deadline, start)
+    return _solve_cbc(prob, deadline, start)
 
 
-def _solve_highs(prob: pulp.LpProblem, time_limit_s: float) -> _Outcome:
-    engine = pulp.HiGHS(
-        msg=False, timeLimit=time_limit_s, gapRel=RELATIVE_GAP, gapAbs=ABSOLUTE_GAP, threads=1, random_seed=SEED
+class _DeadlineHiGHS(pulp.HiGHS):  # type: ignore[misc]
+    """pulp's HiGHS, handed a starting solution and the time left once the model is built."""
+
+    def __init__(self, start: dict[str, float] | None, deadline: float, **options: Any) -> None:
+        super().__init__(**options)
+        self.start = start
+        self.deadline = deadline
+
+    def callSolver(self, lp: pulp.LpProblem) -> None:
+        highs: Any = lp.solverModel
+        # pulp builds the model before this call: the clock HiGHS sees starts now.
+        highs.setOptionValue("time_limit", max(MIN_SOLVE_S, self.deadline - time.monotonic()))
+        if self.start is not None:
+            values = [0.0] * highs.getNumCol()
+            for var in lp.variables():
+                values[var.index] = self.start.get(var.name, 0.0)
+            solution = highspy.HighsSolution()
+            solution.col_value = values
+            highs.setSolution(solution)
+        highs.run()
+
+
+def _solve_highs(prob: pulp.LpProblem, deadline: float, start: dict[str, float] | None) -> _Outcome:
+    prob.solve(
+        _DeadlineHiGHS(
+            start, deadline, msg=False, gapRel=RELATIVE_GAP, gapAbs=ABSOLUTE_GAP, threads=1, random_seed=SEED
+        )
     )
-    prob.solve(engine)
     highs: Any = prob.solverModel
     status = highs.getModelStatus()
     kinds = highspy.HighsModelStatus
     if status == kinds.kOptimal:
-        return _Outcome("solved", optimal=True, gap=0.0)
+        return _Outcome("solved", optimal=True)
     if status == kinds.kInfeasible:
         return _Outcome("infeasible")
+    bound = float(highs.getInfo().mip_dual_bound)
     if prob.sol_status == pulp.LpSolutionIntegerFeasible:
-        return _Outcome("solved", optimal=False, gap=float(highs.getInfo().mip_gap))
+        return _Outcome("solved", bound=bound)
+    if status == kinds.kTimeLimit:
+        return _Outcome("time limit", bound=bound)
     return _Outcome(str(status))
 
 
-def _solve_cbc(prob: pulp.LpProblem, time_limit_s: float) -> _Outcome:
+def _solve_cbc(prob: pulp.LpProblem, deadline: float, start: dict[str, float] | None) -> _Outcome:
+    if start is not None:
+        for var in prob.variables():
+            var.setInitialValue(start.get(var.name, 0.0), check=False)
     with warnings.catch_warnings():
         # pulp 3.3 announces that its bundled CBC leaves in pulp 4.0 (pyproject pins pulp < 4).
         warnings.filterwarnings("ignore", message="PULP_CBC_CMD is deprecated", category=DeprecationWarning)
         engine = pulp.PULP_CBC_CMD(
             msg=False,
-            timeLimit=time_limit_s,
+            timeLimit=max(MIN_SOLVE_S, deadline - time.monotonic()),
             gapRel=RELATIVE_GAP,
             gapAbs=ABSOLUTE_GAP,
             threads=1,
+            warmStart=start is not None,
             options=[f"randomCbcSeed {SEED}", f"randomSeed {SEED}"],
         )
     prob.solve(engine)
     if prob.status == pulp.LpStatusInfeasible:
         return _Outcome("infeasible")
     if prob.sol_status == pulp.LpSolutionOptimal:
-        return _Outcome("solved", optimal=True, gap=0.0)
+        return _Outcome("solved", optimal=True)
     if prob.sol_status == pulp.LpSolutionIntegerFeasible:
-        return _Outcome("solved", optimal=False)  # CBC through pulp does not report its bound
+        return _Outcome("solved")  # CBC through pulp does not report its bound
+    if prob.status == pulp.LpStatusNotSolved:
+        return _Outcome("time limit")
     return _Outcome(pulp.LpStatus[prob.status])
+
+
+def relaxation_bound(problem: Problem, cores: int, *, strengthen: bool = True) -> float | None:
+    """The LP relaxation's value, with or without the strengthening rows (for the benchmark)."""
+    table = option_table(problem, cores)
+    relaxed = _relaxation(_build(problem, cores, table, strengthen=strengthen), "highs")
+    return relaxed.bound if relaxed else None
