@@ -63,7 +63,9 @@ def nav2d_stage1(repeats: int) -> dict[str, Any]:
     return rows
 
 
-def scaling(sizes: list[int], cores: list[int], seeds: list[int], solvers: list[str]) -> list[dict[str, Any]]:
+def scaling(
+    sizes: list[int], cores: list[int], seeds: list[int], solvers: list[str], progress: Callable[[str], None]
+) -> list[dict[str, Any]]:
     rows = []
     for size in sizes:
         problems: list[Problem] = [build_problem(layered_spec(size, seed)) for seed in seeds]
@@ -88,7 +90,7 @@ def scaling(sizes: list[int], cores: list[int], seeds: list[int], solvers: list[
                         "max_gap": None if len(known) < len(gaps) else round(max(known), 5),
                     }
                 )
-                print(_scaling_line(rows[-1]), file=sys.stderr, flush=True)
+                progress(_scaling_line(rows[-1]))
     return rows
 
 
@@ -147,7 +149,10 @@ def main() -> None:
             )
         print(f"\nStage I MILP on random layered apps ({len(seeds)} seeds; time limit {DEFAULT_TIME_LIMIT_S} s)")
         print("   N   K solver median ms    max ms  proven  max gap")
-    report["scaling"] = scaling(sizes, [2, 4, 8, 16], seeds, ["highs", "cbc"])
+    def progress(line: str) -> None:
+        print(line, file=sys.stderr if args.json else sys.stdout, flush=True)
+
+    report["scaling"] = scaling(sizes, [2, 4, 8, 16], seeds, ["highs", "cbc"], progress)
     report["formulation"] = formulation([30, 60], [4, 16], seeds[:2])
     if args.json:
         print(json.dumps(report, indent=2))
