@@ -8,7 +8,8 @@ Formulation (cores are identical, so no core indices and no symmetry):
   ``p_i = sum_o P(i, o) x[i, o]`` is linear: the fair share ``c(S) * m`` needs
   no product of variables.
 - ``g[m]`` integer: the number of groups of size ``m``;
-  ``sum_i x[i, shared m] = m * g[m]``.
+  ``sum_i x[i, shared m] = m * g[m]``, and ``g[m] >= x[i, shared m]`` (implied
+  for integer solutions; it makes the LP relaxation tight: bench/RESULTS.md).
 - cores: ``sum k x[i, dedicated k] + sum g[m] = K`` (``<= K`` with fewer
   subchains than cores).
 - each chain's period ``P_t`` is a variable bounded below by each stage's
@@ -120,10 +121,11 @@ def solve_milp(
 ) -> Stage1Result:
     """The best allocation by the MILP; within ``time_limit_s``, else the best found with its gap.
 
-    Steps, all within the time limit: build the model; solve its LP
-    relaxation (a proven bound, and nearly integral); round it and polish it
-    by local search (:mod:`catanc.stage1.search`); give that to the MILP as
-    its first incumbent and let it prove or improve it.
+    Steps: build the model; from :data:`LP_START_FROM` subchains, solve its LP
+    relaxation to the end (a proven bound, and nearly integral); round it and
+    polish it by local search (:mod:`catanc.stage1.search`); give that to the
+    MILP as its first incumbent, and let the MILP prove or improve it in what
+    is left of ``time_limit_s`` (counted from the start).
     """
     if solver not in SOLVERS:
         raise UsageError(f"unknown Stage I solver {solver!r}; choose one of {', '.join(SOLVERS)}")
