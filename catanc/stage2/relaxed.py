@@ -1,0 +1,193 @@
+"""Stage II's relaxation: one geometric program over every shared core (catan-model.md section 4).
+
+For a shared core running subchains ``S_1..S_n`` with a schedule of length
+``T``, each subchain runs a fraction ``f_i`` of one run per period, so it
+completes every ``1/f_i`` periods: ``p_i >= T / f_i`` and its processing
+latency is ``T / f_i``.  Constraints (all posynomial <= monomial):
+
+- ``(sum_i f_i c_i + n * switch) / (1 - slack) <= T``  (T is a variable: the
+  prototype's DGPError came from writing it as an expression)
+- ``T / f_i <= p_i``; ``min(min_slice, c_i) <= f_i c_i``; ``f_i <= 1`` unless batch
+- rate bounds ``p_min <= p_i <= s * p_max``; chain bounds ``R_t <= s * B_t``
+
+Dedicated subchains enter as constants (Eq. 1, see :func:`dedicated_timing`).
+Every number that changes at runtime is a cvxpy Parameter, and the problem
+is DPP, so a re-solve with new compute times reuses the compiled problem.
+The relaxation drops the integrality of ``1/f_i``; restoring it is a
+separate step.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import cvxpy as cp
+
+from catanc.model import Timing, dedicated_timing
+from catanc.problem import Problem, Subchain
+from catanc.spec import Schedule
+from catanc.stage1.estimate import Allocation
+
+
+@dataclass(frozen=True)
+class SharedCore:
+    """One shared core and its subchains, in schedule order."""
+
+    core: int
+    subchains: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Where every subchain runs: dedicated core counts and shared cores."""
+
+    dedicated: tuple[tuple[str, int], ...]  # (subchain, cores)
+    shared: tuple[SharedCore, ...]
+
+    @classmethod
+    def from_allocation(cls, allocation: Allocation) -> Layout:
+        indices = allocation.core_indices()
+        shared = tuple(SharedCore(indices[group[0]][0], group) for group in allocation.groups)
+        return cls(allocation.dedicated, shared)
+
+
+def dedicated_stage(sub: Subchain, cores: int) -> Timing:
+    """A dedicated subchain's timing: Eq. 1's best q, then the rate cap applied."""
+    eq1 = dedicated_timing(sub.compute_by_threads(cores), cores)
+    return Timing(max(eq1.period_ms, sub.min_period_ms), eq1.latency_ms)
+
+
+@dataclass(frozen=True)
+class RelaxedSolution:
+    core_period_ms: dict[int, float]  # T per shared core
+    fraction: dict[str, float]  # f per shared subchain
+    period_ms: dict[str, float]  # p per shared subchain
+    objective: float  # the GP's optimal value (ms)
+
+
+class RelaxedStage2:
+    """The relaxed Stage II GP for one layout, built once and re-solved with new numbers."""
+
+    def __init__(self, problem: Problem, layout: Layout, schedule: Schedule) -> None:
+        if not layout.shared:
+            raise ValueError("Stage II's GP is for shared cores; this layout has none")
+        self.problem = problem
+        self.layout = layout
+        self.schedule = schedule
+        by_name = {sub.name: sub for sub in problem.subchains}
+        self.shared_names = [name for core in layout.shared for name in core.subchains]
+        self.dedicated_names = [name for name, _ in layout.dedicated]
+
+        # Parameters: what changes when compute times are re-measured.
+        self.compute = {name: cp.Parameter(pos=True, name=f"c_{name}") for name in self.shared_names}
+        self.slice = {name: cp.Parameter(pos=True, name=f"slice_{name}") for name in self.shared_names}
+        self.fixed_period = {name: cp.Parameter(pos=True, name=f"pd_{name}") for name in self.dedicated_names}
+        self.fixed_latency = {name: cp.Parameter(pos=True, name=f"ld_{name}") for name in self.dedicated_names}
+        self.scale = cp.Parameter(pos=True, name="scale", value=1.0)
+
+        self.core_period = {core.core: cp.Variable(pos=True, name=f"T_{core.core}") for core in layout.shared}
+        self.fraction = {name: cp.Variable(pos=True, name=f"f_{name}") for name in self.shared_names}
+        self.period = {name: cp.Variable(pos=True, name=f"p_{name}") for name in self.shared_names}
+
+        constraints: list[cp.Constraint] = []
+        latency: dict[str, cp.Expression] = {}
+        period: dict[str, cp.Expression] = {}
+        usable = 1.0 - schedule.slack
+        for core in layout.shared:
+            T = self.core_period[core.core]
+            load = cp.sum([self.fraction[n] * self.compute[n] for n in core.subchains])
+            overhead = len(core.subchains) * schedule.switch_ms
+            constraints.append((load + overhead) / usable <= T if overhead > 0 else load / usable <= T)
+            for name in core.subchains:
+                f, p = self.fraction[name], self.period[name]
+                constraints.append(T / f <= p)
+                if schedule.min_slice_ms > 0:
+                    constraints.append(self.slice[name] <= f * self.compute[name])
+                if not by_name[name].batch:
+                    constraints.append(f <= 1)
+                sub = by_name[name]
+                if sub.min_period_ms > 0:
+                    constraints.append(sub.min_period_ms <= p)
+                if sub.max_period_ms < math.inf:
+                    constraints.append(p <= self.scale * sub.max_period_ms)
+                latency[name] = T / f
+                period[name] = p
+        for name in self.dedicated_names:
+            latency[name] = self.fixed_latency[name]
+            period[name] = self.fixed_period[name]
+
+        responses: dict[int, cp.Expression] = {}
+        for index in range(len(problem.chains)):
+            response = self._chain_response(index, period, latency, constraints)
+            if response is not None:
+                responses[index] = response
+        for bound in problem.response_bounds:
+            if bound.chain in responses:
+                constraints.append(responses[bound.chain] <= self.scale * bound.max_response_ms)
+
+        terms: list[cp.Expression] = []
+        for term in problem.response_terms:
+            if term.weight > 0 and term.chain in responses:
+                terms.append(term.weight * responses[term.chain])
+        for period_term in problem.period_terms:
+            if period_term.weight > 0:
+                terms.append(period_term.weight * period[period_term.subchain])
+        # With no weighted term every feasible plan is optimal; shortest schedules then.
+        objective = cp.sum(terms) if terms else cp.sum(list(self.core_period.values()))
+        self.problem_gp = cp.Problem(cp.Minimize(objective), constraints)
+
+    def _chain_response(
+        self,
+        index: int,
+        period: Mapping[str, cp.Expression],
+        latency: Mapping[str, cp.Expression],
+        constraints: list[cp.Constraint],
+    ) -> cp.Expression | None:
+        """``L + P`` of one chain; ``P`` a variable bounded below by every stage's period."""
+        chain = self.problem.chains[index]
+        longest = cp.Variable(pos=True, name=f"P_{index}")
+        parts: list[cp.Expression] = []
+        for position, stage in enumerate(chain.stages):
+            if stage.fixed:
+                fixed = self.problem.fixed_periods_ms[stage.name]
+                constraints.append(fixed <= longest)
+                parts.append(fixed if position == 0 else 2 * fixed)
+                continue
+            if position == 0 and chain.head_period_ms is not None:
+                constraints.append(chain.head_period_ms <= longest)
+            else:
+                constraints.append(period[stage.name] <= longest)
+            parts.append(latency[stage.name] if position == 0 else period[stage.name] + latency[stage.name])
+        if not chain.stages:
+            return None
+        return cp.sum(parts) + longest
+
+    def set_numbers(self, problem: Problem) -> None:
+        """Load compute times (and the dedicated constants they imply) into the parameters."""
+        by_name = {sub.name: sub for sub in problem.subchains}
+        for name in self.shared_names:
+            compute = by_name[name].compute_ms
+            self.compute[name].value = compute
+            self.slice[name].value = min(self.schedule.min_slice_ms, compute)
+        for name, cores in self.layout.dedicated:
+            timing = dedicated_stage(by_name[name], cores)
+            self.fixed_period[name].value = timing.period_ms
+            self.fixed_latency[name].value = timing.latency_ms
+
+    def solve(self, scale: float = 1.0) -> RelaxedSolution | None:
+        """The relaxed optimum with every bound scaled by ``scale``; None when infeasible."""
+        self.scale.value = scale
+        try:
+            self.problem_gp.solve(gp=True, solver=cp.CLARABEL)
+        except cp.SolverError:
+            return None
+        if self.problem_gp.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
+            return None
+        return RelaxedSolution(
+            core_period_ms={core: float(var.value) for core, var in self.core_period.items()},
+            fraction={name: float(var.value) for name, var in self.fraction.items()},
+            period_ms={name: float(var.value) for name, var in self.period.items()},
+            objective=float(self.problem_gp.value),
+        )
