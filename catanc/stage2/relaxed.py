@@ -20,6 +20,7 @@ separate step.
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -86,6 +87,10 @@ class RelaxedStage2:
         self.fixed_period = {name: cp.Parameter(pos=True, name=f"pd_{name}") for name in self.dedicated_names}
         self.fixed_latency = {name: cp.Parameter(pos=True, name=f"ld_{name}") for name in self.dedicated_names}
         self.scale = cp.Parameter(pos=True, name="scale", value=1.0)
+        # A box on each non-batch f (f = 1/n, n a whole number): the integer search narrows it.
+        self.integral = [name for name in self.shared_names if not by_name[name].batch]
+        self.f_min = {name: cp.Parameter(pos=True, name=f"fmin_{name}", value=1e-9) for name in self.integral}
+        self.f_max = {name: cp.Parameter(pos=True, name=f"fmax_{name}", value=1.0) for name in self.integral}
 
         self.core_period = {core.core: cp.Variable(pos=True, name=f"T_{core.core}") for core in layout.shared}
         self.fraction = {name: cp.Variable(pos=True, name=f"f_{name}") for name in self.shared_names}
@@ -106,7 +111,7 @@ class RelaxedStage2:
                 if schedule.min_slice_ms > 0:
                     constraints.append(self.slice[name] <= f * self.compute[name])
                 if not by_name[name].batch:
-                    constraints.append(f <= 1)
+                    constraints += [self.f_min[name] <= f, f <= self.f_max[name]]
                 sub = by_name[name]
                 if sub.min_period_ms > 0:
                     constraints.append(sub.min_period_ms <= p)
@@ -176,11 +181,22 @@ class RelaxedStage2:
             self.fixed_period[name].value = timing.period_ms
             self.fixed_latency[name].value = timing.latency_ms
 
+    def set_box(self, box: Mapping[str, tuple[int, int]]) -> None:
+        """Confine each non-batch subchain's ``n = 1/f`` to ``[low, high]`` (the rest: ``n >= 1``)."""
+        for name in self.integral:
+            low, high = box.get(name, (1, 0))
+            self.f_max[name].value = 1.0 / low
+            self.f_min[name].value = 1.0 / high if high >= low else 1e-9
+
     def solve(self, scale: float = 1.0) -> RelaxedSolution | None:
         """The relaxed optimum with every bound scaled by ``scale``; None when infeasible."""
         self.scale.value = scale
         try:
-            self.problem_gp.solve(gp=True, solver=cp.CLARABEL)
+            with warnings.catch_warnings():
+                # "Solution may be inaccurate": the status below says so too, and is accepted
+                # (Clarabel reports it on badly scaled boxes, e.g. f near 1/500, within 1e-6).
+                warnings.filterwarnings("ignore", message="Solution may be inaccurate", category=UserWarning)
+                self.problem_gp.solve(gp=True, solver=cp.CLARABEL)
         except cp.SolverError:
             return None
         if self.problem_gp.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
