@@ -50,8 +50,14 @@ def most_runs(compute_ms: float, schedule: Schedule) -> int:
     return max(1, math.floor(compute_ms / min(schedule.min_slice_ms, compute_ms) + 1e-9))
 
 
-def solve_integer(model: RelaxedStage2, problem: Problem, scale: float = 1.0) -> IntegerSolution | None:
-    """The best plan with whole ``n_i``, or None when no integer plan meets the (scaled) bounds."""
+def solve_integer(
+    model: RelaxedStage2, problem: Problem, scale: float = 1.0, *, least_scale: bool = False
+) -> IntegerSolution | None:
+    """The best plan with whole ``n_i``, or None when no integer plan meets the (scaled) bounds.
+
+    With ``least_scale`` the search minimises the scale the bounds need instead
+    (its ``objective`` is then that scale).
+    """
     compute = {sub.name: sub.compute_ms for sub in problem.subchains}
     root: Box = {name: (1, most_runs(compute[name], model.schedule)) for name in model.integral}
     nodes = 0
@@ -60,7 +66,7 @@ def solve_integer(model: RelaxedStage2, problem: Problem, scale: float = 1.0) ->
         nonlocal nodes
         nodes += 1
         model.set_box(box)
-        return model.solve(scale)
+        return model.solve_least_scale() if least_scale else model.solve(scale)
 
     first = relax(root)
     if first is None:

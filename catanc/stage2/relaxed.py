@@ -25,6 +25,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 import cvxpy as cp
+import numpy as np
 
 from catanc.model import Timing, dedicated_timing
 from catanc.problem import Problem, Subchain
@@ -97,6 +98,7 @@ class RelaxedStage2:
         self.period = {name: cp.Variable(pos=True, name=f"p_{name}") for name in self.shared_names}
 
         constraints: list[cp.Constraint] = []
+        floors: list[tuple[cp.Expression, float]] = []  # (period, longest period allowed)
         latency: dict[str, cp.Expression] = {}
         period: dict[str, cp.Expression] = {}
         usable = 1.0 - schedule.slack
@@ -116,21 +118,28 @@ class RelaxedStage2:
                 if sub.min_period_ms > 0:
                     constraints.append(sub.min_period_ms <= p)
                 if sub.max_period_ms < math.inf:
-                    constraints.append(p <= self.scale * sub.max_period_ms)
+                    floors.append((p, sub.max_period_ms))
                 latency[name] = T / f
                 period[name] = p
         for name in self.dedicated_names:
             latency[name] = self.fixed_latency[name]
             period[name] = self.fixed_period[name]
+            if by_name[name].max_period_ms < math.inf:  # a dedicated subchain's rate floor binds too
+                floors.append((self.fixed_period[name], by_name[name].max_period_ms))
 
         responses: dict[int, cp.Expression] = {}
         for index in range(len(problem.chains)):
             response = self._chain_response(index, period, latency, constraints)
             if response is not None:
                 responses[index] = response
-        for bound in problem.response_bounds:
-            if bound.chain in responses:
-                constraints.append(responses[bound.chain] <= self.scale * bound.max_response_ms)
+        bounded = floors + [
+            (responses[bound.chain], bound.max_response_ms)
+            for bound in problem.response_bounds
+            if bound.chain in responses
+        ]
+
+        def scaled(scale: cp.Expression) -> list[cp.Constraint]:
+            return [value <= scale * limit for value, limit in bounded]
 
         terms: list[cp.Expression] = []
         for term in problem.response_terms:
@@ -141,7 +150,13 @@ class RelaxedStage2:
                 terms.append(period_term.weight * period[period_term.subchain])
         # With no weighted term every feasible plan is optimal; shortest schedules then.
         objective = cp.sum(terms) if terms else cp.sum(list(self.core_period.values()))
-        self.problem_gp = cp.Problem(cp.Minimize(objective), constraints)
+        self.problem_gp = cp.Problem(cp.Minimize(objective), constraints + scaled(self.scale))
+        # The same plan space with the scale free: its least value is the smallest common factor
+        # on the bounds that a plan can meet (soft bounds).
+        self.scale_free = cp.Variable(pos=True, name="scale_free")
+        self.problem_scale = cp.Problem(
+            cp.Minimize(self.scale_free), [*constraints, *scaled(self.scale_free), self.scale_free >= 1]
+        )
 
     def _chain_response(
         self,
@@ -191,19 +206,34 @@ class RelaxedStage2:
     def solve(self, scale: float = 1.0) -> RelaxedSolution | None:
         """The relaxed optimum with every bound scaled by ``scale``; None when infeasible."""
         self.scale.value = scale
+        return self._run(self.problem_gp)
+
+    def solve_least_scale(self) -> RelaxedSolution | None:
+        """The relaxed plan needing the smallest scale on the bounds (its ``objective`` is that scale)."""
+        return self._run(self.problem_scale)
+
+    def _run(self, problem: cp.Problem) -> RelaxedSolution | None:
         try:
-            with warnings.catch_warnings():
+            with warnings.catch_warnings(), np.errstate(over="ignore", invalid="ignore"):
                 # "Solution may be inaccurate": the status below says so too, and is accepted
                 # (Clarabel reports it on badly scaled boxes, e.g. f near 1/500, within 1e-6).
+                # Overflow: an infeasible problem's log-space iterate diverges before the status says so.
                 warnings.filterwarnings("ignore", message="Solution may be inaccurate", category=UserWarning)
-                self.problem_gp.solve(gp=True, solver=cp.CLARABEL)
+                problem.solve(gp=True, solver=cp.CLARABEL)
         except cp.SolverError:
             return None
-        if self.problem_gp.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
+        if problem.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
+            return None
+        values = [
+            problem.value,
+            *(v.value for v in self.core_period.values()),
+            *(v.value for v in self.fraction.values()),
+        ]
+        if not all(value is not None and math.isfinite(float(value)) for value in values):
             return None
         return RelaxedSolution(
             core_period_ms={core: float(var.value) for core, var in self.core_period.items()},
             fraction={name: float(var.value) for name, var in self.fraction.items()},
             period_ms={name: float(var.value) for name, var in self.period.items()},
-            objective=float(self.problem_gp.value),
+            objective=float(problem.value),
         )
