@@ -1,8 +1,14 @@
 """catanc: compile semantic specs of sense-react task graphs into CPU schedules.
 
 The pipeline (``../shared/docs/style.md``): load a spec (:func:`load_spec`),
-build its planning problem (:func:`catanc.problem.build_problem`), solve, emit.
+build its planning problem (:func:`catanc.problem.build_problem`), plan it
+(:func:`plan`: Stage I, then Stage II), emit.
+
+``plan`` and ``Plan`` load the solvers (cvxpy, pulp) on first use, so
+commands that only read specs stay quick.
 """
+
+from typing import Any
 
 from catanc.errors import CatancError, SpecError
 from catanc.load import load_spec, parse_spec
@@ -10,4 +16,12 @@ from catanc.spec import Spec
 
 __version__ = "0.1.0"
 
-__all__ = ["CatancError", "Spec", "SpecError", "__version__", "load_spec", "parse_spec"]
+__all__ = ["CatancError", "Plan", "Spec", "SpecError", "__version__", "load_spec", "parse_spec", "plan"]
+
+
+def __getattr__(name: str) -> Any:
+    if name in ("plan", "Plan"):
+        from catanc import planner  # noqa: PLC0415 - the solvers load on first use
+
+        return getattr(planner, name)
+    raise AttributeError(f"module 'catanc' has no attribute {name!r}")

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from catanc.load import load_spec
 from catanc.model import Timing, bound_scale, objective
-from catanc.plan import Plan, plan
+from catanc.planner import Plan, plan
 from catanc.problem import build_problem
 from tests.strategies import spec_documents, spec_of
 
@@ -101,3 +101,11 @@ def test_every_plan_is_what_it_reports(document: dict[str, Any], cores: int) -> 
         assert sub.period_ms >= problem.subchain(sub.name).min_period_ms * (1 - 1e-9)
     used = {core for sub in result.subchains.values() for core in sub.cores}
     assert used <= set(range(cores))
+
+
+def test_public_api() -> None:
+    import catanc
+
+    result = catanc.plan(catanc.load_spec(SPECS / "face_tracking.yaml"), 1)
+    assert isinstance(result, catanc.Plan)
+    assert result.objective == pytest.approx(168)
