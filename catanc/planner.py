@@ -19,7 +19,6 @@ Stage II, ``Replanner``, ``catanc explain``.
 from __future__ import annotations
 
 import math
-from collections import defaultdict
 from dataclasses import dataclass
 
 from catanc.errors import InfeasibleError
@@ -87,7 +86,7 @@ def plan(
     """Plan ``spec`` on ``cores`` identical cores."""
     problem = build_problem(spec)
     first = allocate(problem, cores, method=stage1_method, solver=solver, time_limit_s=time_limit_s)
-    importance = subchain_importance(problem)
+    importance = problem.importance()
     layout = ordered_layout(Layout.from_allocation(first.allocation), spec.schedule, importance, problem)
     by_name = {sub.name: sub for sub in problem.subchains}
     timings: dict[str, Timing] = {}
@@ -134,17 +133,6 @@ def plan(
         first=first,
         warnings=warnings,
     )
-
-
-def subchain_importance(problem: Problem) -> dict[str, float]:
-    """Total weight of the objective terms a subchain appears in (for order and priority)."""
-    weight: dict[str, float] = defaultdict(float)
-    for term in problem.response_terms:
-        for stage in {s.name for s in problem.chains[term.chain].stages if not s.fixed}:
-            weight[stage] += term.weight
-    for period_term in problem.period_terms:
-        weight[period_term.subchain] += period_term.weight
-    return {sub.name: weight[sub.name] for sub in problem.subchains}
 
 
 def ordered_layout(layout: Layout, schedule: Schedule, importance: dict[str, float], problem: Problem) -> Layout:
@@ -208,7 +196,7 @@ def _assemble(
     warnings: list[str],
 ) -> Plan:
     indices = first.allocation.core_indices()
-    importance = subchain_importance(problem)
+    importance = problem.importance()
     ranks = priorities(problem, spec.schedule, importance)
     shared = {name for core in layout.shared for name in core.subchains}
     subchains = {

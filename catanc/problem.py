@@ -121,6 +121,23 @@ class Problem:
     response_bounds: tuple[ResponseBound, ...]
     warnings: tuple[Diagnostic, ...] = field(default=())
 
+    def importance(self) -> dict[str, float]:
+        """Total weight of the objective terms each subchain appears in (order, priority, branching)."""
+        weight = dict.fromkeys((sub.name for sub in self.subchains), 0.0)
+        for term in self.response_terms:
+            for stage in {s.name for s in self.chains[term.chain].stages if not s.fixed}:
+                weight[stage] += term.weight
+        for period_term in self.period_terms:
+            weight[period_term.subchain] += period_term.weight
+        return weight
+
+    def bounded(self) -> set[str]:
+        """Subchains a bound depends on: a rate floor, or a stage of a bounded chain."""
+        names = {sub.name for sub in self.subchains if sub.max_period_ms < math.inf}
+        for bound in self.response_bounds:
+            names |= {s.name for s in self.chains[bound.chain].stages if not s.fixed}
+        return names
+
     def subchain(self, name: str) -> Subchain:
         for sub in self.subchains:
             if sub.name == name:
