@@ -16,9 +16,9 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
-from catanc.problem import Chain, Problem, Stage
+from catanc.problem import Chain, Problem, Stage, Subchain
 
 
 @dataclass(frozen=True)
@@ -48,6 +48,10 @@ class DedicatedTiming:
     @property
     def response_ms(self) -> float:
         return self.latency_ms + self.period_ms
+
+    @property
+    def timing(self) -> Timing:
+        return Timing(self.period_ms, self.latency_ms)
 
 
 def chain_metrics(stages: Sequence[Timing]) -> ChainMetrics:
@@ -82,6 +86,51 @@ def dedicated_timing(compute_by_threads: Sequence[Sequence[float]], cores: int) 
             best = candidate
     assert best is not None
     return best
+
+
+def capped_dedicated(sub: Subchain, cores: int) -> DedicatedTiming:
+    """Eq. 1 for ``sub`` on ``cores`` cores of its own, then its rate cap applied to the period."""
+    eq1 = dedicated_timing(sub.compute_by_threads(cores), cores)
+    return replace(eq1, period_ms=max(eq1.period_ms, sub.min_period_ms))
+
+
+@dataclass(frozen=True)
+class ChainForm:
+    """A chain's response ``R = L + P`` as sums over its stages: what each solver writes down.
+
+    ``L = constant + sum latency(latency_of) + sum period(period_of)`` and
+    ``P >= floor``, ``P >= period(s)`` for each ``s`` in ``longest_of``.
+    Unscheduled clocks are constants; a batch head's observed period bounds
+    ``P`` instead of its subchain's.  :func:`evaluate_chain` is computed
+    independently, so the tests can hold the solvers' encodings to it.
+    """
+
+    constant: float
+    latency_of: tuple[str, ...]
+    period_of: tuple[str, ...]
+    longest_of: tuple[str, ...]
+    floor: float
+
+
+def chain_form(problem: Problem, chain: Chain) -> ChainForm:
+    constant, floor = 0.0, 0.0
+    latency_of: list[str] = []
+    period_of: list[str] = []
+    longest_of: list[str] = []
+    for position, stage in enumerate(chain.stages):
+        if stage.fixed:
+            fixed = problem.fixed_periods_ms[stage.name]
+            floor = max(floor, fixed)
+            constant += fixed if position == 0 else 2 * fixed  # a clock's latency is its period
+            continue
+        if position == 0 and chain.head_period_ms is not None:
+            floor = max(floor, chain.head_period_ms)
+        else:
+            longest_of.append(stage.name)
+        latency_of.append(stage.name)
+        if position > 0:
+            period_of.append(stage.name)  # at each later stage the input may wait a whole period
+    return ChainForm(constant, tuple(latency_of), tuple(period_of), tuple(longest_of), floor)
 
 
 def fixed_timing(period_ms: float) -> Timing:

@@ -22,7 +22,7 @@ import math
 from dataclasses import dataclass
 
 from catanc.errors import InfeasibleError
-from catanc.model import Timing, bound_scale, dedicated_timing, evaluate_chain, objective
+from catanc.model import Timing, bound_scale, capped_dedicated, evaluate_chain, objective
 from catanc.problem import Problem, Subchain, build_problem
 from catanc.spec import Schedule, Spec
 from catanc.stage1 import Stage1Result, allocate
@@ -92,9 +92,9 @@ def plan(
     timings: dict[str, Timing] = {}
     threads: dict[str, int] = {}
     for name, k in layout.dedicated:
-        eq1 = dedicated_timing(by_name[name].compute_by_threads(k), k)
-        timings[name] = Timing(max(eq1.period_ms, by_name[name].min_period_ms), eq1.latency_ms)
-        threads[name] = eq1.threads
+        dedicated = capped_dedicated(by_name[name], k)
+        timings[name] = dedicated.timing
+        threads[name] = dedicated.threads
     fractions: dict[str, float] = {}
     lengths: dict[int, float] = {}
     if layout.shared:

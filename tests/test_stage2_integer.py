@@ -17,18 +17,18 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from catanc.model import Timing, evaluate_chain, objective
+from catanc.model import Timing, capped_dedicated, evaluate_chain, objective
 from catanc.problem import Problem, build_problem
 from catanc.spec import Schedule
 from catanc.stage1 import allocate
 from catanc.stage2.integer import most_runs, solve_integer
-from catanc.stage2.relaxed import Layout, RelaxedStage2, dedicated_stage
+from catanc.stage2.relaxed import Layout, RelaxedStage2
 from tests.strategies import spec_documents, spec_of
 
 
 def closed_form(problem: Problem, layout: Layout, schedule: Schedule, runs: dict[str, int]) -> dict[str, Timing]:
     by_name = {sub.name: sub for sub in problem.subchains}
-    timings = {name: dedicated_stage(by_name[name], k) for name, k in layout.dedicated}
+    timings = {name: capped_dedicated(by_name[name], k).timing for name, k in layout.dedicated}
     for core in layout.shared:
         load = sum(by_name[n].compute_ms / runs[n] for n in core.subchains)
         length = (load + len(core.subchains) * schedule.switch_ms) / (1 - schedule.slack)

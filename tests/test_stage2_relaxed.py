@@ -9,11 +9,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from catanc.load import parse_spec
-from catanc.model import Timing, objective
+from catanc.model import Timing, capped_dedicated, objective
 from catanc.problem import Problem, build_problem
 from catanc.spec import Schedule
 from catanc.stage1 import allocate
-from catanc.stage2.relaxed import Layout, RelaxedStage2, SharedCore, dedicated_stage
+from catanc.stage2.relaxed import Layout, RelaxedStage2, SharedCore
 from tests.strategies import spec_documents, spec_of
 
 # Two one-node subchains on one core, no slack, no switch cost, a negligible minimum slice,
@@ -80,7 +80,7 @@ def test_gp_value_is_the_models_objective(document: dict[str, object], cores: in
     solution = model.solve(scale=1e6)  # bounds out of the way: this checks the objective's encoding
     assert solution is not None
     by_name = {sub.name: sub for sub in problem.subchains}
-    timings = {name: dedicated_stage(by_name[name], k) for name, k in layout.dedicated}
+    timings = {name: capped_dedicated(by_name[name], k).timing for name, k in layout.dedicated}
     usable = 1 - spec.schedule.slack
     for core in layout.shared:
         T = solution.core_period_ms[core.core]

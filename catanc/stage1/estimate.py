@@ -19,7 +19,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from catanc.model import Timing, bound_scale, dedicated_timing, objective
+from catanc.model import Timing, bound_scale, capped_dedicated, objective
 from catanc.problem import Problem, Subchain
 
 SCALE_SLACK = 1e-6
@@ -116,8 +116,7 @@ def option_timing(sub: Subchain, option: Option) -> Timing:
     if option.shared:
         fair = sub.compute_ms * option.size
         return Timing(max(fair, sub.min_period_ms), fair)
-    eq1 = dedicated_timing(sub.compute_by_threads(option.size), option.size)
-    return Timing(max(eq1.period_ms, sub.min_period_ms), eq1.latency_ms)
+    return capped_dedicated(sub, option.size).timing
 
 
 OptionTable = dict[str, dict[Option, Timing]]

@@ -36,6 +36,7 @@ import highspy
 import pulp
 
 from catanc.errors import UsageError
+from catanc.model import chain_form
 from catanc.problem import Problem
 from catanc.stage1 import SOLVERS
 from catanc.stage1.estimate import (
@@ -100,13 +101,8 @@ class _Model:
             values[var.name] = sum(1 for o in options.values() if o == Option(True, size)) / size
         timings = {name: table[name][option] for name, option in options.items()}
         for index, var in self.chain_periods.items():
-            chain = problem.chains[index]
-            stages = [
-                timings[s.name].period_ms
-                for p, s in enumerate(chain.stages)
-                if not s.fixed and not (p == 0 and chain.head_period_ms is not None)
-            ]
-            values[var.name] = max([var.lowBound or 0.0, *stages])
+            form = chain_form(problem, problem.chains[index])
+            values[var.name] = max([form.floor, *(timings[name].period_ms for name in form.longest_of)])
         if self.scale is not None:
             values[self.scale.name] = max(1.0, scale)
         return values
@@ -244,21 +240,15 @@ def _build(problem: Problem, cores: int, table: OptionTable, *, strengthen: bool
     response: dict[int, pulp.LpAffineExpression] = {}
     chain_periods: dict[int, pulp.LpVariable] = {}
     for index, chain in enumerate(problem.chains):
-        floor = 0.0
-        chain_period = prob.add_variable(f"P_{index}", lowBound=0)
-        chain_latency = pulp.LpAffineExpression()
-        for position, stage in enumerate(chain.stages):
-            if stage.fixed:
-                fixed = problem.fixed_periods_ms[stage.name]
-                floor = max(floor, fixed)
-                chain_latency += fixed if position == 0 else 2 * fixed
-                continue
-            if position == 0 and chain.head_period_ms is not None:
-                floor = max(floor, chain.head_period_ms)
-            else:
-                prob += chain_period >= period[stage.name], f"P_{index}_{position}"
-            chain_latency += latency[stage.name] if position == 0 else period[stage.name] + latency[stage.name]
-        chain_period.lowBound = floor
+        form = chain_form(problem, chain)
+        chain_period = prob.add_variable(f"P_{index}", lowBound=form.floor)
+        for position, name in enumerate(form.longest_of):
+            prob += chain_period >= period[name], f"P_{index}_{position}"
+        chain_latency = (
+            pulp.lpSum(latency[name] for name in form.latency_of)
+            + pulp.lpSum(period[name] for name in form.period_of)
+            + form.constant
+        )
         chain_periods[index] = chain_period
         response[index] = chain_latency + chain_period
 

@@ -10,7 +10,7 @@ latency is ``T / f_i``.  Constraints (all posynomial <= monomial):
 - ``T / f_i <= p_i``; ``min(min_slice, c_i) <= f_i c_i``; ``f_i <= 1`` unless batch
 - rate bounds ``p_min <= p_i <= s * p_max``; chain bounds ``R_t <= s * B_t``
 
-Dedicated subchains enter as constants (Eq. 1, see :func:`dedicated_timing`).
+Dedicated subchains enter as constants (:func:`catanc.model.capped_dedicated`).
 Every number that changes at runtime is a cvxpy Parameter, and the problem
 is DPP, so a re-solve with new compute times reuses the compiled problem.
 The relaxation drops the integrality of ``1/f_i``; restoring it is a
@@ -27,8 +27,8 @@ from dataclasses import dataclass
 import cvxpy as cp
 import numpy as np
 
-from catanc.model import Timing, dedicated_timing
-from catanc.problem import Problem, Subchain
+from catanc.model import capped_dedicated, chain_form
+from catanc.problem import Problem
 from catanc.spec import Schedule
 from catanc.stage1.estimate import Allocation
 
@@ -53,12 +53,6 @@ class Layout:
         indices = allocation.core_indices()
         shared = tuple(SharedCore(indices[group[0]][0], group) for group in allocation.groups)
         return cls(allocation.dedicated, shared)
-
-
-def dedicated_stage(sub: Subchain, cores: int) -> Timing:
-    """A dedicated subchain's timing: Eq. 1's best q, then the rate cap applied."""
-    eq1 = dedicated_timing(sub.compute_by_threads(cores), cores)
-    return Timing(max(eq1.period_ms, sub.min_period_ms), eq1.latency_ms)
 
 
 @dataclass(frozen=True)
@@ -167,21 +161,16 @@ class RelaxedStage2:
     ) -> cp.Expression | None:
         """``L + P`` of one chain; ``P`` a variable bounded below by every stage's period."""
         chain = self.problem.chains[index]
-        longest = cp.Variable(pos=True, name=f"P_{index}")
-        parts: list[cp.Expression] = []
-        for position, stage in enumerate(chain.stages):
-            if stage.fixed:
-                fixed = self.problem.fixed_periods_ms[stage.name]
-                constraints.append(fixed <= longest)
-                parts.append(fixed if position == 0 else 2 * fixed)
-                continue
-            if position == 0 and chain.head_period_ms is not None:
-                constraints.append(chain.head_period_ms <= longest)
-            else:
-                constraints.append(period[stage.name] <= longest)
-            parts.append(latency[stage.name] if position == 0 else period[stage.name] + latency[stage.name])
         if not chain.stages:
             return None
+        form = chain_form(self.problem, chain)
+        longest = cp.Variable(pos=True, name=f"P_{index}")
+        if form.floor > 0:
+            constraints.append(form.floor <= longest)
+        constraints += [period[name] <= longest for name in form.longest_of]
+        parts = [latency[name] for name in form.latency_of] + [period[name] for name in form.period_of]
+        if form.constant > 0:
+            parts.append(form.constant)
         return cp.sum(parts) + longest
 
     def set_numbers(self, problem: Problem) -> None:
@@ -192,7 +181,7 @@ class RelaxedStage2:
             self.compute[name].value = compute
             self.slice[name].value = min(self.schedule.min_slice_ms, compute)
         for name, cores in self.layout.dedicated:
-            timing = dedicated_stage(by_name[name], cores)
+            timing = capped_dedicated(by_name[name], cores)
             self.fixed_period[name].value = timing.period_ms
             self.fixed_latency[name].value = timing.latency_ms
 
