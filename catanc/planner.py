@@ -131,6 +131,7 @@ def plan(
         lengths=lengths,
         scale=scale,
         first=first,
+        importance=importance,
         warnings=warnings,
     )
 
@@ -193,10 +194,10 @@ def _assemble(
     lengths: dict[int, float],
     scale: float,
     first: Stage1Result,
+    importance: dict[str, float],
     warnings: list[str],
 ) -> Plan:
     indices = first.allocation.core_indices()
-    importance = problem.importance()
     ranks = priorities(problem, spec.schedule, importance)
     shared = {name for core in layout.shared for name in core.subchains}
     subchains = {
