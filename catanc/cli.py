@@ -181,6 +181,41 @@ def allocate(
 
 @app.command()
 @_reporting
+def explain(
+    spec_path: SpecArg,
+    cores: Annotated[int, typer.Option("--cores", "-k", min=1, help="Identical CPU cores available.")],
+    stage1: Annotated[
+        str, typer.Option(help="Stage I method: auto (enumerate small apps, else MILP), milp or exhaustive.")
+    ] = "auto",
+    solver: Annotated[str, typer.Option(help="MILP solver: highs or cbc.")] = "highs",
+    time_limit: Annotated[
+        float | None, typer.Option(min=0.01, help="Stage I time limit in seconds (default 2.5).")
+    ] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the runtime table's plan as JSON.")] = False,
+) -> None:
+    """Plan the spec and explain the plan: timelines, what binds, warnings, the baseline."""
+    from catanc.explain import explain_plan, render
+    from catanc.load import load_spec
+    from catanc.planner import plan
+    from catanc.problem import build_problem
+    from catanc.table import plan_json
+
+    spec = load_spec(spec_path)
+    problem = build_problem(spec)
+    result = plan(spec, cores, stage1_method=stage1, solver=solver, time_limit_s=time_limit)
+    _print_diagnostics(problem.warnings, warning=True)
+    if as_json:
+        for note in result.warnings:
+            _stderr().print(f"{spec_path}: warning: {note}", markup=False)
+        sys.stdout.write(plan_json(result, problem, app=spec.app, cores=cores))
+        return
+    out = _stdout()
+    for part in render(explain_plan(spec, problem, result)):
+        out.print(part)
+
+
+@app.command()
+@_reporting
 def schema() -> None:
     """Print the JSON Schema of the spec language (for editors)."""
     from catanc.spec import json_schema_text

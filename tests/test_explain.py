@@ -1,0 +1,315 @@
+"""``catanc explain``: the command, and what it says binds, dominates and warns on cases worked by hand."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import re
+import subprocess
+import sys
+from functools import cache
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from catanc.cli import app
+from catanc.errors import ExitCode, InfeasibleError
+from catanc.explain import Explanation, SharedCoreView, explain_plan, timeline_bar
+from catanc.load import load_spec, parse_spec
+from catanc.planner import Plan, plan
+from catanc.problem import Problem, build_problem
+
+ROOT = Path(__file__).parent.parent
+SPECS = ROOT / "specs"
+EXAMPLES = sorted(path.stem for path in SPECS.glob("*.yaml"))
+runner = CliRunner()
+
+
+@cache
+def planned(name: str, cores: int) -> Plan:
+    return plan(load_spec(SPECS / f"{name}.yaml"), cores)
+
+
+def explained(text: str, cores: int) -> Explanation:
+    spec = parse_spec(text)
+    return explain_plan(spec, build_problem(spec), plan(spec, cores))
+
+
+def flat(text: str) -> str:
+    """Table output with the box drawing and runs of spaces squeezed out (cells wrap differently by width)."""
+    return re.sub(r"\s+", " ", re.sub(r"[│┃┏┓┗┛┡┩└┘┌┐━─┳┻╇╈┼┬┴]", " ", text))
+
+
+@pytest.mark.parametrize("cores", [1, 2])
+@pytest.mark.parametrize("name", EXAMPLES)
+def test_explain_shows_every_subchain_with_the_plans_numbers(name: str, cores: int) -> None:
+    result = runner.invoke(app, ["explain", str(SPECS / f"{name}.yaml"), "-k", str(cores)])
+    assert result.exit_code == ExitCode.OK, result.output
+    out = result.stdout
+    expected = planned(name, cores)
+    assert f"objective {expected.objective:.3f} ms" in out
+    table = out[out.index("2. Subchains") : out.index("3. Chains")]
+    rows = {line.split()[1]: line for line in table.splitlines() if line.startswith("│ ")}
+    assert set(rows) == set(expected.subchains)
+    for sub in expected.subchains.values():
+        row = flat(rows[sub.name])
+        assert f" {1000 / sub.period_ms:.2f} {sub.period_ms:.3f} " in row
+        assert f" {sub.latency_ms:.3f} {sub.priority} " in row
+        assert ("shared" if sub.shared else "dedicated") in row
+    for core in expected.shared_cores:
+        assert f"core {core.core}: shared by {len(core.order)} subchain" in out
+        assert f"T = {core.period_ms:.3f} ms" in out
+    for chain in expected.chains[:12]:
+        assert f"{chain.response_ms:.3f}" in out
+    for section in ("1. Cores", "2. Subchains", "3. Chains", "4. What binds", "5. Warnings", "6. Baseline"):
+        assert section in out
+
+
+@pytest.mark.parametrize("name", EXAMPLES)
+def test_json_has_the_runtime_tables_shape(name: str) -> None:
+    result = runner.invoke(app, ["explain", str(SPECS / f"{name}.yaml"), "--cores", "1", "--json"])
+    assert result.exit_code == ExitCode.OK, result.output
+    payload = json.loads(result.stdout)
+    assert payload["app"] == name
+    assert payload["cores"] == 1
+    table = payload["plan"]
+    assert {"objective", "constraint_scale", "subchains", "cores", "chains"} <= set(table)
+    assert set(table["subchains"]) == set(planned(name, 1).subchains)
+    assert table["objective"] == pytest.approx(planned(name, 1).objective, abs=1e-5)
+
+
+def test_vr_timewarps_fixed_rate_binds() -> None:
+    # The spec fixes Timewarp at vsync (120 Hz): whatever else the plan does, that rate binds.
+    explanation = explain_plan(load_spec(SPECS / "vr_illixr.yaml"), *_problem_and_plan("vr_illixr", 1))
+    kinds = {(b.kind, b.subject) for b in explanation.bindings}
+    assert ("fixed rate", "timewarp") in kinds
+    assert ("rate cap", "render") not in kinds  # render runs every 2nd period, below its 120 Hz cap
+    # VIO (11.5 ms a run) gets the 1 ms minimum slice: 11 periods per run, the most 11.5 ms allow.
+    assert ("minimum slice", "vio") in kinds
+    assert any(note.startswith("subchain starved: vio") for note in explanation.warnings)
+    vio = planned("vr_illixr", 1).subchains["vio"]
+    assert vio.fraction == pytest.approx(1 / 11)
+    assert f"{1000 / vio.period_ms:.4g} Hz" in next(n for n in explanation.warnings if "starved: vio" in n)
+
+
+def test_nav2d_one_core_gl_cap_binds() -> None:
+    # nav2d on one core: GL would run faster than the simulator's 50 Hz (its weight 0.5 on its period
+    # pulls it down), so its cap binds, as does GP's 1 Hz cap (GM and GP share the core with it).
+    result = runner.invoke(app, ["explain", str(SPECS / "nav2d.yaml"), "-k", "1"])
+    assert result.exit_code == ExitCode.OK, result.output
+    text = flat(result.stdout)
+    assert "rate cap GL period 20.000 ms = its cap of 50 Hz" in text
+    assert "rate cap GP period 1000.000 ms = its cap of 1 Hz" in text
+
+
+def _problem_and_plan(name: str, cores: int) -> tuple[Problem, Plan]:
+    spec = load_spec(SPECS / f"{name}.yaml")
+    return build_problem(spec), planned(name, cores)
+
+
+# One subchain on one core (Eq. 1: period = latency = c). A chain bound of 15 ms cannot hold
+# (R = 2c = 20 ms), so every bound is scaled by 20/15 and the scaled bound binds.
+ALONE = """
+catan: 1
+app: alone
+nodes: {a: {compute_ms: 10}, out: {scheduled: false}}
+edges: [[a, out]]
+subchains: {A: [a]}
+objective: [{chain: [a, out], weight: 1}]
+constraints: [{chain: [a, out], max_response_ms: 15}]
+"""
+
+
+def test_a_scaled_chain_bound_binds_and_is_warned_about() -> None:
+    explanation = explained(ALONE, 1)
+    assert explanation.constraint_scale == pytest.approx(20 / 15, rel=1e-5)
+    assert [(b.kind, b.subject) for b in explanation.bindings] == [("chain bound", "a -> out")]
+    assert any("scaled by 1.333" in note for note in explanation.warnings)
+
+
+def test_a_batch_rate_floor_binds(tmp_path: Path) -> None:
+    # One core: A (2 ms) carries the weight; B (10 ms, batch) must run at >= 50 Hz. With whole runs
+    # for A (f = 1) and switches 2 x 0.12 ms, T = (2 + 10 f + 0.24) / 0.95 and B's period T / f <= 20:
+    # the smallest T takes f = 2.24 / 9, where B's period is exactly 20 ms: the floor binds.
+    text = """
+catan: 1
+app: floor
+nodes: {a: {compute_ms: 2}, b: {compute_ms: 10, batch: true}, out: {scheduled: false}}
+edges: [[a, out], [b, out]]
+subchains: {A: [a], B: [b]}
+objective: [{chain: [a, out], weight: 1}]
+constraints: [{node: b, min_rate_hz: 50}]
+"""
+    explanation = explained(text, 1)
+    kinds = {(b.kind, b.subject) for b in explanation.bindings}
+    assert ("rate floor", "B") in kinds
+    assert ("f <= 1", "A") in kinds
+    b = next(s for s in explanation.subchains if s.name == "B")
+    assert b.fraction == pytest.approx(2.24 / 9, rel=1e-5)
+    # At its floor, B has no headroom: any growth of compute on core 0 misses it.
+    assert any(note.startswith("core near saturation: B's rate floor") for note in explanation.warnings)
+    path = tmp_path / "floor.yaml"
+    path.write_text(text)
+    result = runner.invoke(app, ["explain", str(path), "-k", "1"])
+    assert result.exit_code == ExitCode.OK, result.output
+    assert "rate floor B period 20.000 ms = its floor of 50 Hz" in flat(result.stdout)
+
+
+# One core, A (4 ms) -> B (4.5 ms), A at >= 100 Hz. Whole runs each period are best (R = 4T), so
+# T = (4 + 4.5 + 2 x 0.12) / 0.95 = 9.2 ms: 10 / 9.2 - 1 = 8.7% headroom on A's floor, and compute
+# may grow by g with (8.5 g + 0.24) / 0.95 = 10, g = 9.26 / 8.5: 8.9%.
+NEAR = """
+catan: 1
+app: near
+nodes: {a: {compute_ms: 4}, b: {compute_ms: 4.5}, out: {scheduled: false}}
+edges: [[a, b], [b, out]]
+subchains: {A: [a], B: [b]}
+objective: [{chain: [a, b, out], weight: 1}]
+constraints: [{node: a, min_rate_hz: 100}]
+"""
+
+
+def test_near_saturation_names_the_core_and_the_growth(tmp_path: Path) -> None:
+    explanation = explained(NEAR, 1)
+    (item,) = explanation.headrooms
+    assert item.value == pytest.approx(8.74 / 0.95)
+    assert item.headroom == pytest.approx(10 / (8.74 / 0.95) - 1)
+    assert item.growth == pytest.approx(9.26 / 8.5 - 1, rel=1e-6)
+    assert item.cores == (0,)
+    path = tmp_path / "near.yaml"
+    path.write_text(NEAR)
+    result = runner.invoke(app, ["explain", str(path), "-k", "1"])
+    assert result.exit_code == ExitCode.OK, result.output
+    assert (
+        "core near saturation: A's rate floor (>= 100 Hz) has 8.7% headroom on core 0 "
+        "(9.200 ms against 10.000 ms); compute times on core 0 may grow 8.9% before it is missed"
+    ) in flat(result.stdout)
+    # With a slower floor there is room enough: no warning.
+    relaxed = explained(NEAR.replace("min_rate_hz: 100", "min_rate_hz: 90"), 1)
+    assert not any("near saturation" in note for note in relaxed.warnings)
+
+
+def test_dedicated_chain_bound_headroom() -> None:
+    # A alone on its core: R = 2 x 9.5 = 19 ms against 20 ms: 5.3% headroom, and compute may grow 20/19.
+    explanation = explained(ALONE.replace("compute_ms: 10", "compute_ms: 9.5").replace("15}", "20}"), 1)
+    (item,) = explanation.headrooms
+    assert item.value == pytest.approx(19)
+    assert item.growth == pytest.approx(20 / 19 - 1, rel=1e-6)
+    assert any("5.3% headroom on core 0" in note for note in explanation.warnings)
+
+
+def test_timeline_segments_add_up_to_the_period() -> None:
+    explanation = explain_plan(load_spec(SPECS / "nav2d.yaml"), *_problem_and_plan("nav2d", 1))
+    (core,) = explanation.shared
+    assert sum(segment.length_ms for segment in core.segments) == pytest.approx(core.period_ms)
+    idle = core.segments[-1]
+    assert idle.kind == "idle"
+    assert idle.length_ms == pytest.approx(0.05 * core.period_ms)  # the 5% slack
+    for before, after in itertools.pairwise(core.segments):
+        assert after.offset_ms == pytest.approx(before.offset_ms + before.length_ms)
+    bar = timeline_bar(core)
+    assert len(bar) == 64
+    assert [mark for mark in "ABCDE" if mark in bar] == list("ABCDE")  # every slice shows, even 1 ms in 7
+
+
+def test_bar_gives_tiny_slices_a_character() -> None:
+    from catanc.explain import Segment
+
+    view = SharedCoreView(
+        0,
+        1000.0,
+        ("big", "tiny"),
+        (
+            Segment("switch", "big", 0.0, 0.1),
+            Segment("slice", "big", 0.1, 949.0),
+            Segment("switch", "tiny", 949.1, 0.1),
+            Segment("slice", "tiny", 949.2, 0.8),
+            Segment("idle", None, 950.0, 50.0),
+        ),
+    )
+    bar = timeline_bar(view, width=20)
+    assert len(bar) == 20
+    assert bar.count("B") == 1
+    assert bar.endswith(".")
+
+
+def test_no_baseline_is_one_line(tmp_path: Path) -> None:
+    path = tmp_path / "near.yaml"
+    path.write_text(NEAR)
+    result = runner.invoke(app, ["explain", str(path), "-k", "1"])
+    assert "Baseline: the spec has no baseline (baseline.rates_hz); nothing to compare with." in result.stdout
+
+
+def test_overloaded_baseline_is_said_so() -> None:
+    result = runner.invoke(app, ["explain", str(SPECS / "face_tracking.yaml"), "-k", "1"])
+    assert result.exit_code == ExitCode.OK, result.output
+    out = flat(result.stdout)
+    assert "The baseline is overloaded" in out
+    assert "utilisation 252.0%" in out  # 84 ms at 30 Hz on one core
+    assert "objective (weighted sum)" in out
+
+
+def test_bad_spec_exits_2_with_the_place(tmp_path: Path) -> None:
+    path = tmp_path / "bad.yaml"
+    path.write_text(NEAR.replace("edges: [[a, b]", "edges: [[a, bb]"))
+    result = runner.invoke(app, ["explain", str(path), "-k", "1"])
+    assert result.exit_code == ExitCode.BAD_INPUT
+    assert f"{path}:5:13: edges[0][1]: unknown node 'bb'" in result.stderr
+    assert "Traceback" not in result.output
+    assert runner.invoke(app, ["explain", str(path), "-k", "0"]).exit_code == ExitCode.BAD_INPUT
+    assert runner.invoke(app, ["explain", str(path)]).exit_code == ExitCode.BAD_INPUT  # --cores is required
+
+
+def test_infeasible_exits_with_its_code(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import catanc.planner
+
+    def infeasible(*args: object, **kwargs: object) -> Plan:
+        raise InfeasibleError("near: no schedule exists for the shared cores, whatever the bounds")
+
+    monkeypatch.setattr(catanc.planner, "plan", infeasible)
+    path = tmp_path / "near.yaml"
+    path.write_text(NEAR)
+    for extra in ([], ["--json"]):
+        result = runner.invoke(app, ["explain", str(path), "-k", "1", *extra])
+        assert result.exit_code == ExitCode.INFEASIBLE
+        assert "no schedule exists" in result.stderr
+
+
+def test_stage1_options_pass_through() -> None:
+    nav2d = str(SPECS / "nav2d.yaml")
+    result = runner.invoke(app, ["explain", nav2d, "-k", "2", "--stage1", "milp", "--solver", "cbc", "--json"])
+    assert result.exit_code == ExitCode.OK, result.output
+    bad = runner.invoke(app, ["explain", nav2d, "-k", "2", "--stage1", "greedy"])
+    assert bad.exit_code == ExitCode.BAD_INPUT
+    assert "unknown Stage I method 'greedy'" in bad.stderr
+
+
+def test_the_explain_modules_load_no_solver() -> None:
+    code = (
+        "import sys, catanc.explain, catanc.table, catanc.baseline\n"
+        "heavy = sorted(m for m in ('cvxpy', 'pulp') if m in sys.modules)\n"
+        "assert not heavy, heavy\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)
+
+
+def test_many_chains_heaviest_first_then_a_count(tmp_path: Path) -> None:
+    # 2 x 2 x 2 x 2 = 16 paths to `out`, each weighted 0.01; one of them also 1.0: it leads, 12 rows show.
+    layers = [[f"{letter}{i}" for i in range(2)] for letter in "abcd"]
+    nodes = "\n".join(f"  {n}: {{compute_ms: {1 + int(n[1])}}}" for layer in layers for n in layer)
+    edges = ", ".join(f"[{a}, {b}]" for up, low in itertools.pairwise(layers) for a in up for b in low)
+    subchains = ", ".join(f"{n.upper()}: [{n}]" for layer in layers for n in layer)
+    path = tmp_path / "dense.yaml"
+    path.write_text(
+        f"catan: 1\napp: dense\nnodes:\n{nodes}\n  out: {{scheduled: false}}\n"
+        f"edges: [{edges}, [d0, out], [d1, out]]\nsubchains: {{{subchains}}}\n"
+        "objective: [{chain: [a1, b1, c1, d1, out], weight: 1}, {chains: {to: out}, weight: 0.01}]\n"
+    )
+    result = runner.invoke(app, ["explain", str(path), "-k", "1"])
+    assert result.exit_code == ExitCode.OK, result.output
+    table = result.stdout[result.stdout.index("3. Chains (16") : result.stdout.index("4. What binds")]
+    rows = [line for line in table.splitlines() if line.startswith("│ ")]
+    assert len(rows) == 12
+    assert flat(rows[0]).startswith(" a1 -> b1 -> c1 -> d1 -> out A1 -> B1 -> C1 -> D1 1.01 ")
+    assert "... 4 more chains" in table
