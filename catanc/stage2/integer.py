@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 from catanc.problem import Problem
 from catanc.spec import Schedule
-from catanc.stage2.relaxed import RelaxedSolution, RelaxedStage2
+from catanc.stage2.base import RelaxedSolution, Stage2Model
 
 INTEGRAL_TOLERANCE = 1e-6
 """``n`` this close (relatively) to a whole number counts as whole."""
@@ -54,7 +54,7 @@ def most_runs(compute_ms: float, schedule: Schedule) -> int:
 
 
 def solve_integer(
-    model: RelaxedStage2, problem: Problem, scale: float = 1.0, *, least_scale: bool = False
+    model: Stage2Model, problem: Problem, scale: float = 1.0, *, least_scale: bool = False
 ) -> IntegerSolution | None:
     """The best plan with whole ``n_i``, or None when no integer plan meets the (scaled) bounds.
 

@@ -22,7 +22,6 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Mapping
-from dataclasses import dataclass
 
 import cvxpy as cp
 import numpy as np
@@ -30,37 +29,9 @@ import numpy as np
 from catanc.model import capped_dedicated, chain_form
 from catanc.problem import Problem
 from catanc.spec import Schedule
-from catanc.stage1.estimate import Allocation
+from catanc.stage2.base import Layout, RelaxedSolution, SharedCore
 
-
-@dataclass(frozen=True)
-class SharedCore:
-    """One shared core and its subchains, in schedule order."""
-
-    core: int
-    subchains: tuple[str, ...]
-
-
-@dataclass(frozen=True)
-class Layout:
-    """Where every subchain runs: dedicated core counts and shared cores."""
-
-    dedicated: tuple[tuple[str, int], ...]  # (subchain, cores)
-    shared: tuple[SharedCore, ...]
-
-    @classmethod
-    def from_allocation(cls, allocation: Allocation) -> Layout:
-        indices = allocation.core_indices()
-        shared = tuple(SharedCore(indices[group[0]][0], group) for group in allocation.groups)
-        return cls(allocation.dedicated, shared)
-
-
-@dataclass(frozen=True)
-class RelaxedSolution:
-    core_period_ms: dict[int, float]  # T per shared core
-    fraction: dict[str, float]  # f per shared subchain
-    period_ms: dict[str, float]  # p per shared subchain
-    objective: float  # the GP's optimal value (ms)
+__all__ = ["Layout", "RelaxedSolution", "RelaxedStage2", "SharedCore"]  # the first three live in base.py
 
 
 class RelaxedStage2:

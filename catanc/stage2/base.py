@@ -1,0 +1,76 @@
+"""What every Stage II model shares: the layout it plans, the relaxed solution, the model interface.
+
+Two models implement :class:`Stage2Model`: :class:`~catanc.stage2.relaxed.RelaxedStage2`
+(cvxpy, the reference) and :class:`~catanc.stage2.conic.ConicStage2` (the same
+program written directly for Clarabel, for the runtime). Neither this module
+nor the conic model imports cvxpy.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Protocol
+
+from catanc.problem import Problem
+from catanc.spec import Schedule
+from catanc.stage1.estimate import Allocation
+
+
+@dataclass(frozen=True)
+class SharedCore:
+    """One shared core and its subchains, in schedule order."""
+
+    core: int
+    subchains: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Where every subchain runs: dedicated core counts and shared cores."""
+
+    dedicated: tuple[tuple[str, int], ...]  # (subchain, cores)
+    shared: tuple[SharedCore, ...]
+
+    @classmethod
+    def from_allocation(cls, allocation: Allocation) -> Layout:
+        indices = allocation.core_indices()
+        shared = tuple(SharedCore(indices[group[0]][0], group) for group in allocation.groups)
+        return cls(allocation.dedicated, shared)
+
+
+@dataclass(frozen=True)
+class RelaxedSolution:
+    core_period_ms: dict[int, float]  # T per shared core
+    fraction: dict[str, float]  # f per shared subchain
+    period_ms: dict[str, float]  # p per shared subchain
+    objective: float  # the GP's optimal value (ms)
+
+
+class Stage2Model(Protocol):
+    """The relaxed Stage II program for one layout, built once and re-solved with new numbers.
+
+    ``set_numbers`` loads compute times (and the dedicated constants they imply),
+    ``set_box`` confines each non-batch ``n = 1/f`` (those named in ``integral``),
+    ``solve`` minimises the objective with every bound scaled by ``scale``, and
+    ``solve_least_scale`` minimises the scale the bounds need (its ``objective``);
+    both return None when infeasible.
+    """
+
+    @property
+    def problem(self) -> Problem: ...
+    @property
+    def layout(self) -> Layout: ...
+    @property
+    def schedule(self) -> Schedule: ...
+    @property
+    def shared_names(self) -> list[str]: ...
+    @property
+    def dedicated_names(self) -> list[str]: ...
+    @property
+    def integral(self) -> list[str]: ...
+
+    def set_numbers(self, problem: Problem) -> None: ...
+    def set_box(self, box: Mapping[str, tuple[int, int]]) -> None: ...
+    def solve(self, scale: float = 1.0) -> RelaxedSolution | None: ...
+    def solve_least_scale(self) -> RelaxedSolution | None: ...
