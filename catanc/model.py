@@ -18,7 +18,9 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 
-from catanc.problem import Chain, Problem, Stage, Subchain
+from catanc.problem import Chain, ChainForm, Problem, Stage, Subchain, chain_form
+
+__all__ = ["ChainForm", "chain_form"]  # re-exported: the solvers' view of a chain lives with the problem
 
 
 @dataclass(frozen=True)
@@ -94,45 +96,6 @@ def capped_dedicated(sub: Subchain, cores: int) -> DedicatedTiming:
     return replace(eq1, period_ms=max(eq1.period_ms, sub.min_period_ms))
 
 
-@dataclass(frozen=True)
-class ChainForm:
-    """A chain's response ``R = L + P`` as sums over its stages: what each solver writes down.
-
-    ``L = constant + sum latency(latency_of) + sum period(period_of)`` and
-    ``P >= floor``, ``P >= period(s)`` for each ``s`` in ``longest_of``.
-    Unscheduled clocks are constants; a batch head's observed period bounds
-    ``P`` instead of its subchain's.  :func:`evaluate_chain` is computed
-    independently, so the tests can hold the solvers' encodings to it.
-    """
-
-    constant: float
-    latency_of: tuple[str, ...]
-    period_of: tuple[str, ...]
-    longest_of: tuple[str, ...]
-    floor: float
-
-
-def chain_form(problem: Problem, chain: Chain) -> ChainForm:
-    constant, floor = 0.0, 0.0
-    latency_of: list[str] = []
-    period_of: list[str] = []
-    longest_of: list[str] = []
-    for position, stage in enumerate(chain.stages):
-        if stage.fixed:
-            fixed = problem.fixed_periods_ms[stage.name]
-            floor = max(floor, fixed)
-            constant += fixed if position == 0 else 2 * fixed  # a clock's latency is its period
-            continue
-        if position == 0 and chain.head_period_ms is not None:
-            floor = max(floor, chain.head_period_ms)
-        else:
-            longest_of.append(stage.name)
-        latency_of.append(stage.name)
-        if position > 0:
-            period_of.append(stage.name)  # at each later stage the input may wait a whole period
-    return ChainForm(constant, tuple(latency_of), tuple(period_of), tuple(longest_of), floor)
-
-
 def fixed_timing(period_ms: float) -> Timing:
     """An unscheduled node's own clock: its processing latency is its period."""
     return Timing(period_ms, period_ms)
@@ -160,9 +123,29 @@ def evaluate_chain(problem: Problem, chain: Chain, timings: Mapping[str, Timing]
     return chain_metrics(stage_timings(chain, timings, problem.fixed_periods_ms))
 
 
+def form_metrics(form: ChainForm, timings: Mapping[str, Timing]) -> ChainMetrics:
+    """A chain's metrics from its :class:`ChainForm` (the fast path; :func:`evaluate_chain` is the reference)."""
+    latency = math.fsum(
+        [
+            form.constant,
+            *(timings[name].latency_ms for name in form.latency_of),
+            *(timings[name].period_ms for name in form.period_of),
+        ]
+    )
+    period = max([form.floor, *(timings[name].period_ms for name in form.longest_of)])
+    return ChainMetrics(latency, period, latency + period)
+
+
+def chain_metrics_of(problem: Problem, index: int, timings: Mapping[str, Timing]) -> ChainMetrics:
+    """The metrics of ``problem.chains[index]``, by its precomputed form."""
+    return form_metrics(problem.chain_forms[index], timings)
+
+
 def objective(problem: Problem, timings: Mapping[str, Timing]) -> float:
     """``sum w_t R_t + sum w_i p_i`` over the problem's terms (ms)."""
-    responses = [evaluate_chain(problem, chain, timings).response_ms for chain in problem.chains]
+    responses = {
+        term.chain: chain_metrics_of(problem, term.chain, timings).response_ms for term in problem.response_terms
+    }
     return math.fsum(
         [term.weight * responses[term.chain] for term in problem.response_terms]
         + [term.weight * timings[term.subchain].period_ms for term in problem.period_terms]
@@ -177,7 +160,7 @@ def bound_scale(problem: Problem, timings: Mapping[str, Timing]) -> float:
     """
     scale = 1.0
     for bound in problem.response_bounds:
-        response = evaluate_chain(problem, problem.chains[bound.chain], timings).response_ms
+        response = chain_metrics_of(problem, bound.chain, timings).response_ms
         scale = max(scale, response / bound.max_response_ms)
     for sub in problem.subchains:
         if sub.max_period_ms < math.inf:

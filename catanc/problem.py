@@ -11,13 +11,14 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Iterable
-from dataclasses import dataclass, field
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field, replace
+from functools import cached_property
 
 import networkx as nx
 
 from catanc import graph
-from catanc.errors import Diagnostic, FieldPath, SpecError, close_matches, did_you_mean, format_path
+from catanc.errors import Diagnostic, FieldPath, SpecError, UsageError, close_matches, did_you_mean, format_path
 from catanc.spec import (
     ChainConstraint,
     ChainsConstraint,
@@ -81,6 +82,45 @@ class Chain:
 
 
 @dataclass(frozen=True)
+class ChainForm:
+    """A chain's response ``R = L + P`` as sums over its stages: what each solver writes down.
+
+    ``L = constant + sum latency(latency_of) + sum period(period_of)`` and
+    ``P >= floor``, ``P >= period(s)`` for each ``s`` in ``longest_of``.
+    Unscheduled clocks are constants; a batch head's observed period bounds
+    ``P`` instead of its subchain's.  :func:`evaluate_chain` is computed
+    independently, so the tests can hold the solvers' encodings to it.
+    """
+
+    constant: float
+    latency_of: tuple[str, ...]
+    period_of: tuple[str, ...]
+    longest_of: tuple[str, ...]
+    floor: float
+
+
+def chain_form(problem: Problem, chain: Chain) -> ChainForm:
+    constant, floor = 0.0, 0.0
+    latency_of: list[str] = []
+    period_of: list[str] = []
+    longest_of: list[str] = []
+    for position, stage in enumerate(chain.stages):
+        if stage.fixed:
+            fixed = problem.fixed_periods_ms[stage.name]
+            floor = max(floor, fixed)
+            constant += fixed if position == 0 else 2 * fixed  # a clock's latency is its period
+            continue
+        if position == 0 and chain.head_period_ms is not None:
+            floor = max(floor, chain.head_period_ms)
+        else:
+            longest_of.append(stage.name)
+        latency_of.append(stage.name)
+        if position > 0:
+            period_of.append(stage.name)  # at each later stage the input may wait a whole period
+    return ChainForm(constant, tuple(latency_of), tuple(period_of), tuple(longest_of), floor)
+
+
+@dataclass(frozen=True)
 class ResponseTerm:
     """``weight * R`` of one chain, from the spec entry at ``origin``."""
 
@@ -138,11 +178,46 @@ class Problem:
             names |= {s.name for s in self.chains[bound.chain].stages if not s.fixed}
         return names
 
+    @cached_property
+    def chain_forms(self) -> tuple[ChainForm, ...]:
+        """Every chain's :class:`ChainForm`, computed once (its structure never changes)."""
+        return tuple(chain_form(self, chain) for chain in self.chains)
+
     def subchain(self, name: str) -> Subchain:
         for sub in self.subchains:
             if sub.name == name:
                 return sub
         raise KeyError(name)
+
+    def with_compute(self, compute_ms: Mapping[str, float]) -> Problem:
+        """The same problem with new planning compute times (ms, one thread) for some scheduled nodes.
+
+        Raises :class:`UsageError` for a name that is not a scheduled node or a
+        time that is not a positive finite number.
+        """
+        owner = {node: sub.name for sub in self.subchains for node in sub.nodes}
+        for node, value in compute_ms.items():
+            if node not in owner:
+                hint = did_you_mean(node, owner)
+                raise UsageError(f"compute time for {node!r}: not a scheduled node of {self.app}{hint}")
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise UsageError(f"compute time for {node!r}: {value!r} ms is not a positive finite number")
+        touched = {owner[node] for node in compute_ms}
+        subchains = tuple(
+            replace(
+                sub,
+                node_compute_ms=tuple(
+                    float(compute_ms.get(n, c)) for n, c in zip(sub.nodes, sub.node_compute_ms, strict=True)
+                ),
+            )
+            if sub.name in touched
+            else sub
+            for sub in self.subchains
+        )
+        updated = replace(self, subchains=subchains)
+        if "chain_forms" in self.__dict__:  # the same chains: keep their forms
+            updated.__dict__["chain_forms"] = self.__dict__["chain_forms"]
+        return updated
 
 
 def build_problem(spec: Spec) -> Problem:

@@ -10,17 +10,21 @@ import math
 from pathlib import Path
 
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from catanc.load import load_spec, parse_spec
 from catanc.model import (
     Timing,
     chain_metrics,
+    chain_metrics_of,
     dedicated_timing,
     evaluate_chain,
     objective,
 )
-from catanc.problem import Subchain, build_problem
+from catanc.problem import Problem, Subchain, build_problem
 from catanc.spec import Node
+from tests.strategies import problems
 
 ROOT = Path(__file__).parent.parent
 
@@ -156,3 +160,22 @@ def test_empty_chain_and_no_terms() -> None:
     problem = build_problem(parse_spec(NAV.split("objective:", maxsplit=1)[0]))
     assert objective(problem, {}) == 0
     assert math.isclose(sum(s.compute_ms for s in problem.subchains), 1 + 2 + 3 + 4 + 2)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(problem=problems(max_subchains=6), data=st.data())
+def test_chain_forms_agree_with_the_stage_by_stage_reference(problem: Problem, data: st.DataObject) -> None:
+    # The solvers and the fast evaluation read chains through their forms; evaluate_chain walks
+    # the stages one by one as section 2 states it. They must agree for any timings.
+    positive = st.floats(0.01, 1000, allow_nan=False)
+    timings = {sub.name: Timing(data.draw(positive), data.draw(positive)) for sub in problem.subchains}
+    for index, chain in enumerate(problem.chains):
+        fast, reference = chain_metrics_of(problem, index, timings), evaluate_chain(problem, chain, timings)
+        assert fast.latency_ms == pytest.approx(reference.latency_ms, rel=1e-12)
+        assert fast.period_ms == pytest.approx(reference.period_ms, rel=1e-12)
+    # A problem with new compute times keeps the same chains, and so the same forms.
+    first = problem.subchains[0] if problem.subchains else None
+    if first is not None:
+        updated = problem.with_compute({first.nodes[0]: 7.5})
+        assert updated.chain_forms == problem.chain_forms
+        assert updated.subchain(first.name).node_compute_ms[0] == 7.5
