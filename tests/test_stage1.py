@@ -267,3 +267,43 @@ def test_same_allocation_in_fresh_processes() -> None:
         payload = result.stdout.replace('"method": "milp/highs"', "").replace('"method": "exhaustive"', "")
         outputs.add(payload)
     assert len(outputs) == 1
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(problem=problems(max_subchains=6), cores=st.integers(1, 3))
+def test_next_best_is_the_runner_up_of_the_enumeration(problem: Problem, cores: int) -> None:
+    # Oracle: every allocation's Stage I score; the runner-up is the best score among the option
+    # vectors other than the winner's (the MILP's no-good cut excludes one option vector).
+    from catanc.stage1 import next_best
+    from catanc.stage1.estimate import evaluate, option_table
+
+    table = option_table(problem, cores)
+    scored = [evaluate(problem, table, options) for options in allocations(problem, cores)]
+    best = allocate(problem, cores, method="milp", time_limit_s=60)
+    if len(scored) < 2:
+        return
+    runner_up = next_best(problem, cores, [best.allocation], time_limit_s=60)
+    assert runner_up.allocation.options() != best.allocation.options()
+    # Lexicographic, as Stage I ranks: the smallest bound scale, then the objective. Either another
+    # allocation ties with the winner, or the runner-up is the next best score.
+    ranked = sorted((round(e.scale, 9), e.objective) for e in scored)
+    ties = [key for key in ranked if close(key[0], best.constraint_scale) and close(key[1], best.objective)]
+    expected = ranked[0] if len(ties) > 1 else ranked[1]
+    assert close(runner_up.constraint_scale, expected[0]), (runner_up, expected)
+    assert close(runner_up.objective, expected[1]), (runner_up, expected)
+
+
+def test_every_allocation_counts_partners() -> None:
+    # Four subchains on two cores, every core used: a group of three plus one alone (4 ways), or two
+    # pairs ({AB|CD}, {AC|BD}, {AD|BC}). Stage I's options cannot tell the three pairings apart.
+    from catanc.stage1.exhaustive import every_allocation
+
+    problem = spec(
+        "nodes: {a: {compute_ms: 1}, b: {compute_ms: 2}, c: {compute_ms: 3}, d: {compute_ms: 4}}\n"
+        "subchains: {A: [a], B: [b], C: [c], D: [d]}\nobjective: [{node: a, weight: 1}]\n"
+    )
+    found = list(every_allocation(problem, 2))
+    assert len(found) == len(set(found)) == 7
+    pairs = {allocation.groups for allocation in found if len(allocation.groups) == 2}
+    assert pairs == {(("A", "B"), ("C", "D")), (("A", "C"), ("B", "D")), (("A", "D"), ("B", "C"))}
+    assert len(list(allocations(problem, 2))) == 5

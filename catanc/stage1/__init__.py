@@ -10,6 +10,8 @@ MILP otherwise. Both are exact and break ties by the same rule.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 from catanc.errors import UsageError
 from catanc.problem import Problem
 from catanc.stage1.estimate import Allocation, Option
@@ -52,4 +54,33 @@ def allocate(
     )
 
 
-__all__ = ["AUTO_EXHAUSTIVE", "METHODS", "SOLVERS", "Allocation", "Option", "Stage1Result", "allocate"]
+def next_best(
+    problem: Problem,
+    cores: int,
+    found: Sequence[Allocation],
+    *,
+    solver: str | None = None,
+    time_limit_s: float | None = None,
+) -> Stage1Result:
+    """The best allocation by Stage I's estimate other than those ``found`` (the MILP with no-good cuts)."""
+    from catanc.stage1 import milp  # noqa: PLC0415 - pulp and HiGHS load only when a MILP is solved
+
+    return milp.solve_milp(
+        problem,
+        cores,
+        solver=solver or milp.DEFAULT_SOLVER,
+        time_limit_s=milp.DEFAULT_TIME_LIMIT_S if time_limit_s is None else time_limit_s,
+        exclude=found,
+    )
+
+
+__all__ = [
+    "AUTO_EXHAUSTIVE",
+    "METHODS",
+    "SOLVERS",
+    "Allocation",
+    "Option",
+    "Stage1Result",
+    "allocate",
+    "next_best",
+]

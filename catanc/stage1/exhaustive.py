@@ -15,6 +15,7 @@ from catanc.errors import UsageError
 from catanc.problem import Problem
 from catanc.stage1.estimate import (
     SCALE_SLACK,
+    Allocation,
     Option,
     allocation_from_options,
     evaluate,
@@ -53,11 +54,10 @@ def _spreads(extra: int, bins: int, exact: bool) -> Iterator[tuple[int, ...]]:
             yield tuple(b - a - 1 for a, b in itertools.pairwise(bounds))
 
 
-def allocations(problem: Problem, cores: int) -> Iterator[dict[str, Option]]:
-    """Every distinct allocation, as options per subchain."""
+def _layouts(problem: Problem, cores: int) -> Iterator[tuple[list[str], list[list[str]], tuple[int, ...]]]:
+    """Every (dedicated singles, shared groups, extra cores per single) that fits ``cores``."""
     names = [sub.name for sub in problem.subchains]
     every_core_used = len(names) >= cores
-    seen: set[tuple[Option, ...]] = set()
     for partition in set_partitions(names):
         singles = [block[0] for block in partition if len(block) == 1]
         groups = [block for block in partition if len(block) > 1]
@@ -65,12 +65,36 @@ def allocations(problem: Problem, cores: int) -> Iterator[dict[str, Option]]:
         if extra < 0:
             continue
         for spread in _spreads(extra, len(singles), exact=every_core_used):
-            options = {name: Option(False, 1 + more) for name, more in zip(singles, spread, strict=True)}
-            options.update({name: Option(True, len(group)) for group in groups for name in group})
-            key = tuple(options[name] for name in names)
-            if key not in seen:  # partitions that differ only in partners score the same
-                seen.add(key)
-                yield options
+            yield singles, groups, spread
+
+
+def allocations(problem: Problem, cores: int) -> Iterator[dict[str, Option]]:
+    """Every distinct allocation as Stage I sees it: options per subchain (partners do not matter)."""
+    names = [sub.name for sub in problem.subchains]
+    seen: set[tuple[Option, ...]] = set()
+    for singles, groups, spread in _layouts(problem, cores):
+        options = {name: Option(False, 1 + more) for name, more in zip(singles, spread, strict=True)}
+        options.update({name: Option(True, len(group)) for group in groups for name in group})
+        key = tuple(options[name] for name in names)
+        if key not in seen:  # partitions that differ only in partners score the same
+            seen.add(key)
+            yield options
+
+
+def every_allocation(problem: Problem, cores: int) -> Iterator[Allocation]:
+    """Every allocation with its partners: who shares a core with whom matters to Stage II.
+
+    Groups keep spec order inside and are ordered by first member, as
+    :func:`~catanc.stage1.estimate.allocation_from_options` orders them, so
+    equal allocations compare equal.
+    """
+    order = {sub.name: index for index, sub in enumerate(problem.subchains)}
+    for singles, groups, spread in _layouts(problem, cores):
+        dedicated = sorted(
+            ((name, 1 + more) for name, more in zip(singles, spread, strict=True)), key=lambda d: order[d[0]]
+        )
+        shared = sorted((tuple(sorted(group, key=order.__getitem__)) for group in groups), key=lambda g: order[g[0]])
+        yield Allocation(tuple(dedicated), tuple(shared))
 
 
 def solve_exhaustive(problem: Problem, cores: int) -> Stage1Result:

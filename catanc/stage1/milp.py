@@ -28,7 +28,7 @@ import math
 import time
 import warnings
 from collections import defaultdict
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -114,6 +114,7 @@ def solve_milp(
     *,
     solver: str = DEFAULT_SOLVER,
     time_limit_s: float = DEFAULT_TIME_LIMIT_S,
+    exclude: Sequence[Allocation] = (),
 ) -> Stage1Result:
     """The best allocation by the MILP; within ``time_limit_s``, else the best found with its gap.
 
@@ -122,6 +123,9 @@ def solve_milp(
     polish it by local search (:mod:`catanc.stage1.search`); give that to the
     MILP as its first incumbent, and let the MILP prove or improve it in what
     is left of ``time_limit_s`` (counted from the start).
+
+    ``exclude`` lists allocations already found: a no-good cut per allocation
+    (its options may not all be chosen again) makes the MILP return the next best.
     """
     if solver not in SOLVERS:
         raise UsageError(f"unknown Stage I solver {solver!r}; choose one of {', '.join(SOLVERS)}")
@@ -131,26 +135,35 @@ def solve_milp(
     deadline = time.monotonic() + time_limit_s
     table = option_table(problem, cores)
     model = _build(problem, cores, table)
+    excluded = [allocation.options() for allocation in exclude]
+    for n, options in enumerate(excluded):
+        chosen = pulp.lpSum(model.choice[name, option] for name, option in options.items())
+        model.prob += chosen <= len(options) - 1, f"no_good_{n}"
     relaxed = _relaxation(model, solver) if len(problem.subchains) >= LP_START_FROM else None
     budget = max(SEARCH_BUDGET_MIN, SEARCH_BUDGET // max(1, len(problem.subchains)))
     start = local_search(problem, table, cores, relaxed.weights if relaxed else None, budget=budget)
     lp_bound = relaxed.bound if relaxed else None
-    outcome = _solve(model.prob, solver, deadline, model.start_values(problem, table, start))
+
+    def start_values() -> dict[str, float] | None:
+        # An excluded allocation is no start (it violates its cut): the MILP then finds its own.
+        return None if start in excluded else model.start_values(problem, table, start)
+
+    outcome = _solve(model.prob, solver, deadline, start_values())
     if outcome.status == "infeasible" and model.scale is not None:
         # Soft bounds: find the smallest common scale, then optimise under it.
         model.scale.upBound = None
         model.prob.setObjective(model.scale + 0)
-        outcome = _solve(model.prob, solver, deadline, model.start_values(problem, table, start))
+        outcome = _solve(model.prob, solver, deadline, start_values())
         if outcome.status == "solved":
             model.scale.upBound = float(model.scale.varValue) * (1 + SCALE_SLACK)
         model.prob.setObjective(model.objective)
-        outcome = _solve(model.prob, solver, deadline, model.start_values(problem, table, start))
+        outcome = _solve(model.prob, solver, deadline, start_values())
     options = dict(start)
     model_objective = None
     if outcome.status == "solved":
         found = {name: option for (name, option), var in model.choice.items() if var.varValue > 0.5}
         mine, theirs = evaluate(problem, table, start), evaluate(problem, table, found)
-        if outcome.optimal or (theirs.scale, theirs.objective) <= (mine.scale, mine.objective):
+        if outcome.optimal or start in excluded or (theirs.scale, theirs.objective) <= (mine.scale, mine.objective):
             options = found
             model_objective = float(pulp.value(model.objective)) - sum(
                 model.tie_coefficient[key] * var.varValue for key, var in model.choice.items()
