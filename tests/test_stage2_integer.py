@@ -100,6 +100,15 @@ def test_branch_and_bound_matches_enumeration(app: tuple[dict[str, Any], int], l
     timings = closed_form(problem, layout, spec.schedule, found.runs)
     assert objective(problem, timings) == pytest.approx(found.objective, rel=1e-6)
     assert found.root_bound <= found.objective * (1 + 1e-6)
+    # A cutoff above the optimum keeps it; one below leaves nothing; a start changes nothing.
+    above = solve_integer(model, problem, scale, cutoff=expected * (1 + 1e-3))
+    assert above is not None
+    assert above.objective == pytest.approx(expected, rel=1e-6)
+    assert solve_integer(model, problem, scale, cutoff=expected * (1 - 1e-3)) is None
+    for start in (found.runs, dict.fromkeys(found.runs, 1)):
+        warm = solve_integer(model, problem, scale, start=start)
+        assert warm is not None
+        assert warm.objective == pytest.approx(expected, rel=1e-6)
 
 
 # Two one-node subchains a (2 ms), b (4 ms) on one core, no slack or switch cost, periods weighted 1:
