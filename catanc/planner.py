@@ -1,36 +1,48 @@
 """The planner: Stage I, then Stage II, into a :class:`Plan` (the runtime table's ``plan``).
 
-- Stage I (:mod:`catanc.stage1`) allocates cores.
-- Dedicated subchains get Eq. 1's period and thread count, then their rate cap.
-- Shared cores get one geometric program over all of them, with whole runs
-  ``1/f`` for non-batch subchains (:mod:`catanc.stage2`).
-- Bounds are soft: if no plan meets them, the smallest common scale an
-  integer plan can meet is found (by the same branch and bound, minimising
-  the scale), used, reported and warned about.
+- Stage I (:mod:`catanc.stage1`) allocates cores with crude period estimates.
+- Stage II (:mod:`catanc.stage2.solve`) plans an allocation exactly:
+  dedicated subchains by Eq. 1, shared cores by one geometric program with
+  whole runs ``1/f``, bounds soft (the smallest common scale, warned about).
+- Beyond the paper: Stage I's estimate misjudges which subchains pair well,
+  so the planner also plans Stage I's runners-up exactly and keeps the best
+  (:func:`candidate_allocations`): every allocation when there are at most
+  :data:`ALL_ALLOCATIONS_UP_TO`, else the MILP's next best by no-good cuts.
+  Allocations whose solver-free lower bound cannot beat the best so far are
+  skipped.  The plain two-stage result is kept for comparison.
 
-Every number in the plan is re-derived from the schedule itself (``T`` from
-the fractions, ``p = max(T/f, p_min)``) and the objective re-evaluated by
-:mod:`catanc.model`, so the plan reports what it would do.
-
-Still to come (issue 4): evaluating Stage I's next-best allocations under
-Stage II, ``Replanner``, ``catanc explain``.
+Every number in the plan is re-derived from the schedule itself and the
+objective re-evaluated by :mod:`catanc.model`, so the plan reports what it
+would do.  :class:`catanc.replan.Replanner` re-plans with new compute times.
 """
 
 from __future__ import annotations
 
-import math
+import itertools
+import time
 from dataclasses import dataclass
+from typing import Literal
 
-from catanc.errors import InfeasibleError
-from catanc.model import Timing, bound_scale, capped_dedicated, evaluate_chain, objective
-from catanc.problem import Problem, Subchain, build_problem
+from catanc.errors import InfeasibleError, UsageError
+from catanc.model import chain_metrics_of
+from catanc.problem import Problem, build_problem
 from catanc.spec import Schedule, Spec
-from catanc.stage1 import Stage1Result, allocate
-from catanc.stage2.integer import IntegerSolution, solve_integer
-from catanc.stage2.relaxed import Layout, RelaxedStage2, SharedCore
+from catanc.stage1 import Allocation, Stage1Result, allocate, next_best
+from catanc.stage1.exhaustive import every_allocation
+from catanc.stage2.base import Layout, SharedCore, Stage2Model
+from catanc.stage2.solve import SCALE_PRECISION, Stage2Result, better, lower_bound, solve_layout
 
-SCALE_PRECISION = 1e-6
-"""Slack on the smallest bound scale when the bounds cannot all hold (solver tolerance)."""
+ALL_ALLOCATIONS_UP_TO = 2500
+"""Plan every allocation exactly when there are at most this many (8 subchains on 4 cores: 2,213)."""
+
+NEXT_BEST = 4
+"""Beyond that, how many of the MILP's runners-up to plan exactly."""
+
+NEXT_BEST_TIME_S = 1.0
+"""The runners-up's MILP solves share this budget (a compile stays within seconds)."""
+
+Backend = Literal["cvxpy", "conic"]
+BACKENDS: tuple[Backend, ...] = ("cvxpy", "conic")
 
 
 @dataclass(frozen=True)
@@ -63,6 +75,16 @@ class ChainPlan:
 
 
 @dataclass(frozen=True)
+class Comparison:
+    """How the plan compares with the paper's plain two-stage result (Stage I's allocation)."""
+
+    allocations: int  # allocations considered
+    planned: int  # of those, planned by Stage II (the rest were bounded out)
+    two_stage_objective: float | None  # Stage I's allocation under Stage II (None: it could not meet the bounds)
+    two_stage_scale: float | None
+
+
+@dataclass(frozen=True)
 class Plan:
     app: str
     cores: int
@@ -73,6 +95,9 @@ class Plan:
     chains: tuple[ChainPlan, ...]
     stage1: Stage1Result
     warnings: tuple[str, ...]
+    allocation: Allocation  # the one planned (Stage I's, or a runner-up that Stage II found better)
+    comparison: Comparison
+    runs: dict[str, int]  # n = 1/f per non-batch shared subchain (exact)
 
 
 def plan(
@@ -82,58 +107,147 @@ def plan(
     stage1_method: str = "auto",
     solver: str | None = None,
     time_limit_s: float | None = None,
+    runners_up: bool = True,
+    backend: Backend = "cvxpy",
 ) -> Plan:
-    """Plan ``spec`` on ``cores`` identical cores."""
-    problem = build_problem(spec)
+    """Plan ``spec`` on ``cores`` identical cores.
+
+    ``runners_up=False`` gives the paper's plain two-stage plan.  ``backend``
+    picks the model the plan's Stage II is solved with: cvxpy (the model of
+    record) or the direct conic model (the same optimum, faster); runners-up
+    are always ranked with the conic one.
+    """
+    return plan_problem(
+        build_problem(spec),
+        spec.schedule,
+        cores,
+        stage1_method=stage1_method,
+        solver=solver,
+        time_limit_s=time_limit_s,
+        runners_up=runners_up,
+        backend=backend,
+    )
+
+
+def plan_problem(
+    problem: Problem,
+    schedule: Schedule,
+    cores: int,
+    *,
+    stage1_method: str = "auto",
+    solver: str | None = None,
+    time_limit_s: float | None = None,
+    runners_up: bool = True,
+    backend: Backend = "cvxpy",
+    models: dict[Layout, Stage2Model] | None = None,
+) -> Plan:
+    """:func:`plan` for a built problem; ``models`` caches Stage II models by layout (re-planning)."""
+    if backend not in BACKENDS:
+        raise UsageError(f"unknown Stage II backend {backend!r}; choose one of {', '.join(BACKENDS)}")
     first = allocate(problem, cores, method=stage1_method, solver=solver, time_limit_s=time_limit_s)
     importance = problem.importance()
-    layout = ordered_layout(Layout.from_allocation(first.allocation), spec.schedule, importance, problem)
-    by_name = {sub.name: sub for sub in problem.subchains}
-    timings: dict[str, Timing] = {}
-    threads: dict[str, int] = {}
-    for name, k in layout.dedicated:
-        dedicated = capped_dedicated(by_name[name], k)
-        timings[name] = dedicated.timing
-        threads[name] = dedicated.threads
-    fractions: dict[str, float] = {}
-    lengths: dict[int, float] = {}
-    if layout.shared:
-        model = RelaxedStage2(problem, layout, spec.schedule)
-        model.set_numbers(problem)
-        _, solution = _smallest_scale(model, problem)
-        fractions = dict(solution.solution.fraction)
-        for name in solution.runs:
-            fractions[name] = 1.0 / solution.runs[name]  # exactly whole runs, not the solver's float
-        for core in layout.shared:
-            lengths[core.core] = schedule_length(core, fractions, by_name, spec.schedule)
-            for name in core.subchains:
-                latency = lengths[core.core] / fractions[name]
-                timings[name] = Timing(max(latency, by_name[name].min_period_ms), latency)
-                threads[name] = 1
-    scale = bound_scale(problem, timings)
-    warnings = []
-    if not first.optimal:  # Stage I's own bound scale is an estimate: the plan's below is what counts
-        gap = "unknown" if first.gap is None else f"{first.gap:.2%}"
-        warnings.append(f"Stage I stopped at its time limit with a proven optimality gap of {gap}")
-    if scale > 1.0 + SCALE_PRECISION:
-        warnings.append(
-            f"the bounds cannot all be met: every chain bound and rate floor is scaled by {scale:.4g} "
-            "(the plan meets the scaled bounds)"
-        )
-    return _assemble(
-        spec=spec,
-        problem=problem,
-        cores=cores,
-        layout=layout,
-        timings=timings,
-        threads=threads,
-        fractions=fractions,
-        lengths=lengths,
-        scale=scale,
-        first=first,
-        importance=importance,
-        warnings=warnings,
+    cache: dict[Layout, Stage2Model] = {} if models is None else models
+
+    def layout_of(allocation: Allocation) -> Layout:
+        return ordered_layout(Layout.from_allocation(allocation), schedule, importance, problem)
+
+    def model_of(layout: Layout, kind: Backend) -> Stage2Model | None:
+        if not layout.shared:
+            return None
+        if kind != "conic" or layout not in cache:  # the model of record is built afresh
+            built = new_model(problem, layout, schedule, kind)
+            if kind != "conic":
+                return built
+            cache[layout] = built
+        return cache[layout]
+
+    candidates = candidate_allocations(problem, cores, first, solver=solver) if runners_up else [first.allocation]
+    best: Stage2Result | None = None
+    chosen = first.allocation
+    two_stage: Stage2Result | None = None
+    planned = 0
+    bounds = {allocation: lower_bound(problem, layout_of(allocation), schedule) for allocation in candidates[1:]}
+    ranked = candidates[:1] + sorted(candidates[1:], key=lambda allocation: bounds[allocation])
+    for allocation in ranked:
+        if best is not None and not _could_beat(bounds[allocation], best):
+            continue
+        layout = layout_of(allocation)
+        kind: Backend = backend if len(candidates) == 1 else "conic"
+        beat = None if best is None else (best.scale, best.objective)
+        try:
+            result = solve_layout(problem, layout, schedule, model_of(layout, kind), beat=beat)
+        except InfeasibleError:
+            if len(candidates) == 1:
+                raise
+            result = None
+        planned += 1
+        if allocation == first.allocation:
+            two_stage = result
+        if result is not None and (best is None or better(result, (best.scale, best.objective))):
+            best, chosen = result, allocation
+    if best is None:
+        raise InfeasibleError(f"{problem.app}: no schedule exists for the shared cores, whatever the bounds")
+    if len(candidates) > 1 and backend != "conic" and best.layout.shared:
+        # The winner's numbers come from the model of record.
+        best = solve_layout(problem, best.layout, schedule, model_of(best.layout, backend)) or best
+    comparison = Comparison(
+        allocations=len(candidates),
+        planned=planned,
+        two_stage_objective=None if two_stage is None else two_stage.objective,
+        two_stage_scale=None if two_stage is None else two_stage.scale,
     )
+    return assemble(
+        problem=problem,
+        schedule=schedule,
+        cores=cores,
+        result=best,
+        allocation=chosen,
+        first=first,
+        comparison=comparison,
+        importance=importance,
+    )
+
+
+def new_model(problem: Problem, layout: Layout, schedule: Schedule, backend: Backend) -> Stage2Model:
+    """Stage II's relaxation of ``layout`` for ``backend`` (built once, re-solved with new numbers).
+
+    The solvers load on first use: cvxpy only for the model of record.
+    """
+    if backend == "conic":
+        from catanc.stage2.conic import ConicStage2  # noqa: PLC0415
+
+        return ConicStage2(problem, layout, schedule)
+    from catanc.stage2.relaxed import RelaxedStage2  # noqa: PLC0415
+
+    return RelaxedStage2(problem, layout, schedule)
+
+
+def candidate_allocations(
+    problem: Problem, cores: int, first: Stage1Result, *, solver: str | None = None
+) -> list[Allocation]:
+    """Stage I's allocation, then the runners-up to plan exactly (see the module's docstring)."""
+    every = list(itertools.islice(every_allocation(problem, cores), ALL_ALLOCATIONS_UP_TO + 1))
+    if len(every) <= ALL_ALLOCATIONS_UP_TO:
+        return [first.allocation, *(allocation for allocation in every if allocation != first.allocation)]
+    if not first.optimal:  # Stage I used its whole budget already
+        return [first.allocation]
+    found = [first.allocation]
+    deadline = time.monotonic() + NEXT_BEST_TIME_S
+    while len(found) <= NEXT_BEST and time.monotonic() < deadline:
+        runner_up = next_best(problem, cores, found, solver=solver, time_limit_s=deadline - time.monotonic())
+        if runner_up is None or runner_up.allocation in found:
+            break
+        found.append(runner_up.allocation)
+    return found
+
+
+def _could_beat(bound: tuple[float, float], best: Stage2Result) -> bool:
+    scale, value = bound
+    if scale > best.scale * (1 + SCALE_PRECISION):
+        return False
+    if scale < best.scale * (1 - SCALE_PRECISION):
+        return True
+    return value < best.objective - 1e-9 * max(1.0, abs(best.objective))
 
 
 def ordered_layout(layout: Layout, schedule: Schedule, importance: dict[str, float], problem: Problem) -> Layout:
@@ -159,81 +273,61 @@ def priorities(problem: Problem, schedule: Schedule, importance: dict[str, float
     return {problem.subchains[i].name: count - rank for rank, i in enumerate(ranked)}
 
 
-def schedule_length(
-    core: SharedCore, fractions: dict[str, float], by_name: dict[str, Subchain], schedule: Schedule
-) -> float:
-    """The shortest ``T`` that fits every slice, the switches and the slack."""
-    load = math.fsum(fractions[name] * by_name[name].compute_ms for name in core.subchains)
-    return (load + len(core.subchains) * schedule.switch_ms) / (1.0 - schedule.slack)
-
-
-def _smallest_scale(model: RelaxedStage2, problem: Problem) -> tuple[float, IntegerSolution]:
-    """The integer optimum at scale 1, or else at the smallest scale an integer plan can meet."""
-    found = solve_integer(model, problem, 1.0)
-    if found is not None:
-        return 1.0, found
-    least = solve_integer(model, problem, least_scale=True)
-    if least is None:
-        raise InfeasibleError(f"{problem.app}: no schedule exists for the shared cores, whatever the bounds")
-    scale = least.objective * (1 + SCALE_PRECISION)
-    found = solve_integer(model, problem, scale)
-    if found is None:  # pragma: no cover - the least-scale plan itself meets this scale
-        raise InfeasibleError(f"{problem.app}: no schedule meets the bounds scaled by {scale:.6g}")
-    return scale, found
-
-
-def _assemble(
+def assemble(
     *,
-    spec: Spec,
     problem: Problem,
+    schedule: Schedule,
     cores: int,
-    layout: Layout,
-    timings: dict[str, Timing],
-    threads: dict[str, int],
-    fractions: dict[str, float],
-    lengths: dict[int, float],
-    scale: float,
+    result: Stage2Result,
+    allocation: Allocation,
     first: Stage1Result,
+    comparison: Comparison,
     importance: dict[str, float],
-    warnings: list[str],
 ) -> Plan:
-    indices = first.allocation.core_indices()
-    ranks = priorities(problem, spec.schedule, importance)
-    shared = {name for core in layout.shared for name in core.subchains}
+    """The plan of one Stage II result: per subchain, per shared core, per chain, and warnings."""
+    warnings = []
+    if not first.optimal:  # Stage I's own bound scale is an estimate: the plan's below is what counts
+        gap = "unknown" if first.gap is None else f"{first.gap:.2%}"
+        warnings.append(f"Stage I stopped at its time limit with a proven optimality gap of {gap}")
+    if result.scale > 1.0 + SCALE_PRECISION:
+        warnings.append(
+            f"the bounds cannot all be met: every chain bound and rate floor is scaled by {result.scale:.4g} "
+            "(the plan meets the scaled bounds)"
+        )
+    indices = allocation.core_indices()
+    ranks = priorities(problem, schedule, importance)
     subchains = {
         sub.name: SubchainPlan(
             name=sub.name,
             nodes=sub.nodes,
             cores=indices[sub.name],
-            shared=sub.name in shared,
-            threads=threads[sub.name],
-            period_ms=timings[sub.name].period_ms,
-            latency_ms=timings[sub.name].latency_ms,
-            fraction=fractions.get(sub.name, 1.0),
+            shared=sub.name in result.fractions,
+            threads=result.threads[sub.name],
+            period_ms=result.timings[sub.name].period_ms,
+            latency_ms=result.timings[sub.name].latency_ms,
+            fraction=result.fractions.get(sub.name, 1.0),
             priority=ranks[sub.name],
         )
         for sub in problem.subchains
     }
     chains = []
-    for chain in problem.chains:
-        metrics = evaluate_chain(problem, chain, timings)
-        chains.append(
-            ChainPlan(
-                chain.nodes,
-                tuple(stage.name for stage in chain.stages),
-                metrics.latency_ms,
-                metrics.period_ms,
-                metrics.response_ms,
-            )
-        )
+    for index, chain in enumerate(problem.chains):
+        metrics = chain_metrics_of(problem, index, result.timings)
+        names = tuple(stage.name for stage in chain.stages)
+        chains.append(ChainPlan(chain.nodes, names, metrics.latency_ms, metrics.period_ms, metrics.response_ms))
     return Plan(
         app=problem.app,
         cores=cores,
-        objective=objective(problem, timings),
-        constraint_scale=scale,
+        objective=result.objective,
+        constraint_scale=result.scale,
         subchains=subchains,
-        shared_cores=tuple(CorePlan(core.core, lengths[core.core], core.subchains) for core in layout.shared),
+        shared_cores=tuple(
+            CorePlan(core.core, result.lengths[core.core], core.subchains) for core in result.layout.shared
+        ),
         chains=tuple(chains),
         stage1=first,
         warnings=tuple(warnings),
+        allocation=allocation,
+        comparison=comparison,
+        runs=dict(result.runs),
     )
