@@ -4,8 +4,8 @@ The pipeline (``../shared/docs/style.md``): load a spec (:func:`load_spec`),
 build its planning problem (:func:`catanc.problem.build_problem`), plan it
 (:func:`plan`: Stage I, then Stage II), emit.
 
-``plan`` and ``Plan`` load the solvers (cvxpy, pulp) on first use, so
-commands that only read specs stay quick.
+``plan``, ``Plan`` and ``Replanner`` (re-planning as compute times drift)
+load the solvers on first use, so commands that only read specs stay quick.
 """
 
 from typing import Any
@@ -16,7 +16,17 @@ from catanc.spec import Spec
 
 __version__ = "0.1.0"
 
-__all__ = ["CatancError", "Plan", "Spec", "SpecError", "__version__", "load_spec", "parse_spec", "plan"]
+__all__ = [
+    "CatancError",
+    "Plan",
+    "Replanner",
+    "Spec",
+    "SpecError",
+    "__version__",
+    "load_spec",
+    "parse_spec",
+    "plan",
+]
 
 
 def __getattr__(name: str) -> Any:
@@ -24,4 +34,8 @@ def __getattr__(name: str) -> Any:
         from catanc import planner  # noqa: PLC0415 - the solvers load on first use
 
         return getattr(planner, name)
+    if name == "Replanner":
+        from catanc.replan import Replanner  # noqa: PLC0415
+
+        return Replanner
     raise AttributeError(f"module 'catanc' has no attribute {name!r}")

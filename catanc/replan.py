@@ -1,0 +1,122 @@
+"""Re-planning as compute times drift: what the runtime enforcer calls every few seconds.
+
+A :class:`Replanner` plans once (both stages, runners-up included) and then
+keeps its problem and every Stage II model it built:
+
+- :meth:`Replanner.resolve` re-solves Stage II on the current allocation with
+  new compute times (catan-model.md section 5: every 5 s).  The model is not
+  rebuilt: only its numbers change, and the previous plan's whole runs are
+  the branch and bound's first incumbent.
+- :meth:`Replanner.reallocate` runs Stage I and the runners-up again (every
+  20 s, or when the number of cores changes), reusing the models of layouts
+  it has seen.
+
+Both use the direct conic model (:mod:`catanc.stage2.conic`), which the
+tests hold to the cvxpy model's optimum.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+from catanc.planner import Comparison, Plan, assemble, plan_problem
+from catanc.problem import Problem, build_problem
+from catanc.spec import Spec
+from catanc.stage2.base import Layout, SharedCore, Stage2Model
+from catanc.stage2.solve import solve_layout
+
+
+class Replanner:
+    """One app's planner, kept warm between re-plans."""
+
+    def __init__(
+        self,
+        spec: Spec,
+        cores: int,
+        *,
+        stage1_method: str = "auto",
+        solver: str | None = None,
+        time_limit_s: float | None = None,
+    ) -> None:
+        self.spec = spec
+        self._stage1_method, self._solver, self._time_limit_s = stage1_method, solver, time_limit_s
+        self.spec_problem: Problem = build_problem(spec)  # with the spec's compute times
+        self._problem = self.spec_problem
+        self._importance = self._problem.importance()
+        self._models: dict[Layout, Stage2Model] = {}
+        self.plan: Plan = self._allocate(cores)
+
+    @property
+    def cores(self) -> int:
+        return self.plan.cores
+
+    @property
+    def problem(self) -> Problem:
+        """The problem with the latest compute times."""
+        return self._problem
+
+    @property
+    def layout(self) -> Layout:
+        """Where the current plan runs each subchain (its Stage II model is ``models[layout]``)."""
+        return Layout(
+            self.plan.allocation.dedicated,
+            tuple(SharedCore(core.core, core.order) for core in self.plan.shared_cores),
+        )
+
+    @property
+    def models(self) -> Mapping[Layout, Stage2Model]:
+        """The Stage II models built so far, by layout (each is built once)."""
+        return self._models
+
+    def resolve(self, compute_ms: Mapping[str, float]) -> Plan:
+        """Re-plan Stage II with new compute times (ms, one thread) for some scheduled nodes.
+
+        The other nodes keep their last times; the allocation stays. Raises
+        :class:`~catanc.errors.UsageError` for an unknown node or a bad time.
+        """
+        self._problem = self._problem.with_compute(compute_ms)
+        current = self.plan
+        layout = self.layout
+        result = solve_layout(
+            self._problem, layout, self.spec.schedule, self._model(layout), start=current.runs or None
+        )
+        assert result is not None  # pragma: no cover - only a ``beat`` makes it None
+        self.plan = assemble(
+            problem=self._problem,
+            schedule=self.spec.schedule,
+            cores=current.cores,
+            result=result,
+            allocation=current.allocation,
+            first=current.stage1,
+            comparison=Comparison(allocations=1, planned=1, two_stage_objective=None, two_stage_scale=None),
+            importance=self._importance,
+        )
+        return self.plan
+
+    def reallocate(self, compute_ms: Mapping[str, float] | None = None, cores: int | None = None) -> Plan:
+        """Re-plan both stages (Stage I, its runners-up, Stage II), optionally with new times or cores."""
+        if compute_ms:
+            self._problem = self._problem.with_compute(compute_ms)
+        self.plan = self._allocate(self.plan.cores if cores is None else cores)
+        return self.plan
+
+    def _allocate(self, cores: int) -> Plan:
+        return plan_problem(
+            self._problem,
+            self.spec.schedule,
+            cores,
+            stage1_method=self._stage1_method,
+            solver=self._solver,
+            time_limit_s=self._time_limit_s,
+            backend="conic",
+            models=self._models,
+        )
+
+    def _model(self, layout: Layout) -> Stage2Model | None:
+        if not layout.shared:
+            return None
+        if layout not in self._models:
+            from catanc.stage2.conic import ConicStage2  # noqa: PLC0415 - only when a layout is new
+
+            self._models[layout] = ConicStage2(self._problem, layout, self.spec.schedule)
+        return self._models[layout]

@@ -1,0 +1,125 @@
+"""Re-planning with drifting compute times: the warm path against fresh, independent solves."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from catanc.errors import UsageError
+from catanc.load import load_spec
+from catanc.model import Timing, bound_scale, objective
+from catanc.planner import Plan, plan
+from catanc.replan import Replanner
+from catanc.stage2.base import Layout, SharedCore
+from catanc.stage2.relaxed import RelaxedStage2
+from catanc.stage2.solve import solve_layout
+from tests.test_stage2_integer import enumerate_best
+
+SPECS = Path(__file__).parent.parent / "specs"
+
+
+def layout_of(result: Plan) -> Layout:
+    return Layout(result.allocation.dedicated, tuple(SharedCore(c.core, c.order) for c in result.shared_cores))
+
+
+@pytest.fixture(scope="module")
+def vr() -> Replanner:
+    return Replanner(load_spec(SPECS / "vr_illixr.yaml"), 1)
+
+
+@pytest.fixture(scope="module")
+def nav() -> Replanner:
+    return Replanner(load_spec(SPECS / "nav2d.yaml"), 2)
+
+
+def test_first_plan_is_the_planners(vr: Replanner, nav: Replanner) -> None:
+    for replanner in (vr, nav):
+        fresh = plan(replanner.spec, replanner.cores)  # cvxpy, the model of record
+        assert replanner.plan.objective == pytest.approx(fresh.objective, rel=1e-6)
+        assert replanner.plan.allocation == fresh.allocation
+
+
+drift = st.floats(0.5, 2.0, allow_nan=False)
+
+
+def spec_times(replanner: Replanner) -> dict[str, float]:
+    """Every scheduled node's compute time as the spec gives it."""
+    return {
+        node: c
+        for sub in replanner.spec_problem.subchains
+        for node, c in zip(sub.nodes, sub.node_compute_ms, strict=True)
+    }
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(factors=st.lists(drift, min_size=6, max_size=6))
+def test_vr_resolve_matches_enumeration(vr: Replanner, factors: list[float]) -> None:
+    # VR's shared core has no batch subchain: the oracle enumerates every integer vector of runs
+    # in closed form (tests/test_stage2_integer.py), with the drifted compute times.
+    new = {node: round(c * factor, 3) for (node, c), factor in zip(spec_times(vr).items(), factors, strict=False)}
+    result = vr.resolve(new)
+    problem = vr.problem
+    expected = enumerate_best(problem, layout_of(result), vr.spec.schedule, 1.0)
+    if expected is None:  # the drift broke the bounds: the plan says by how much, and meets that
+        assert result.constraint_scale > 1
+    else:
+        assert result.objective == pytest.approx(expected, rel=1e-6)
+    timings = {name: Timing(s.period_ms, s.latency_ms) for name, s in result.subchains.items()}
+    assert objective(problem, timings) == pytest.approx(result.objective, rel=1e-9)
+    assert bound_scale(problem, timings) <= result.constraint_scale * (1 + 1e-9)
+
+
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(factors=st.lists(drift, min_size=8, max_size=8))
+def test_nav2d_resolve_matches_a_fresh_cvxpy_solve(nav: Replanner, factors: list[float]) -> None:
+    # GL is a batch subchain on the shared core, so the oracle is the cvxpy model, built afresh.
+    new = {node: c * factor for (node, c), factor in zip(spec_times(nav).items(), factors, strict=False)}
+    result = nav.resolve(new)
+    layout = layout_of(result)
+    fresh = solve_layout(nav.problem, layout, nav.spec.schedule, RelaxedStage2(nav.problem, layout, nav.spec.schedule))
+    assert fresh is not None
+    assert result.constraint_scale == pytest.approx(fresh.scale, rel=1e-6)
+    assert result.objective == pytest.approx(fresh.objective, rel=1e-6)
+
+
+def test_resolve_keeps_the_allocation_and_the_model(nav: Replanner) -> None:
+    before = dict(nav.models)
+    allocation = nav.plan.allocation
+    nav.resolve({"GM": 180.0})
+    nav.resolve({"GP": 90.0})
+    assert nav.plan.allocation == allocation
+    assert nav.models == before  # same layouts, same model objects: nothing rebuilt
+    assert nav.problem.subchain("GM").node_compute_ms == (180.0,)  # earlier updates stay
+    assert nav.problem.subchain("GP").node_compute_ms == (90.0,)
+
+
+def test_reallocate_follows_new_cores_and_times() -> None:
+    spec = load_spec(SPECS / "nav2d.yaml")
+    replanner = Replanner(spec, 1)
+    moved = replanner.reallocate(cores=2)
+    assert moved.cores == 2
+    assert moved.objective == pytest.approx(plan(spec, 2).objective, rel=1e-6)
+    # Much slower mapping: Stage I sees it too.
+    slower = replanner.reallocate({"GM": 600.0})
+    assert replanner.problem.subchain("GM").node_compute_ms == (600.0,)
+    assert slower.cores == 2
+
+
+@pytest.mark.parametrize(
+    ("times", "fragment"),
+    [
+        ({"LN": 3.0}, "did you mean 'LM'"),
+        ({"odom": 3.0}, "not a scheduled node"),
+        ({"GM": -1.0}, "not a positive finite number"),
+        ({"GM": float("nan")}, "not a positive finite number"),
+        ({"GM": float("inf")}, "not a positive finite number"),
+    ],
+)
+def test_bad_compute_times_are_usage_errors(nav: Replanner, times: dict[str, float], fragment: str) -> None:
+    before = nav.plan
+    with pytest.raises(UsageError, match=fragment):
+        nav.resolve(times)
+    assert nav.plan is before  # nothing changed
