@@ -33,6 +33,7 @@ from catanc.baseline import BaselineEvaluation, BaselineGap, TermValue, evaluate
 from catanc.model import Timing, evaluate_chain
 from catanc.problem import Chain, Problem, Subchain
 from catanc.spec import Schedule, Spec
+from catanc.stage1.estimate import Allocation
 
 if TYPE_CHECKING:
     from catanc.planner import CorePlan, Plan, SubchainPlan
@@ -131,6 +132,7 @@ class Explanation:
     headrooms: tuple[Headroom, ...]
     warnings: tuple[str, ...]
     baseline: BaselineEvaluation | BaselineGap
+    allocation: str  # how the allocation was chosen, in a sentence
 
 
 # --------------------------------------------------------------------------- analysis
@@ -168,6 +170,35 @@ def explain_plan(spec: Spec, problem: Problem, plan: Plan) -> Explanation:
         headrooms=headrooms,
         warnings=(*plan.warnings, *_warnings(plan, problem, spec.schedule, headrooms)),
         baseline=evaluate_baseline(spec, problem, plan.cores),
+        allocation=allocation_note(plan),
+    )
+
+
+def allocation_text(allocation: Allocation) -> str:
+    """``local alone | GL, GM share a core``: who runs where, without core indices."""
+    parts = [f"{name} alone" if k == 1 else f"{name} on {k} cores" for name, k in allocation.dedicated]
+    parts += [", ".join(group) + " share a core" for group in allocation.groups]
+    return " | ".join(parts) or "nothing to run"
+
+
+def allocation_note(plan: Plan) -> str:
+    """Why this allocation: Stage I's estimate, or a runner-up that exact Stage II found better."""
+    comparison = plan.comparison
+    considered = comparison.allocations
+    if considered <= 1:
+        return f"Allocation: {allocation_text(plan.allocation)} (Stage I's; no other allocation was planned)."
+    searched = f"best of {considered} allocations planned exactly ({comparison.planned} solved, the rest bounded out)"
+    if plan.allocation == plan.stage1.allocation:
+        return f"Allocation: {allocation_text(plan.allocation)}: Stage I's estimate, confirmed as the {searched}."
+    before = comparison.two_stage_objective
+    if before is None:
+        versus = "Stage I's allocation cannot meet the bounds as well"
+    else:
+        lower = (before - plan.objective) / before if before else 0.0
+        versus = f"{plan.objective:.3f} ms against {before:.3f} ms, {lower:.1%} lower"
+    return (
+        f"Allocation: {allocation_text(plan.allocation)}, the {searched}; Stage I's estimate chose "
+        f"{allocation_text(plan.stage1.allocation)} ({versus})."
     )
 
 
@@ -686,6 +717,7 @@ def render(explanation: Explanation) -> list[RenderableType]:
     cores = f"{explanation.cores} core{'s' if explanation.cores > 1 else ''}"
     parts: list[RenderableType] = [
         Text(f"{explanation.app} on {cores}: objective {explanation.objective:.3f} ms, {scale}.", style="bold"),
+        Text(explanation.allocation),
         Text(""),
         Text("1. Cores: one schedule period each", style="bold"),
     ]

@@ -313,3 +313,19 @@ def test_many_chains_heaviest_first_then_a_count(tmp_path: Path) -> None:
     assert len(rows) == 12
     assert flat(rows[0]).startswith(" a1 -> b1 -> c1 -> d1 -> out A1 -> B1 -> C1 -> D1 1.01 ")
     assert "... 4 more chains" in table
+
+
+def test_the_allocation_note_compares_with_stage_ones_choice() -> None:
+    # nav2d on 2 cores: exact Stage II prefers another allocation than Stage I's estimate; the note
+    # gives both objectives and the gain, which must match the plain two-stage plan planned alone.
+    spec = load_spec(SPECS / "nav2d.yaml")
+    paper = plan(spec, 2, runners_up=False)
+    ours = plan(spec, 2)
+    result = runner.invoke(app, ["explain", str(SPECS / "nav2d.yaml"), "-k", "2"])
+    assert result.exit_code == 0, result.output
+    text = flat(result.output)
+    lower = (paper.objective - ours.objective) / paper.objective
+    assert f"{ours.objective:.3f} ms against {paper.objective:.3f} ms, {lower:.1%} lower" in text
+    assert "Stage I's estimate chose" in text
+    same = flat(runner.invoke(app, ["explain", str(SPECS / "vr_illixr.yaml"), "-k", "1"]).output)
+    assert "no other allocation was planned" in same
