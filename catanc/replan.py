@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
+from catanc.errors import UsageError
 from catanc.planner import Comparison, Plan, assemble, plan_problem
 from catanc.problem import Problem, build_problem
 from catanc.spec import Spec
@@ -37,7 +38,14 @@ class Replanner:
         stage1_method: str = "auto",
         solver: str | None = None,
         time_limit_s: float | None = None,
+        gap: float = 0.0,
     ) -> None:
+        """``gap``: :meth:`resolve` may stop at an integer plan proven within this relative distance
+        of Stage II's optimum (0: exact). Compute times measured at runtime are far noisier than
+        1e-4, and such a gap halves a nav2d re-solve (bench/RESULTS.md)."""
+        if not (0.0 <= gap < 1.0):
+            raise UsageError(f"gap must be in [0, 1), got {gap!r}")
+        self.gap = gap
         self.spec = spec
         self._stage1_method, self._solver, self._time_limit_s = stage1_method, solver, time_limit_s
         self.spec_problem: Problem = build_problem(spec)  # with the spec's compute times
@@ -78,7 +86,7 @@ class Replanner:
         current = self.plan
         layout = self.layout
         result = solve_layout(
-            self._problem, layout, self.spec.schedule, self._model(layout), start=current.runs or None
+            self._problem, layout, self.spec.schedule, self._model(layout), start=current.runs or None, gap=self.gap
         )
         assert result is not None  # pragma: no cover - only a ``beat`` makes it None
         self.plan = assemble(

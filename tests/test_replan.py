@@ -123,3 +123,18 @@ def test_bad_compute_times_are_usage_errors(nav: Replanner, times: dict[str, flo
     with pytest.raises(UsageError, match=fragment):
         nav.resolve(times)
     assert nav.plan is before  # nothing changed
+
+
+@settings(max_examples=10, deadline=None)
+@given(factors=st.lists(drift, min_size=8, max_size=8))
+def test_a_gap_stays_within_it_of_the_exact_plan(factors: list[float]) -> None:
+    exact, loose = (Replanner(load_spec(SPECS / "nav2d.yaml"), 2, gap=gap) for gap in (0.0, 1e-3))
+    new = {node: c * factor for (node, c), factor in zip(spec_times(exact).items(), factors, strict=False)}
+    best, near = exact.resolve(new), loose.resolve(new)
+    assert best.objective <= near.objective * (1 + 1e-6)
+    assert near.objective <= best.objective * (1 + 1e-3) * (1 + 1e-6)
+
+
+def test_gap_out_of_range_is_a_usage_error() -> None:
+    with pytest.raises(UsageError, match="gap must be in"):
+        Replanner(load_spec(SPECS / "face_tracking.yaml"), 1, gap=1.5)

@@ -25,6 +25,7 @@ from catanc.stage2.conic import ConicStage2
 from catanc.stage2.integer import most_runs, solve_integer
 from catanc.stage2.relaxed import RelaxedStage2
 from tests.strategies import spec_documents, spec_of
+from tests.test_stage2_integer import enumerate_best
 
 SPECS = Path(__file__).parent.parent / "specs"
 AGREE = 1e-6
@@ -193,7 +194,10 @@ def test_integer_search_agrees_with_either_model(app: tuple[Spec, Layout], scale
     spec, layout = app
     problem = build_problem(spec)
     conic, relaxed = models(spec, problem, layout)
-    found, expected = solve_integer(conic, problem, scale), solve_integer(relaxed, problem, scale)
+    found, expected = (
+        solve_integer(conic, problem, scale, enumerate_up_to=0),
+        solve_integer(relaxed, problem, scale, enumerate_up_to=0),
+    )
     if found is not None and expected is not None:
         rel = tolerance(found.solution, expected.solution)
         if found.objective != pytest.approx(expected.objective, rel=rel):
@@ -215,19 +219,23 @@ def test_integer_search_agrees_with_either_model(app: tuple[Spec, Layout], scale
     assert least.objective == pytest.approx(scale, rel=MARGIN)
 
 
-@pytest.mark.parametrize(("name", "cores", "integer"), [("nav2d", 2, 45.6052), ("vr_illixr", 1, 52.2467)])
-def test_worked_examples(name: str, cores: int, integer: float) -> None:
+@pytest.mark.parametrize(("name", "cores"), [("nav2d", 2), ("vr_illixr", 1)])
+def test_worked_examples(name: str, cores: int) -> None:
     spec = load_spec(SPECS / f"{name}.yaml")
     problem = build_problem(spec)
     layout = Layout.from_allocation(allocate(problem, cores).allocation)
     conic, relaxed = models(spec, problem, layout)
-    found, expected = solve_integer(conic, problem), solve_integer(relaxed, problem)
+    found = solve_integer(conic, problem, enumerate_up_to=0)
+    expected = solve_integer(relaxed, problem, enumerate_up_to=0)
     assert found is not None
     assert expected is not None
     assert found.objective == pytest.approx(expected.objective, rel=AGREE)
-    assert found.objective == pytest.approx(integer, abs=5e-5)  # bench/RESULTS.md
     assert found.runs == expected.runs
     assert found.root_bound == pytest.approx(expected.root_bound, rel=AGREE)
+    if name == "vr_illixr":  # no batch subchain: every integer vector in closed form is the oracle
+        oracle = enumerate_best(problem, layout, spec.schedule, 1.0)
+        assert oracle is not None
+        assert found.objective == pytest.approx(oracle, rel=1e-6)
 
 
 def test_a_re_solve_only_updates_b() -> None:

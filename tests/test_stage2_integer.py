@@ -23,6 +23,7 @@ from catanc.spec import Schedule
 from catanc.stage1 import allocate
 from catanc.stage2.integer import most_runs, solve_integer
 from catanc.stage2.relaxed import Layout, RelaxedStage2
+from catanc.stage2.whole import ENUMERATE_UP_TO
 from tests.strategies import spec_documents, spec_of
 
 
@@ -90,25 +91,29 @@ def test_branch_and_bound_matches_enumeration(app: tuple[dict[str, Any], int], l
     expected = enumerate_best(problem, layout, spec.schedule, scale)
     model = RelaxedStage2(problem, layout, spec.schedule)
     model.set_numbers(problem)
-    found = solve_integer(model, problem, scale)
-    if expected is None:
-        assert found is None
-        return
-    assert found is not None
-    assert found.objective == pytest.approx(expected, rel=1e-6)
-    # The n_i it reports score, in closed form, what it says they score.
-    timings = closed_form(problem, layout, spec.schedule, found.runs)
-    assert objective(problem, timings) == pytest.approx(found.objective, rel=1e-6)
-    assert found.root_bound <= found.objective * (1 + 1e-6)
-    # A cutoff above the optimum keeps it; one below leaves nothing; a start changes nothing.
-    above = solve_integer(model, problem, scale, cutoff=expected * (1 + 1e-3))
-    assert above is not None
-    assert above.objective == pytest.approx(expected, rel=1e-6)
-    assert solve_integer(model, problem, scale, cutoff=expected * (1 - 1e-3)) is None
-    for start in (found.runs, dict.fromkeys(found.runs, 1)):
-        warm = solve_integer(model, problem, scale, start=start)
-        assert warm is not None
-        assert warm.objective == pytest.approx(expected, rel=1e-6)
+    # Both ways to the integer optimum: the branch and bound (forced), and evaluating every vector
+    # of the box at once in closed form (the default for boxes this small).
+    for enumerate_up_to in (0, ENUMERATE_UP_TO):
+        found = solve_integer(model, problem, scale, enumerate_up_to=enumerate_up_to)
+        if expected is None:
+            assert found is None
+            continue
+        assert found is not None
+        assert found.objective == pytest.approx(expected, rel=1e-6)
+        # The n_i it reports score, in closed form, what it says they score.
+        timings = closed_form(problem, layout, spec.schedule, found.runs)
+        assert objective(problem, timings) == pytest.approx(found.objective, rel=1e-6)
+        assert found.root_bound <= found.objective * (1 + 1e-6)
+        # A cutoff above the optimum keeps it; one below leaves nothing; a start changes nothing.
+        above = solve_integer(model, problem, scale, cutoff=expected * (1 + 1e-3), enumerate_up_to=enumerate_up_to)
+        assert above is not None
+        assert above.objective == pytest.approx(expected, rel=1e-6)
+        below = solve_integer(model, problem, scale, cutoff=expected * (1 - 1e-3), enumerate_up_to=enumerate_up_to)
+        assert below is None
+        for start in (found.runs, dict.fromkeys(found.runs, 1)):
+            warm = solve_integer(model, problem, scale, start=start, enumerate_up_to=enumerate_up_to)
+            assert warm is not None
+            assert warm.objective == pytest.approx(expected, rel=1e-6)
 
 
 # Two one-node subchains a (2 ms), b (4 ms) on one core, no slack or switch cost, periods weighted 1:
@@ -131,4 +136,11 @@ def test_integer_optimum_by_hand() -> None:
     assert found is not None
     assert found.objective == pytest.approx(6 + 3 + 8 / 3, rel=1e-7)
     assert found.runs["A"] / found.runs["B"] in (pytest.approx(3 / 4), pytest.approx(2 / 3))
-    assert found.root_bound == pytest.approx(6 + 4 * math.sqrt(2), rel=1e-6)
+    model.set_box({})
+    relaxed = model.solve()
+    assert relaxed is not None
+    assert relaxed.objective == pytest.approx(6 + 4 * math.sqrt(2), rel=1e-6)
+    searched = solve_integer(model, problem, enumerate_up_to=0)
+    assert searched is not None
+    assert searched.objective == pytest.approx(found.objective, rel=1e-7)
+    assert searched.root_bound == pytest.approx(6 + 4 * math.sqrt(2), rel=1e-6)

@@ -18,10 +18,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from catanc.model import Timing, bound_scale, capped_dedicated, objective
-from catanc.problem import Problem, Subchain
+from catanc.problem import Problem
 from catanc.spec import Schedule
 from catanc.stage2.base import RelaxedSolution, Stage2Model
+from catanc.stage2.whole import ENUMERATE_UP_TO, WholeRuns
 
 INTEGRAL_TOLERANCE = 1e-6
 """``n`` this close (relatively) to a whole number counts as whole."""
@@ -31,9 +31,6 @@ PRUNE_TOLERANCE = 5e-7
 the relaxation's own accuracy (Clarabel: ~1e-8): where the objective does not depend on some n_i,
 whole boxes tie with the incumbent and a tighter tolerance would explore every one of them (a
 subchain in no weighted term took 11,055 relaxations, 50 s). The optimum is exact to this."""
-
-CLOSED_FORM_FEASIBILITY = 1e-9
-"""Relative slack on the bounds when a fixed ``n`` is checked in closed form (rounding only)."""
 
 UNBOUNDED_RUNS = 10_000
 """The cap on ``n`` when no minimum slice bounds it (``min_slice_ms: 0``)."""
@@ -46,7 +43,7 @@ class IntegerSolution:
     runs: dict[str, int]  # n_i: schedule periods per run, for each non-batch shared subchain
     solution: RelaxedSolution  # the GP's optimum with every n_i fixed
     objective: float
-    root_bound: float  # the relaxation's value: how far integrality cost
+    root_bound: float  # a lower bound: the relaxation's value (the optimum itself when enumerated)
     nodes: int  # relaxations solved
 
 
@@ -65,6 +62,8 @@ def solve_integer(
     least_scale: bool = False,
     cutoff: float | None = None,
     start: dict[str, int] | None = None,
+    gap: float = 0.0,
+    enumerate_up_to: int = ENUMERATE_UP_TO,
 ) -> IntegerSolution | None:
     """The best plan with whole ``n_i``, or None when no integer plan meets the (scaled) bounds.
 
@@ -72,7 +71,14 @@ def solve_integer(
     (its ``objective`` is then that scale).  Only plans better than ``cutoff``
     are of interest (None when there is none): another allocation's plan,
     say.  ``start`` is a guess at the answer, evaluated first so that it
-    prunes from the outset (the previous plan, when re-planning).
+    prunes from the outset (the previous plan, when re-planning).  ``gap``
+    accepts a plan proven within that relative distance of the optimum
+    (default: exact, to the solver's accuracy :data:`PRUNE_TOLERANCE`).
+
+    Without batch subchains the answer for fixed runs has a closed form
+    (:mod:`catanc.stage2.whole`): small boxes are then enumerated outright,
+    and the search's leaves need no solver (``enumerate_up_to=0`` forces the
+    search, as the tests do).
     """
     compute = {sub.name: sub.compute_ms for sub in problem.subchains}
     # Branch first where it matters: subchains weighted in the objective, then those a bound
@@ -82,6 +88,14 @@ def solve_integer(
     rank = {name: (2 if weight[name] > 0 else 1 if name in bounded else 0) for name in model.integral}
     root: Box = {name: (1, most_runs(compute[name], model.schedule)) for name in model.integral}
     nodes = 0
+    tolerance = max(PRUNE_TOLERANCE, gap)
+    whole = WholeRuns(model, problem) if WholeRuns.applies(model, problem) else None
+    if whole is not None and WholeRuns.size(root) <= enumerate_up_to:
+        found = whole.best(root, scale, least_scale=least_scale)
+        if found is None or (cutoff is not None and found.solution.objective >= cutoff):
+            return None
+        value = found.solution.objective
+        return IntegerSolution(found.runs, found.solution, value, root_bound=value, nodes=0)
 
     def relax(box: Box) -> RelaxedSolution | None:
         nonlocal nodes
@@ -92,12 +106,10 @@ def solve_integer(
     best: tuple[float, Box, RelaxedSolution] | None = None
     threshold = math.inf if cutoff is None else cutoff  # prune boxes whose bound is not below this
 
-    closed = _ClosedForm(model, problem) if not any(sub.batch for sub in _shared(model, problem)) else None
-
     def offer(box: Box) -> None:
         nonlocal best, threshold
-        if closed is not None:  # every n fixed and no batch subchain: no solver needed
-            exact = closed.solve({name: low for name, (low, _) in box.items()}, scale, least_scale=least_scale)
+        if whole is not None:  # every n fixed and no batch subchain: no solver needed
+            exact = whole.solve({name: low for name, (low, _) in box.items()}, scale, least_scale=least_scale)
         else:
             exact = relax(box)
         if exact is not None and exact.objective < min(threshold, best[0] if best else math.inf):
@@ -107,7 +119,7 @@ def solve_integer(
     if start is not None and set(start) == set(model.integral):
         offer({name: (min(max(n, 1), root[name][1]),) * 2 for name, n in start.items()})
     first = relax(root)
-    if first is None or first.objective >= threshold * (1 - PRUNE_TOLERANCE):
+    if first is None or first.objective >= threshold * (1 - tolerance):
         return _result(best, first, nodes)
     rounded = {name: (r, r) for name, r in _nearest(first, model.integral, root).items()}
     if best is None or best[1] != rounded:
@@ -116,7 +128,7 @@ def solve_integer(
     stack: list[tuple[Box, RelaxedSolution]] = [(root, first)]
     while stack:
         box, solution = stack.pop()
-        if solution.objective >= threshold * (1 - PRUNE_TOLERANCE):
+        if solution.objective >= threshold * (1 - tolerance):
             continue
         branch = _most_fractional(solution, model.integral, box, rank)
         if branch is None:  # whole already: evaluate exactly with n fixed
@@ -129,7 +141,7 @@ def solve_integer(
         children = [below, above] if runs - math.floor(runs) < 0.5 else [above, below]
         for child in reversed(children):  # the nearer child is explored first
             relaxed = relax(child)
-            if relaxed is not None and relaxed.objective < threshold * (1 - PRUNE_TOLERANCE):
+            if relaxed is not None and relaxed.objective < threshold * (1 - tolerance):
                 stack.append((child, relaxed))
     return _result(best, first, nodes)
 
@@ -147,56 +159,6 @@ def _result(
         root_bound=objective if root is None else min(root.objective, objective),
         nodes=nodes,
     )
-
-
-def _shared(model: Stage2Model, problem: Problem) -> list[Subchain]:
-    return [problem.subchain(name) for core in model.layout.shared for name in core.subchains]
-
-
-class _ClosedForm:
-    """The relaxation's optimum when every ``n_i`` is fixed and no subchain is batch, without a solver.
-
-    With every ``f`` fixed, each term and bound only grows with ``T``, so the
-    optimum takes the shortest ``T`` that fits the slices, then
-    ``p = max(T n, p_min)`` (what the GP's constraints say, solved exactly).
-    """
-
-    def __init__(self, model: Stage2Model, problem: Problem) -> None:
-        self.problem = problem
-        self.layout = model.layout
-        self.schedule = model.schedule
-        self.dedicated = {
-            name: capped_dedicated(problem.subchain(name), k).timing for name, k in model.layout.dedicated
-        }
-        self.weighted = any(t.weight > 0 for t in problem.response_terms) or any(
-            t.weight > 0 for t in problem.period_terms
-        )
-
-    def solve(self, runs: dict[str, int], scale: float, *, least_scale: bool) -> RelaxedSolution | None:
-        timings = dict(self.dedicated)
-        lengths: dict[int, float] = {}
-        usable = 1.0 - self.schedule.slack
-        for core in self.layout.shared:
-            members = [self.problem.subchain(name) for name in core.subchains]
-            load = math.fsum(sub.compute_ms / runs[sub.name] for sub in members)
-            lengths[core.core] = (load + len(members) * self.schedule.switch_ms) / usable
-            for sub in members:
-                latency = lengths[core.core] * runs[sub.name]
-                timings[sub.name] = Timing(max(latency, sub.min_period_ms), latency)
-        needed = bound_scale(self.problem, timings)
-        if least_scale:
-            value = max(1.0, needed)
-        elif needed > scale * (1 + CLOSED_FORM_FEASIBILITY):
-            return None
-        else:
-            value = objective(self.problem, timings) if self.weighted else math.fsum(lengths.values())
-        shared = [name for core in self.layout.shared for name in core.subchains]
-        return RelaxedSolution(
-            core_period_ms=lengths,
-            fraction={name: 1.0 / runs[name] for name in shared},
-            period_ms={name: timings[name].period_ms for name in shared},
-            objective=value,
-        )
 
 
 def _runs(solution: RelaxedSolution, name: str) -> float:

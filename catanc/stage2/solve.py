@@ -94,12 +94,15 @@ def solve_layout(
     *,
     beat: tuple[float, float] | None = None,
     start: dict[str, int] | None = None,
+    gap: float = 0.0,
 ) -> Stage2Result | None:
     """The best integer plan for ``layout``, or None if it cannot beat ``beat`` = (scale, objective).
 
     ``model`` is the layout's relaxation, built beforehand (None when no core
     is shared) and loaded with ``problem``'s compute times here.  Raises
     :class:`InfeasibleError` when no schedule exists whatever the bounds.
+    ``gap`` accepts an integer plan proven within that relative distance of
+    the optimum (:func:`~catanc.stage2.integer.solve_integer`; 0: exact).
     """
     timings, threads = dedicated_timings(problem, layout)
     fractions: dict[str, float] = {}
@@ -110,7 +113,7 @@ def solve_layout(
         if model is None:
             raise ValueError("a layout with shared cores needs its Stage II model")
         model.set_numbers(problem)
-        found = _integer_plan(model, problem, beat, start)
+        found = _integer_plan(model, problem, beat, start, gap)
         if found is None:
             return None
         solution = found
@@ -153,13 +156,17 @@ def better(result: Stage2Result, than: tuple[float, float]) -> bool:
 
 
 def _integer_plan(
-    model: Stage2Model, problem: Problem, beat: tuple[float, float] | None, start: dict[str, int] | None
+    model: Stage2Model,
+    problem: Problem,
+    beat: tuple[float, float] | None,
+    start: dict[str, int] | None,
+    gap: float,
 ) -> IntegerSolution | None:
     """The integer optimum at scale 1, else at the smallest scale an integer plan can meet."""
     weighted = _has_terms(problem)
     if beat is None or beat[0] <= 1.0 + SCALE_PRECISION:
         cutoff = beat[1] if beat is not None and weighted else None
-        found = solve_integer(model, problem, 1.0, cutoff=cutoff, start=start)
+        found = solve_integer(model, problem, 1.0, cutoff=cutoff, start=start, gap=gap)
         if found is not None or beat is not None:
             return found  # None with ``beat``: worse, or infeasible where ``beat`` is feasible
     least = solve_integer(
@@ -170,7 +177,7 @@ def _integer_plan(
             return None
         raise InfeasibleError(f"{problem.app}: no schedule exists for the shared cores, whatever the bounds")
     scale = least.objective * (1 + SCALE_PRECISION)
-    return solve_integer(model, problem, scale, start=least.runs)
+    return solve_integer(model, problem, scale, start=least.runs, gap=gap)
 
 
 def _has_terms(problem: Problem) -> bool:
