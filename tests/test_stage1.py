@@ -171,6 +171,24 @@ def test_set_partitions_are_counted_by_bell_numbers(n: int) -> None:
     assert len({tuple(sorted(tuple(sorted(b)) for b in p)) for p in partitions}) == BELL[n]
 
 
+def stirling2(n: int, k: int) -> int:
+    """Partitions of n items into exactly k blocks: S(n, k) = k S(n-1, k) + S(n-1, k-1)."""
+    if n == k:
+        return 1
+    if k == 0 or k > n:
+        return 0
+    return k * stirling2(n - 1, k) + stirling2(n - 1, k - 1)
+
+
+@pytest.mark.parametrize(("n", "most"), [(n, k) for n in range(1, 9) for k in range(1, 5)] + [(12, 2)])
+def test_set_partitions_with_few_blocks_are_counted_by_stirling_numbers(n: int, most: int) -> None:
+    items = [f"s{i}" for i in range(n)]
+    partitions = list(set_partitions(items, most_blocks=most))
+    assert len(partitions) == sum(stirling2(n, k) for k in range(1, most + 1))
+    assert all(len(partition) <= most for partition in partitions)
+    assert all(sorted(name for block in partition for name in block) == sorted(items) for partition in partitions)
+
+
 def test_allocation_count_by_hand() -> None:
     # 3 subchains on 2 cores, every core used: one alone and two sharing (3 ways), or none
     # sharing needs 3 cores (no), or all three sharing leaves a core unused (no).
