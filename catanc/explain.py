@@ -187,7 +187,15 @@ def allocation_note(plan: Plan) -> str:
     considered = comparison.allocations
     if considered <= 1:
         return f"Allocation: {allocation_text(plan.allocation)} (Stage I's; no other allocation was planned)."
-    searched = f"best of {considered} allocations planned exactly ({comparison.planned} solved, the rest bounded out)"
+    if comparison.complete:
+        searched = (
+            f"best of {considered} allocations planned exactly ({comparison.planned} solved, the rest bounded out)"
+        )
+    else:
+        searched = (
+            f"best of the {comparison.planned} most promising of {considered} allocations planned exactly "
+            "(the search stops there)"
+        )
     if plan.allocation == plan.stage1.allocation:
         return f"Allocation: {allocation_text(plan.allocation)}: Stage I's estimate, confirmed as the {searched}."
     before = comparison.two_stage_objective

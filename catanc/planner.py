@@ -9,7 +9,8 @@
   (:func:`candidate_allocations`): every allocation when there are at most
   :data:`ALL_ALLOCATIONS_UP_TO`, else the MILP's next best by no-good cuts.
   Allocations whose solver-free lower bound cannot beat the best so far are
-  skipped.  The plain two-stage result is kept for comparison.
+  skipped, and at most :data:`PLAN_AT_MOST` are solved, the most promising
+  first.  The plain two-stage result is kept for comparison.
 
 Every number in the plan is re-derived from the schedule itself and the
 objective re-evaluated by :mod:`catanc.model`, so the plan reports what it
@@ -19,7 +20,6 @@ would do.  :class:`catanc.replan.Replanner` re-plans with new compute times.
 from __future__ import annotations
 
 import itertools
-import time
 from dataclasses import dataclass
 from typing import Literal
 
@@ -35,11 +35,16 @@ from catanc.stage2.solve import SCALE_PRECISION, Stage2Result, better, lower_bou
 ALL_ALLOCATIONS_UP_TO = 2500
 """Plan every allocation exactly when there are at most this many (8 subchains on 4 cores: 2,213)."""
 
-NEXT_BEST = 4
-"""Beyond that, how many of the MILP's runners-up to plan exactly."""
+PLAN_AT_MOST = 150
+"""Of those, at most this many (the most promising by their lower bound) get a Stage II solve: a
+count, not a clock, so that the same spec always gives the same plan (~2 ms each; 8 subchains on
+4 cores can have 2,000 allocations that the bound cannot rule out)."""
 
-NEXT_BEST_TIME_S = 1.0
-"""The runners-up's MILP solves share this budget (a compile stays within seconds)."""
+NEXT_BEST = 4
+"""Beyond ALL_ALLOCATIONS_UP_TO, how many of the MILP's runners-up to plan exactly."""
+
+NEXT_BEST_TIME_S = 0.5
+"""Each runner-up's MILP must be proven within this, else the search for runners-up stops."""
 
 Backend = Literal["cvxpy", "conic"]
 BACKENDS: tuple[Backend, ...] = ("cvxpy", "conic")
@@ -79,7 +84,8 @@ class Comparison:
     """How the plan compares with the paper's plain two-stage result (Stage I's allocation)."""
 
     allocations: int  # allocations considered
-    planned: int  # of those, planned by Stage II (the rest were bounded out)
+    planned: int  # of those, planned by Stage II (the rest were bounded out, or beyond PLAN_AT_MOST)
+    complete: bool  # every other allocation was bounded out: the plan is the best of them all
     two_stage_objective: float | None  # Stage I's allocation under Stage II (None: it could not meet the bounds)
     two_stage_scale: float | None
 
@@ -166,11 +172,15 @@ def plan_problem(
     chosen = first.allocation
     two_stage: Stage2Result | None = None
     planned = 0
+    complete = True
     bounds = {allocation: lower_bound(problem, layout_of(allocation), schedule) for allocation in candidates[1:]}
     ranked = candidates[:1] + sorted(candidates[1:], key=lambda allocation: bounds[allocation])
     for allocation in ranked:
         if best is not None and not _could_beat(bounds[allocation], best):
             continue
+        if planned >= PLAN_AT_MOST:
+            complete = False
+            break
         layout = layout_of(allocation)
         kind: Backend = backend if len(candidates) == 1 else "conic"
         beat = None if best is None else (best.scale, best.objective)
@@ -193,6 +203,7 @@ def plan_problem(
     comparison = Comparison(
         allocations=len(candidates),
         planned=planned,
+        complete=complete,
         two_stage_objective=None if two_stage is None else two_stage.objective,
         two_stage_scale=None if two_stage is None else two_stage.scale,
     )
@@ -232,11 +243,10 @@ def candidate_allocations(
     if not first.optimal:  # Stage I used its whole budget already
         return [first.allocation]
     found = [first.allocation]
-    deadline = time.monotonic() + NEXT_BEST_TIME_S
-    while len(found) <= NEXT_BEST and time.monotonic() < deadline:
-        runner_up = next_best(problem, cores, found, solver=solver, time_limit_s=deadline - time.monotonic())
-        if runner_up is None or runner_up.allocation in found:
-            break
+    while len(found) <= NEXT_BEST:
+        runner_up = next_best(problem, cores, found, solver=solver, time_limit_s=NEXT_BEST_TIME_S)
+        if not runner_up.optimal or runner_up.allocation in found:
+            break  # a runner-up found by the clock could differ from run to run
         found.append(runner_up.allocation)
     return found
 

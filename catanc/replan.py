@@ -96,7 +96,9 @@ class Replanner:
             result=result,
             allocation=current.allocation,
             first=current.stage1,
-            comparison=Comparison(allocations=1, planned=1, two_stage_objective=None, two_stage_scale=None),
+            comparison=Comparison(
+                allocations=1, planned=1, complete=True, two_stage_objective=None, two_stage_scale=None
+            ),
             importance=self._importance,
         )
         return self.plan
