@@ -211,3 +211,30 @@ def test_nav2d_two_cores_runner_up_beats_stage_one() -> None:
     assert result.comparison.two_stage_objective is not None
     assert result.objective < result.comparison.two_stage_objective
     assert result.allocation != result.stage1.allocation
+
+
+def test_same_plan_in_fresh_processes() -> None:
+    # Runners-up, the conic ranking and the cvxpy re-solve: nothing may depend on hash seeds or clocks.
+    import json
+    import os
+    import subprocess
+    import sys
+
+    script = (
+        "import json, sys; from catanc.load import load_spec; from catanc.planner import plan; "
+        "from catanc.problem import build_problem; from catanc.table import plan_payload; "
+        "spec = load_spec(sys.argv[1]); "
+        "print(json.dumps(plan_payload(plan(spec, 2), build_problem(spec)), sort_keys=True))"
+    )
+    outputs = {
+        subprocess.run(
+            [sys.executable, "-c", script, str(SPECS / "nav2d_yolo.yaml")],
+            check=True,
+            capture_output=True,
+            text=True,
+            env={**os.environ, "PYTHONHASHSEED": seed},
+        ).stdout
+        for seed in ("1", "2")
+    }
+    assert len(outputs) == 1
+    assert json.loads(outputs.pop())["objective"] > 0
