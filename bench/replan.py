@@ -31,6 +31,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from bench.solvers import median_ms
 from catanc.load import load_spec
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -98,8 +99,8 @@ def resolve_speed(name: str, cores: int, repeats: int, gap: float = 0.0) -> dict
             which.set_box({})
             which.solve()
 
-        row["one_relaxation_conic_ms"] = round(_median_ms(lambda: relaxed(model), repeats), 3)
-        row["one_relaxation_cvxpy_ms"] = round(_median_ms(lambda: relaxed(reference), max(5, repeats // 5)), 3)
+        row["one_relaxation_conic_ms"] = round(median_ms(lambda: relaxed(model), repeats), 3)
+        row["one_relaxation_cvxpy_ms"] = round(median_ms(lambda: relaxed(reference), max(5, repeats // 5)), 3)
     return row
 
 
@@ -109,6 +110,7 @@ def cold(name: str, cores: int) -> dict[str, float]:
 import json, time
 started = time.perf_counter()
 from catanc.replan import Replanner
+from bench.solvers import median_ms
 from catanc.load import load_spec
 imported = time.perf_counter()
 spec = load_spec({str(ROOT / "specs" / f"{name}.yaml")!r})
@@ -137,7 +139,7 @@ def commands(repeats: int) -> dict[str, float]:
     rows = {}
     for label, command in cases.items():
         rows[label] = round(
-            _median_ms(lambda c=command: subprocess.run(c, check=True, capture_output=True, cwd=ROOT), repeats), 0
+            median_ms(lambda c=command: subprocess.run(c, check=True, capture_output=True, cwd=ROOT), repeats), 0
         )
     return rows
 
@@ -171,15 +173,6 @@ def runners_up() -> list[dict[str, Any]]:
                 }
             )
     return rows
-
-
-def _median_ms(run: Any, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        started = time.perf_counter()
-        run()
-        times.append((time.perf_counter() - started) * 1000)
-    return statistics.median(times)
 
 
 def main() -> None:

@@ -32,6 +32,12 @@ app = typer.Typer(
 )
 
 SpecArg = Annotated[Path, typer.Argument(metavar="SPEC", help="A spec file (YAML).", show_default=False)]
+CoresOpt = Annotated[int, typer.Option("--cores", "-k", min=1, help="Identical CPU cores available.")]
+Stage1Opt = Annotated[
+    str, typer.Option(help="Stage I method: auto (enumerate small apps, else MILP), milp or exhaustive.")
+]
+SolverOpt = Annotated[str, typer.Option(help="MILP solver: highs or cbc.")]
+TimeLimitOpt = Annotated[float | None, typer.Option(min=0.01, help="Stage I time limit in seconds (default 2.5).")]
 
 
 PIPED_WIDTH = 160
@@ -151,14 +157,10 @@ def chains(
 @_reporting
 def allocate(
     spec_path: SpecArg,
-    cores: Annotated[int, typer.Option("--cores", "-k", min=1, help="Identical CPU cores available.")],
-    stage1: Annotated[
-        str, typer.Option(help="Stage I method: auto (enumerate small apps, else MILP), milp or exhaustive.")
-    ] = "auto",
-    solver: Annotated[str, typer.Option(help="MILP solver: highs or cbc.")] = "highs",
-    time_limit: Annotated[
-        float | None, typer.Option(min=0.01, help="Stage I time limit in seconds (default 2.5).")
-    ] = None,
+    cores: CoresOpt,
+    stage1: Stage1Opt = "auto",
+    solver: SolverOpt = "highs",
+    time_limit: TimeLimitOpt = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
 ) -> None:
     """Stage I only: which subchains get cores of their own and which share one."""
@@ -183,14 +185,10 @@ def allocate(
 @_reporting
 def explain(
     spec_path: SpecArg,
-    cores: Annotated[int, typer.Option("--cores", "-k", min=1, help="Identical CPU cores available.")],
-    stage1: Annotated[
-        str, typer.Option(help="Stage I method: auto (enumerate small apps, else MILP), milp or exhaustive.")
-    ] = "auto",
-    solver: Annotated[str, typer.Option(help="MILP solver: highs or cbc.")] = "highs",
-    time_limit: Annotated[
-        float | None, typer.Option(min=0.01, help="Stage I time limit in seconds (default 2.5).")
-    ] = None,
+    cores: CoresOpt,
+    stage1: Stage1Opt = "auto",
+    solver: SolverOpt = "highs",
+    time_limit: TimeLimitOpt = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the runtime table's plan as JSON.")] = False,
 ) -> None:
     """Plan the spec and explain the plan: timelines, what binds, warnings, the baseline."""

@@ -32,6 +32,19 @@ class Layout:
     dedicated: tuple[tuple[str, int], ...]  # (subchain, cores)
     shared: tuple[SharedCore, ...]
 
+    @property
+    def shared_names(self) -> list[str]:
+        """Every shared subchain, core by core, in schedule order."""
+        return [name for core in self.shared for name in core.subchains]
+
+    @property
+    def dedicated_names(self) -> list[str]:
+        return [name for name, _ in self.dedicated]
+
+    def check_shared(self) -> None:
+        if not self.shared:
+            raise ValueError("Stage II's GP is for shared cores; this layout has none")
+
     @classmethod
     def from_allocation(cls, allocation: Allocation) -> Layout:
         indices = allocation.core_indices()

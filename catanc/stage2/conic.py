@@ -242,14 +242,13 @@ class ConicStage2:
     """
 
     def __init__(self, problem: Problem, layout: Layout, schedule: Schedule) -> None:
-        if not layout.shared:
-            raise ValueError("Stage II's GP is for shared cores; this layout has none")
+        layout.check_shared()
         self.problem = problem
         self.layout = layout
         self.schedule = schedule
         by_name = {sub.name: sub for sub in problem.subchains}
-        self.shared_names = [name for core in layout.shared for name in core.subchains]
-        self.dedicated_names = [name for name, _ in layout.dedicated]
+        self.shared_names = layout.shared_names
+        self.dedicated_names = layout.dedicated_names
         self.integral = [name for name in self.shared_names if not by_name[name].batch]
 
         # Parameters v: v[ONE] = 1, each shared subchain's compute time, each dedicated period and latency.

@@ -38,14 +38,13 @@ class RelaxedStage2:
     """The relaxed Stage II GP for one layout, built once and re-solved with new numbers."""
 
     def __init__(self, problem: Problem, layout: Layout, schedule: Schedule) -> None:
-        if not layout.shared:
-            raise ValueError("Stage II's GP is for shared cores; this layout has none")
+        layout.check_shared()
         self.problem = problem
         self.layout = layout
         self.schedule = schedule
         by_name = {sub.name: sub for sub in problem.subchains}
-        self.shared_names = [name for core in layout.shared for name in core.subchains]
-        self.dedicated_names = [name for name, _ in layout.dedicated]
+        self.shared_names = layout.shared_names
+        self.dedicated_names = layout.dedicated_names
 
         # Parameters: what changes when compute times are re-measured.
         self.compute = {name: cp.Parameter(pos=True, name=f"c_{name}") for name in self.shared_names}

@@ -48,7 +48,7 @@ class WholeRuns:
         self.problem = problem
         self.layout = model.layout
         self.schedule = model.schedule
-        self.shared = [name for core in model.layout.shared for name in core.subchains]
+        self.shared = model.layout.shared_names
         self.dedicated = {
             name: capped_dedicated(problem.subchain(name), k).timing for name, k in model.layout.dedicated
         }
