@@ -20,7 +20,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 from catanc.errors import UsageError
-from catanc.planner import Comparison, Plan, assemble, plan_problem
+from catanc.planner import STAGE2_RELAXATIONS, Comparison, Plan, assemble, plan_problem
 from catanc.problem import Problem, build_problem
 from catanc.spec import Spec
 from catanc.stage2.base import Layout, SharedCore, Stage2Model
@@ -86,7 +86,13 @@ class Replanner:
         current = self.plan
         layout = self.layout
         result = solve_layout(
-            self._problem, layout, self.spec.schedule, self._model(layout), start=current.runs or None, gap=self.gap
+            self._problem,
+            layout,
+            self.spec.schedule,
+            self._model(layout),
+            start=current.runs or None,
+            gap=self.gap,
+            node_limit=STAGE2_RELAXATIONS,
         )
         assert result is not None  # pragma: no cover - only a ``beat`` makes it None
         self.plan = assemble(

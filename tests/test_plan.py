@@ -238,3 +238,19 @@ def test_same_plan_in_fresh_processes() -> None:
     }
     assert len(outputs) == 1
     assert json.loads(outputs.pop())["objective"] > 0
+
+
+def test_a_capped_integer_search_says_how_close_it_is(monkeypatch: pytest.MonkeyPatch) -> None:
+    # nav2d on 1 core: GL is batch, so the integer search runs; allowed a single relaxation past its
+    # first plan, it stops, and the plan says so and stays within its stated gap of the exact plan.
+    import catanc.planner
+
+    spec = load_spec(SPECS / "nav2d.yaml")
+    exact = plan(spec, 1)
+    monkeypatch.setattr(catanc.planner, "STAGE2_RELAXATIONS", 1)
+    capped = plan(spec, 1)
+    notes = [note for note in capped.warnings if "integer search stopped" in note]
+    assert notes
+    gap = float(notes[0].split("within ")[1].split("%")[0]) / 100
+    assert exact.objective <= capped.objective * (1 + 1e-9)
+    assert capped.objective * (1 - gap) <= exact.objective * (1 + 1e-5)

@@ -114,6 +114,12 @@ def test_branch_and_bound_matches_enumeration(app: tuple[dict[str, Any], int], l
             warm = solve_integer(model, problem, scale, start=start, enumerate_up_to=enumerate_up_to)
             assert warm is not None
             assert warm.objective == pytest.approx(expected, rel=1e-6)
+    if expected is not None:
+        # Stopped early, the search still returns a plan, and the gap it proves brackets the optimum.
+        capped = solve_integer(model, problem, scale, enumerate_up_to=0, node_limit=2)
+        assert capped is not None
+        assert capped.objective >= expected * (1 - 1e-6)
+        assert capped.objective * (1 - capped.gap) <= expected * (1 + 1e-6)
 
 
 # Two one-node subchains a (2 ms), b (4 ms) on one core, no slack or switch cost, periods weighted 1:

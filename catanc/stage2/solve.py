@@ -24,7 +24,7 @@ from catanc.model import Timing, bound_scale, capped_dedicated, objective
 from catanc.problem import Problem, Subchain
 from catanc.spec import Schedule
 from catanc.stage2.base import Layout, SharedCore, Stage2Model
-from catanc.stage2.integer import IntegerSolution, solve_integer
+from catanc.stage2.integer import Effort, IntegerSolution, solve_integer
 
 SCALE_PRECISION = 1e-6
 """Slack on the smallest bound scale when the bounds cannot all hold (solver tolerance)."""
@@ -41,6 +41,7 @@ class Stage2Result:
     scale: float  # the factor on the bounds this plan meets (1.0: as written)
     objective: float  # re-evaluated by the analytic model (ms)
     relaxations: int  # GP solves it took
+    gap: float = 0.0  # proven relative distance to this layout's optimum (0 unless the search was capped)
 
 
 def dedicated_timings(problem: Problem, layout: Layout) -> tuple[dict[str, Timing], dict[str, int]]:
@@ -95,6 +96,9 @@ def solve_layout(
     beat: tuple[float, float] | None = None,
     start: dict[str, int] | None = None,
     gap: float = 0.0,
+    node_limit: int | None = None,
+    fixed: tuple[dict[str, int], float] | None = None,
+    effort: Effort | None = None,
 ) -> Stage2Result | None:
     """The best integer plan for ``layout``, or None if it cannot beat ``beat`` = (scale, objective).
 
@@ -102,22 +106,32 @@ def solve_layout(
     is shared) and loaded with ``problem``'s compute times here.  Raises
     :class:`InfeasibleError` when no schedule exists whatever the bounds.
     ``gap`` accepts an integer plan proven within that relative distance of
-    the optimum (:func:`~catanc.stage2.integer.solve_integer`; 0: exact).
+    the optimum (:func:`~catanc.stage2.integer.solve_integer`; 0: exact);
+    ``node_limit`` caps its relaxations (the result then says its ``gap``);
+    ``effort`` counts them, whatever the outcome.
+    ``fixed`` = (runs, scale) skips the search: the plan with those runs
+    (None if they miss the bounds so scaled); the planner's model of record
+    re-solves the winner so.
     """
     timings, threads = dedicated_timings(problem, layout)
     fractions: dict[str, float] = {}
     runs: dict[str, int] = {}
     lengths: dict[int, float] = {}
     relaxations = 0
+    search_gap = 0.0
     if layout.shared:
         if model is None:
             raise ValueError("a layout with shared cores needs its Stage II model")
         model.set_numbers(problem)
-        found = _integer_plan(model, problem, beat, start, gap)
+        if fixed is not None:
+            found = _fixed_plan(model, *fixed)
+        else:
+            found = _integer_plan(model, problem, beat=beat, start=start, gap=gap, node_limit=node_limit, effort=effort)
         if found is None:
             return None
         solution = found
         relaxations = solution.nodes
+        search_gap = solution.gap
         fractions = dict(solution.solution.fraction)
         runs = dict(solution.runs)
         for name, n in runs.items():
@@ -139,6 +153,7 @@ def solve_layout(
         scale=max(1.0, bound_scale(problem, timings)),
         objective=objective(problem, timings),
         relaxations=relaxations,
+        gap=search_gap,
     )
     if beat is not None and not better(result, beat):
         return None
@@ -158,26 +173,44 @@ def better(result: Stage2Result, than: tuple[float, float]) -> bool:
 def _integer_plan(
     model: Stage2Model,
     problem: Problem,
+    *,
     beat: tuple[float, float] | None,
     start: dict[str, int] | None,
     gap: float,
+    node_limit: int | None,
+    effort: Effort | None,
 ) -> IntegerSolution | None:
     """The integer optimum at scale 1, else at the smallest scale an integer plan can meet."""
     weighted = _has_terms(problem)
     if beat is None or beat[0] <= 1.0 + SCALE_PRECISION:
         cutoff = beat[1] if beat is not None and weighted else None
-        found = solve_integer(model, problem, 1.0, cutoff=cutoff, start=start, gap=gap)
+        found = solve_integer(
+            model, problem, 1.0, cutoff=cutoff, start=start, gap=gap, node_limit=node_limit, effort=effort
+        )
         if found is not None or beat is not None:
             return found  # None with ``beat``: worse, or infeasible where ``beat`` is feasible
     least = solve_integer(
-        model, problem, least_scale=True, cutoff=None if beat is None else beat[0] * (1 + SCALE_PRECISION)
+        model,
+        problem,
+        least_scale=True,
+        cutoff=None if beat is None else beat[0] * (1 + SCALE_PRECISION),
+        node_limit=node_limit,
+        effort=effort,
     )
     if least is None:
         if beat is not None:
             return None
         raise InfeasibleError(f"{problem.app}: no schedule exists for the shared cores, whatever the bounds")
     scale = least.objective * (1 + SCALE_PRECISION)
-    return solve_integer(model, problem, scale, start=least.runs, gap=gap)
+    return solve_integer(model, problem, scale, start=least.runs, gap=gap, node_limit=node_limit, effort=effort)
+
+
+def _fixed_plan(model: Stage2Model, runs: dict[str, int], scale: float) -> IntegerSolution | None:
+    model.set_box({name: (n, n) for name, n in runs.items()})
+    solution = model.solve(scale)
+    if solution is None:
+        return None
+    return IntegerSolution(dict(runs), solution, solution.objective, root_bound=solution.objective, nodes=1)
 
 
 def _has_terms(problem: Problem) -> bool:
