@@ -26,6 +26,11 @@ from catanc.spec import Spec
 from catanc.stage2.base import Layout, SharedCore, Stage2Model
 from catanc.stage2.solve import solve_layout
 
+RUNTIME_GAP = 1e-4
+"""Re-plans stop at an integer plan proven within 0.01% of Stage II's optimum. The compute times
+they plan with are p95s of 50 noisy samples, far coarser than that; proving the last 0.01% on
+nav2d takes ~7 relaxations instead of 2 (2.0 ms instead of 0.8 ms: bench/RESULTS.md)."""
+
 
 class Replanner:
     """One app's planner, kept warm between re-plans."""
@@ -38,11 +43,10 @@ class Replanner:
         stage1_method: str = "auto",
         solver: str | None = None,
         time_limit_s: float | None = None,
-        gap: float = 0.0,
+        gap: float = RUNTIME_GAP,
     ) -> None:
         """``gap``: :meth:`resolve` may stop at an integer plan proven within this relative distance
-        of Stage II's optimum (0: exact). Compute times measured at runtime are far noisier than
-        1e-4, and such a gap halves a nav2d re-solve (bench/RESULTS.md)."""
+        of Stage II's optimum (0: exact, as :func:`catanc.plan` always is)."""
         if not (0.0 <= gap < 1.0):
             raise UsageError(f"gap must be in [0, 1), got {gap!r}")
         self.gap = gap
