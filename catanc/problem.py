@@ -171,6 +171,11 @@ class Problem:
             weight[period_term.subchain] += period_term.weight
         return weight
 
+    @property
+    def weighted(self) -> bool:
+        """Whether any objective term has a positive weight (else every feasible plan is optimal)."""
+        return any(t.weight > 0 for t in self.response_terms) or any(t.weight > 0 for t in self.period_terms)
+
     def bounded(self) -> set[str]:
         """Subchains a bound depends on: a rate floor, or a stage of a bounded chain."""
         names = {sub.name for sub in self.subchains if sub.max_period_ms < math.inf}

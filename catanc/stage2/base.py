@@ -8,11 +8,12 @@ nor the conic model imports cvxpy.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Protocol
 
-from catanc.problem import Problem
+from catanc.problem import Problem, Subchain
 from catanc.spec import Schedule
 from catanc.stage1.estimate import Allocation
 
@@ -87,3 +88,11 @@ class Stage2Model(Protocol):
     def set_box(self, box: Mapping[str, tuple[int, int]]) -> None: ...
     def solve(self, scale: float = 1.0) -> RelaxedSolution | None: ...
     def solve_least_scale(self) -> RelaxedSolution | None: ...
+
+
+def schedule_length(
+    core: SharedCore, fractions: Mapping[str, float], by_name: Mapping[str, Subchain], schedule: Schedule
+) -> float:
+    """The shortest ``T`` that fits every slice ``f c``, the switches and the slack on one shared core."""
+    load = math.fsum(fractions[name] * by_name[name].compute_ms for name in core.subchains)
+    return (load + len(core.subchains) * schedule.switch_ms) / (1.0 - schedule.slack)

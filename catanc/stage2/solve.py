@@ -21,9 +21,9 @@ from dataclasses import dataclass
 
 from catanc.errors import InfeasibleError
 from catanc.model import Timing, bound_scale, capped_dedicated, objective
-from catanc.problem import Problem, Subchain
+from catanc.problem import Problem
 from catanc.spec import Schedule
-from catanc.stage2.base import Layout, SharedCore, Stage2Model
+from catanc.stage2.base import Layout, Stage2Model, schedule_length
 from catanc.stage2.integer import Effort, IntegerSolution, solve_integer
 
 SCALE_PRECISION = 1e-6
@@ -53,14 +53,6 @@ def dedicated_timings(problem: Problem, layout: Layout) -> tuple[dict[str, Timin
         timings[name] = dedicated.timing
         threads[name] = dedicated.threads
     return timings, threads
-
-
-def schedule_length(
-    core: SharedCore, fractions: dict[str, float], by_name: dict[str, Subchain], schedule: Schedule
-) -> float:
-    """The shortest ``T`` that fits every slice, the switches and the slack."""
-    load = math.fsum(fractions[name] * by_name[name].compute_ms for name in core.subchains)
-    return (load + len(core.subchains) * schedule.switch_ms) / (1.0 - schedule.slack)
 
 
 def lower_bound(problem: Problem, layout: Layout, schedule: Schedule) -> tuple[float, float]:
@@ -181,9 +173,8 @@ def _integer_plan(
     effort: Effort | None,
 ) -> IntegerSolution | None:
     """The integer optimum at scale 1, else at the smallest scale an integer plan can meet."""
-    weighted = _has_terms(problem)
     if beat is None or beat[0] <= 1.0 + SCALE_PRECISION:
-        cutoff = beat[1] if beat is not None and weighted else None
+        cutoff = beat[1] if beat is not None and problem.weighted else None
         found = solve_integer(
             model, problem, 1.0, cutoff=cutoff, start=start, gap=gap, node_limit=node_limit, effort=effort
         )
@@ -211,7 +202,3 @@ def _fixed_plan(model: Stage2Model, runs: dict[str, int], scale: float) -> Integ
     if solution is None:
         return None
     return IntegerSolution(dict(runs), solution, solution.objective, root_bound=solution.objective, nodes=1)
-
-
-def _has_terms(problem: Problem) -> bool:
-    return any(t.weight > 0 for t in problem.response_terms) or any(t.weight > 0 for t in problem.period_terms)

@@ -23,7 +23,7 @@ import numpy.typing as npt
 
 from catanc.model import Timing, bound_scale, capped_dedicated, objective
 from catanc.problem import Problem
-from catanc.stage2.base import RelaxedSolution, Stage2Model
+from catanc.stage2.base import RelaxedSolution, Stage2Model, schedule_length
 
 ENUMERATE_UP_TO = 4096
 """Evaluate every integer vector at once when a box holds at most this many (a few hundred µs)."""
@@ -52,9 +52,7 @@ class WholeRuns:
         self.dedicated = {
             name: capped_dedicated(problem.subchain(name), k).timing for name, k in model.layout.dedicated
         }
-        self.weighted = any(t.weight > 0 for t in problem.response_terms) or any(
-            t.weight > 0 for t in problem.period_terms
-        )
+        self.by_name = {sub.name: sub for sub in problem.subchains}
 
     @staticmethod
     def applies(model: Stage2Model, problem: Problem) -> bool:
@@ -65,24 +63,22 @@ class WholeRuns:
         """The relaxation's optimum with these runs (None: they miss the scaled bounds)."""
         timings = dict(self.dedicated)
         lengths: dict[int, float] = {}
-        usable = 1.0 - self.schedule.slack
+        fractions = {name: 1.0 / runs[name] for name in self.shared}
         for core in self.layout.shared:
-            members = [self.problem.subchain(name) for name in core.subchains]
-            load = math.fsum(sub.compute_ms / runs[sub.name] for sub in members)
-            lengths[core.core] = (load + len(members) * self.schedule.switch_ms) / usable
-            for sub in members:
-                latency = lengths[core.core] * runs[sub.name]
-                timings[sub.name] = Timing(max(latency, sub.min_period_ms), latency)
+            lengths[core.core] = schedule_length(core, fractions, self.by_name, self.schedule)
+            for name in core.subchains:
+                latency = lengths[core.core] * runs[name]
+                timings[name] = Timing(max(latency, self.by_name[name].min_period_ms), latency)
         needed = bound_scale(self.problem, timings)
         if least_scale:
             value = max(1.0, needed)
         elif needed > scale * (1 + FEASIBILITY):
             return None
         else:
-            value = objective(self.problem, timings) if self.weighted else math.fsum(lengths.values())
+            value = objective(self.problem, timings) if self.problem.weighted else math.fsum(lengths.values())
         return RelaxedSolution(
             core_period_ms=lengths,
-            fraction={name: 1.0 / runs[name] for name in self.shared},
+            fraction=fractions,
             period_ms={name: timings[name].period_ms for name in self.shared},
             objective=value,
         )
@@ -128,7 +124,7 @@ class WholeRuns:
         if least_scale:
             value = needed
         else:
-            if self.weighted:
+            if self.problem.weighted:
                 value = sum(
                     (term.weight * responses[term.chain] for term in self.problem.response_terms), np.zeros(count)
                 )
