@@ -61,6 +61,20 @@ class RelaxedSolution:
     objective: float  # the GP's optimal value (ms)
 
 
+class LayoutModel:
+    """What every Stage II model knows of its layout: the :class:`Stage2Model` attributes, set once."""
+
+    def __init__(self, problem: Problem, layout: Layout, schedule: Schedule) -> None:
+        layout.check_shared()
+        self.problem = problem
+        self.layout = layout
+        self.schedule = schedule
+        self.shared_names = layout.shared_names
+        self.dedicated_names = layout.dedicated_names
+        # Non-batch subchains run whole runs, n = 1/f: the integer search boxes their f.
+        self.integral = [name for name in self.shared_names if not problem.subchain(name).batch]
+
+
 class Stage2Model(Protocol):
     """The relaxed Stage II program for one layout, built once and re-solved with new numbers.
 

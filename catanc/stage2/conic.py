@@ -52,7 +52,7 @@ import scipy.sparse as sp
 from catanc.model import ChainForm, capped_dedicated, chain_form
 from catanc.problem import Problem, Subchain
 from catanc.spec import Schedule
-from catanc.stage2.base import Layout, RelaxedSolution, Stage2Model
+from catanc.stage2.base import Layout, LayoutModel, RelaxedSolution, Stage2Model
 
 __all__ = ["SETTINGS", "ConicStage2", "Stage2Model"]
 
@@ -232,7 +232,7 @@ class _Program:
         return x
 
 
-class ConicStage2:
+class ConicStage2(LayoutModel):
     """The relaxed Stage II GP for one layout as an exponential-cone program for Clarabel, built once.
 
     The same interface and the same program as
@@ -242,14 +242,8 @@ class ConicStage2:
     """
 
     def __init__(self, problem: Problem, layout: Layout, schedule: Schedule) -> None:
-        layout.check_shared()
-        self.problem = problem
-        self.layout = layout
-        self.schedule = schedule
+        super().__init__(problem, layout, schedule)
         by_name = {sub.name: sub for sub in problem.subchains}
-        self.shared_names = layout.shared_names
-        self.dedicated_names = layout.dedicated_names
-        self.integral = [name for name in self.shared_names if not by_name[name].batch]
 
         # Parameters v: v[ONE] = 1, each shared subchain's compute time, each dedicated period and latency.
         shared_count = len(self.shared_names)

@@ -29,22 +29,17 @@ import numpy as np
 from catanc.model import capped_dedicated, chain_form
 from catanc.problem import Problem
 from catanc.spec import Schedule
-from catanc.stage2.base import Layout, RelaxedSolution, SharedCore
+from catanc.stage2.base import Layout, LayoutModel, RelaxedSolution, SharedCore
 
 __all__ = ["Layout", "RelaxedSolution", "RelaxedStage2", "SharedCore"]  # the first three live in base.py
 
 
-class RelaxedStage2:
+class RelaxedStage2(LayoutModel):
     """The relaxed Stage II GP for one layout, built once and re-solved with new numbers."""
 
     def __init__(self, problem: Problem, layout: Layout, schedule: Schedule) -> None:
-        layout.check_shared()
-        self.problem = problem
-        self.layout = layout
-        self.schedule = schedule
+        super().__init__(problem, layout, schedule)
         by_name = {sub.name: sub for sub in problem.subchains}
-        self.shared_names = layout.shared_names
-        self.dedicated_names = layout.dedicated_names
 
         # Parameters: what changes when compute times are re-measured.
         self.compute = {name: cp.Parameter(pos=True, name=f"c_{name}") for name in self.shared_names}
@@ -53,7 +48,6 @@ class RelaxedStage2:
         self.fixed_latency = {name: cp.Parameter(pos=True, name=f"ld_{name}") for name in self.dedicated_names}
         self.scale = cp.Parameter(pos=True, name="scale", value=1.0)
         # A box on each non-batch f (f = 1/n, n a whole number): the integer search narrows it.
-        self.integral = [name for name in self.shared_names if not by_name[name].batch]
         self.f_min = {name: cp.Parameter(pos=True, name=f"fmin_{name}", value=1e-9) for name in self.integral}
         self.f_max = {name: cp.Parameter(pos=True, name=f"fmax_{name}", value=1.0) for name in self.integral}
 
