@@ -167,16 +167,6 @@ def plan_problem(
     def layout_of(allocation: Allocation) -> Layout:
         return ordered_layout(Layout.from_allocation(allocation), schedule, importance, problem)
 
-    def model_of(layout: Layout, kind: Backend) -> Stage2Model | None:
-        if not layout.shared:
-            return None
-        if kind != "conic" or layout not in cache:  # the model of record is built afresh
-            built = new_model(problem, layout, schedule, kind)
-            if kind != "conic":
-                return built
-            cache[layout] = built
-        return cache[layout]
-
     candidates = candidate_allocations(problem, cores, first, solver=solver) if runners_up else [first.allocation]
     best: Stage2Result | None = None
     chosen = first.allocation
@@ -198,7 +188,13 @@ def plan_problem(
         effort = Effort()
         try:
             result = solve_layout(
-                problem, layout, schedule, model_of(layout, "conic"), beat=beat, node_limit=limit, effort=effort
+                problem,
+                layout,
+                schedule,
+                conic_model(cache, problem, layout, schedule),
+                beat=beat,
+                node_limit=limit,
+                effort=effort,
             )
         except InfeasibleError:
             if len(candidates) == 1:
@@ -217,7 +213,9 @@ def plan_problem(
         # The winner's numbers come from the model of record, at the runs the search chose.
         scale = 1.0 if best.scale <= 1.0 + SCALE_PRECISION else best.scale * (1 + SCALE_PRECISION)
         fixed = (best.runs, scale)
-        record = solve_layout(problem, best.layout, schedule, model_of(best.layout, "cvxpy"), fixed=fixed)
+        record = solve_layout(
+            problem, best.layout, schedule, new_model(problem, best.layout, schedule, "cvxpy"), fixed=fixed
+        )
         if record is not None:
             best = replace(record, gap=best.gap, relaxations=best.relaxations)
     comparison = Comparison(
@@ -237,6 +235,20 @@ def plan_problem(
         comparison=comparison,
         importance=importance,
     )
+
+
+def conic_model(
+    cache: dict[Layout, Stage2Model], problem: Problem, layout: Layout, schedule: Schedule
+) -> Stage2Model | None:
+    """The conic model of ``layout`` from ``cache``, built on first use (None when no core is shared).
+
+    A cached model is reused whatever compute times ``problem`` now has: they are loaded per solve.
+    """
+    if not layout.shared:
+        return None
+    if layout not in cache:
+        cache[layout] = new_model(problem, layout, schedule, "conic")
+    return cache[layout]
 
 
 def new_model(problem: Problem, layout: Layout, schedule: Schedule, backend: Backend) -> Stage2Model:

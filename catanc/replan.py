@@ -20,7 +20,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 from catanc.errors import UsageError
-from catanc.planner import STAGE2_RELAXATIONS, Comparison, Plan, assemble, plan_problem
+from catanc.planner import STAGE2_RELAXATIONS, Comparison, Plan, assemble, conic_model, plan_problem
 from catanc.problem import Problem, build_problem
 from catanc.spec import Spec
 from catanc.stage2.base import Layout, SharedCore, Stage2Model
@@ -93,7 +93,7 @@ class Replanner:
             self._problem,
             layout,
             self.spec.schedule,
-            self._model(layout),
+            conic_model(self._models, self._problem, layout, self.spec.schedule),
             start=current.runs or None,
             gap=self.gap,
             node_limit=STAGE2_RELAXATIONS,
@@ -131,12 +131,3 @@ class Replanner:
             backend="conic",
             models=self._models,
         )
-
-    def _model(self, layout: Layout) -> Stage2Model | None:
-        if not layout.shared:
-            return None
-        if layout not in self._models:
-            from catanc.stage2.conic import ConicStage2  # noqa: PLC0415 - only when a layout is new
-
-            self._models[layout] = ConicStage2(self._problem, layout, self.spec.schedule)
-        return self._models[layout]
