@@ -13,12 +13,16 @@ import os
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Annotated, Any, ParamSpec, TypeVar
+from typing import TYPE_CHECKING, Annotated, Any, ParamSpec, TypeVar
 
 import typer
 from rich.console import Console
 
 from catanc.errors import CatancError, Diagnostic, ExitCode, SpecError
+
+if TYPE_CHECKING:
+    from catanc.problem import Problem
+    from catanc.spec import Spec
 
 P = ParamSpec("P")
 R = TypeVar("R")
@@ -62,6 +66,22 @@ def _print_diagnostics(diagnostics: Sequence[Diagnostic], *, warning: bool = Fal
             what = f"{diagnostic.field}: " if diagnostic.field else ""
             text = f"{where}warning: {what}{diagnostic.message}"
         console.print(text, markup=False)
+
+
+def _load_problem(spec_path: Path) -> tuple[Spec, Problem]:
+    """The spec and its planning problem, with the problem's warnings printed."""
+    from catanc.load import load_spec
+    from catanc.problem import build_problem
+
+    spec = load_spec(spec_path)
+    problem = build_problem(spec)
+    _print_diagnostics(problem.warnings, warning=True)
+    return spec, problem
+
+
+def _print_notes(spec_path: Path, notes: Sequence[str]) -> None:
+    for note in notes:
+        _stderr().print(f"{spec_path}: warning: {note}", markup=False)
 
 
 def _reporting(command: Callable[P, R]) -> Callable[P, R]:
@@ -165,16 +185,11 @@ def allocate(
 ) -> None:
     """Stage I only: which subchains get cores of their own and which share one."""
     from catanc.describe import allocation_payload, allocation_table
-    from catanc.load import load_spec
-    from catanc.problem import build_problem
     from catanc.stage1 import allocate as allocate_cores
 
-    spec = load_spec(spec_path)
-    problem = build_problem(spec)
+    _, problem = _load_problem(spec_path)
     result = allocate_cores(problem, cores, method=stage1, solver=solver, time_limit_s=time_limit)
-    _print_diagnostics(problem.warnings, warning=True)
-    for note in result.warnings:
-        _stderr().print(f"{spec_path}: warning: {note}", markup=False)
+    _print_notes(spec_path, result.warnings)
     if as_json:
         sys.stdout.write(json.dumps(allocation_payload(problem, result, cores), indent=2, sort_keys=True) + "\n")
         return
@@ -193,18 +208,13 @@ def explain(
 ) -> None:
     """Plan the spec and explain the plan: timelines, what binds, warnings, the baseline."""
     from catanc.explain import explain_plan, render
-    from catanc.load import load_spec
     from catanc.planner import plan
-    from catanc.problem import build_problem
     from catanc.table import plan_json
 
-    spec = load_spec(spec_path)
-    problem = build_problem(spec)
+    spec, problem = _load_problem(spec_path)
     result = plan(spec, cores, stage1_method=stage1, solver=solver, time_limit_s=time_limit)
-    _print_diagnostics(problem.warnings, warning=True)
-    if as_json:
-        for note in result.warnings:
-            _stderr().print(f"{spec_path}: warning: {note}", markup=False)
+    if as_json:  # the text shows them in its own warnings section
+        _print_notes(spec_path, result.warnings)
         sys.stdout.write(plan_json(result, problem, app=spec.app, cores=cores))
         return
     out = _stdout()
