@@ -1,7 +1,11 @@
 """The plan in plain words (``catanc explain``): what runs when, what binds, what to watch.
 
 :func:`explain_plan` is pure data over a spec, its problem and a plan;
-:func:`render` turns it into rich tables.  It reads the plan only through
+:func:`report_blocks` decides, once, what the report says, as neutral
+blocks (headings, paragraphs, tables, a preformatted timeline bar, a list);
+:func:`render` lays them out as rich renderables for the terminal and
+:func:`render_markdown` as GitHub Markdown for a committed ``PLAN.md``
+(deterministic, independent of any terminal width).  It reads the plan only through
 ``plan.subchains`` (cores, shared, fraction, ...), ``plan.shared_cores``
 (each shared core's ``T`` and order) and ``plan.chains``, and recomputes
 every derived number with :mod:`catanc.model`:
@@ -21,11 +25,12 @@ every derived number with :mod:`catanc.model`:
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Literal, assert_never
 
-from rich.console import Group, RenderableType
+from rich.console import RenderableType
 from rich.table import Table
 from rich.text import Text
 
@@ -479,6 +484,70 @@ def _warnings(plan: Plan, problem: Problem, schedule: Schedule, headrooms: Seque
     return notes
 
 
+# --------------------------------------------------------------------------- report blocks
+
+Align = Literal["left", "right"]
+
+
+@dataclass(frozen=True)
+class Heading:
+    """A numbered section's title ("2. Subchains")."""
+
+    text: str
+
+
+@dataclass(frozen=True)
+class Paragraph:
+    """One paragraph of prose; ``strong`` for the report's opening line."""
+
+    text: str
+    strong: bool = False
+
+
+@dataclass(frozen=True)
+class Preformatted:
+    """A line whose spacing carries meaning (a timeline bar): shown verbatim, in Markdown in a code block."""
+
+    text: str
+
+
+@dataclass(frozen=True)
+class Bullets:
+    """A list of notes (the warnings)."""
+
+    items: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Column:
+    header: str
+    align: Align = "left"
+
+
+@dataclass(frozen=True)
+class TableBlock:
+    """A table: an optional title above it, one cell per column in every row, an optional note below it."""
+
+    columns: tuple[Column, ...]
+    rows: tuple[tuple[str, ...], ...]
+    title: str | None = None
+    footer: str | None = None
+
+    def __post_init__(self) -> None:
+        for row in self.rows:
+            if len(row) != len(self.columns):
+                raise ValueError(f"a row of {len(row)} cells in a table of {len(self.columns)} columns: {row}")
+
+
+Block = Heading | Paragraph | Preformatted | Bullets | TableBlock
+"""One piece of the report, as neutral data: :func:`render` and :func:`render_markdown` only lay it out."""
+
+
+def _columns(headers: Sequence[str], left: Sequence[str] = ()) -> tuple[Column, ...]:
+    """Columns right-aligned (numbers) except those named in ``left``."""
+    return tuple(Column(header, "left" if header in left else "right") for header in headers)
+
+
 # --------------------------------------------------------------------------- rendering
 
 
@@ -542,18 +611,14 @@ def _runs_text(sub: SubchainPlan, batch: bool, length: float) -> str:
     return text
 
 
-def _shared_table(view: SharedCoreView, explanation: Explanation) -> RenderableType:
+def _shared_blocks(view: SharedCoreView, explanation: Explanation) -> list[Block]:
     subs = {sub.name: sub for sub in explanation.subchains}
     title = (
         f"core {view.core}: shared by {len(view.order)} subchain{'s' if len(view.order) > 1 else ''}, "
         f"schedule period T = {view.period_ms:.3f} ms ({_rate(view.period_ms)} Hz)"
     )
-    bar = Text(f"  {timeline_bar(view)}  ")
     marks = "  ".join(f"{SLICE_MARKS[i % len(SLICE_MARKS)]} {name}" for i, name in enumerate(view.order))
-    bar.append(f"({marks}; | switch, . idle)")
-    table = Table(title=title, title_justify="left")
-    for column in ("offset ms", "length ms", "share of T", "what", "how often"):
-        table.add_column(column, justify="right" if "ms" in column or "share" in column else "left")
+    rows = []
     for segment in view.segments:
         if segment.kind == "switch":
             if segment.length_ms <= 0:
@@ -566,59 +631,61 @@ def _shared_table(view: SharedCoreView, explanation: Explanation) -> RenderableT
             sub = subs[segment.subchain]
             what = f"{segment.subchain}: slice f*c = {sub.fraction:.4g} x {explanation.compute_ms[sub.name]:.3f} ms"
             often = _runs_text(sub, sub.name in explanation.batch, view.period_ms)
-        table.add_row(
-            _ms(segment.offset_ms), _ms(segment.length_ms), _share(segment.length_ms, view.period_ms), what, often
+        rows.append(
+            (_ms(segment.offset_ms), _ms(segment.length_ms), _share(segment.length_ms, view.period_ms), what, often)
         )
-    return Group(table, bar)
+    columns = _columns(("offset ms", "length ms", "share of T", "what", "how often"), left=("what", "how often"))
+    return [
+        TableBlock(columns, tuple(rows), title=title),
+        Preformatted(f"{timeline_bar(view)}  ({marks}; | switch, . idle)"),
+    ]
 
 
-def _dedicated_line(view: DedicatedView, explanation: Explanation) -> Text:
+def _dedicated_line(view: DedicatedView, explanation: Explanation) -> Paragraph:
     sub = next(s for s in explanation.subchains if s.name == view.subchain)
     cores = len(view.cores)
     load = sub.latency_ms / sub.period_ms
     spread = f", {load * sub.threads / cores:.0%} of its {cores} cores" if cores > 1 else ""
-    return Text(
+    return Paragraph(
         f"{_cores_text(view.cores)}: dedicated to {sub.name}, {sub.threads} thread{'s' if sub.threads > 1 else ''}, "
         f"period {sub.period_ms:.3f} ms ({_rate(sub.period_ms)} Hz), latency {sub.latency_ms:.3f} ms: "
         f"busy {load:.0%} (latency/period){spread}"
     )
 
 
-def _subchain_table(explanation: Explanation) -> Table:
-    table = Table()
+def _subchain_table(explanation: Explanation) -> TableBlock:
     columns = (
         "subchain", "nodes", "cores", "how", "threads", "rate Hz", "period ms", "fraction", "slice ms",
         "latency ms", "priority",
     )  # fmt: skip
-    for column in columns:
-        table.add_column(column, justify="left" if column in ("subchain", "nodes", "how") else "right")
+    rows = []
     for sub in explanation.subchains:
         runs = runs_per_period(sub, sub.name in explanation.batch)
         fraction = f"1/{runs}" if runs is not None and runs > 1 else f"{sub.fraction:.4g}"
         slice_ms = _ms(sub.fraction * explanation.compute_ms[sub.name]) if sub.shared else "-"
-        table.add_row(
-            sub.name,
-            " -> ".join(sub.nodes),
-            ",".join(str(c) for c in sub.cores) or "-",
-            "shared" if sub.shared else "dedicated",
-            str(sub.threads),
-            _rate(sub.period_ms),
-            _ms(sub.period_ms),
-            fraction,
-            slice_ms,
-            _ms(sub.latency_ms),
-            str(sub.priority),
+        rows.append(
+            (
+                sub.name,
+                " -> ".join(sub.nodes),
+                ",".join(str(c) for c in sub.cores) or "-",
+                "shared" if sub.shared else "dedicated",
+                str(sub.threads),
+                _rate(sub.period_ms),
+                _ms(sub.period_ms),
+                fraction,
+                slice_ms,
+                _ms(sub.latency_ms),
+                str(sub.priority),
+            )
         )
-    return table
+    return TableBlock(_columns(columns, left=("subchain", "nodes", "how")), tuple(rows))
 
 
-def _chain_table(explanation: Explanation) -> RenderableType:
+def _chain_table(explanation: Explanation) -> TableBlock:
     chains = explanation.chains
-    table = Table()
-    for column in ("chain", "subchains", "weight", "bound ms", "latency ms", "period ms", "response ms"):
-        table.add_column(column, justify="left" if column in ("chain", "subchains") else "right")
-    for view in chains[:ROW_LIMIT]:
-        table.add_row(
+    columns = ("chain", "subchains", "weight", "bound ms", "latency ms", "period ms", "response ms")
+    rows = tuple(
+        (
             " -> ".join(view.nodes),
             " -> ".join(view.stages) or "-",
             f"{view.weight:g}" if view.weight > 0 else "-",
@@ -627,35 +694,32 @@ def _chain_table(explanation: Explanation) -> RenderableType:
             _ms(view.period_ms),
             _ms(view.response_ms),
         )
-    if len(chains) <= ROW_LIMIT:
-        return table
-    rest = chains[ROW_LIMIT:]
-    weighted = math.fsum(view.weight * view.response_ms for view in rest)
-    return Group(
-        table,
-        Text(f"  ... {len(rest)} more chains (together {_share(weighted, explanation.objective)} of the objective)"),
+        for view in chains[:ROW_LIMIT]
+    )
+    footer = None
+    if len(chains) > ROW_LIMIT:
+        rest = chains[ROW_LIMIT:]
+        weighted = math.fsum(view.weight * view.response_ms for view in rest)
+        footer = f"... {len(rest)} more chains (together {_share(weighted, explanation.objective)} of the objective)"
+    return TableBlock(_columns(columns, left=("chain", "subchains")), rows, footer=footer)
+
+
+def _binding_table(explanation: Explanation) -> Block:
+    if not explanation.bindings:
+        return Paragraph("Binding constraints: none (every rate and chain bound has room, no slice is at a limit)")
+    return TableBlock(
+        (Column("constraint"), Column("on"), Column("detail")),
+        tuple((item.kind, item.subject, item.detail) for item in explanation.bindings),
+        title="Binding constraints",
     )
 
 
-def _binding_table(explanation: Explanation) -> RenderableType:
-    if not explanation.bindings:
-        return Text("Binding constraints: none (every rate and chain bound has room, no slice is at a limit)")
-    table = Table(title="Binding constraints", title_justify="left")
-    for column in ("constraint", "on", "detail"):
-        table.add_column(column)
-    for item in explanation.bindings:
-        table.add_row(item.kind, item.subject, item.detail)
-    return table
-
-
-def _term_table(explanation: Explanation) -> RenderableType:
+def _term_table(explanation: Explanation) -> TableBlock:
     terms = sorted(explanation.terms, key=lambda t: -t.contribution)
     total = explanation.objective
-    table = Table(title=f"Objective terms: {total:.3f} ms in all", title_justify="left")
-    for column in ("term", "spec", "weight", "value ms", "weight x value", "share"):
-        table.add_column(column, justify="left" if column in ("term", "spec") else "right")
-    for term in terms[:ROW_LIMIT]:
-        table.add_row(
+    columns = ("term", "spec", "weight", "value ms", "weight x value", "share")
+    rows = tuple(
+        (
             term.label,
             term.origin,
             f"{term.weight:g}",
@@ -663,92 +727,188 @@ def _term_table(explanation: Explanation) -> RenderableType:
             _ms(term.contribution),
             _share(term.contribution, total),
         )
-    if len(terms) <= ROW_LIMIT:
-        return table
-    rest = math.fsum(t.contribution for t in terms[ROW_LIMIT:])
-    return Group(table, Text(f"  ... {len(terms) - ROW_LIMIT} more terms ({_share(rest, total)} of the objective)"))
+        for term in terms[:ROW_LIMIT]
+    )
+    footer = None
+    if len(terms) > ROW_LIMIT:
+        rest = math.fsum(t.contribution for t in terms[ROW_LIMIT:])
+        footer = f"... {len(terms) - ROW_LIMIT} more terms ({_share(rest, total)} of the objective)"
+    return TableBlock(
+        _columns(columns, left=("term", "spec")), rows, title=f"Objective terms: {total:.3f} ms in all", footer=footer
+    )
 
 
-def _baseline_section(explanation: Explanation) -> RenderableType:
+def _baseline_section(explanation: Explanation) -> list[Block]:
     baseline = explanation.baseline
     if isinstance(baseline, BaselineGap):
-        return Text(f"Baseline: {baseline.reason}; nothing to compare with.")
+        return [Paragraph(f"Baseline: {baseline.reason}; nothing to compare with.")]
     listed = ", ".join(f"{row.node} {row.rate_hz:g} Hz" for row in baseline.nodes.values() if row.rate_hz is not None)
     inherited = ", ".join(f"{row.node} on {row.trigger}" for row in baseline.nodes.values() if row.trigger is not None)
     cores = f"{baseline.cores} core{'s' if baseline.cores > 1 else ''}"
-    lines = [
-        f"Baseline: the spec's hand-tuned timers ({listed})"
-        + (f", the rest on their inputs ({inherited})" if inherited else "")
-        + f", CPU shared fairly by Linux over {cores}: utilisation {baseline.utilisation:.1%}, "
-        f"latency = compute / (1 - utilisation).",
+    blocks: list[Block] = [
+        Paragraph(
+            f"Baseline: the spec's hand-tuned timers ({listed})"
+            + (f", the rest on their inputs ({inherited})" if inherited else "")
+            + f", CPU shared fairly by Linux over {cores}: utilisation {baseline.utilisation:.1%}, "
+            f"latency = compute / (1 - utilisation)."
+        ),
     ]
     if baseline.overloaded:
-        lines.append(
-            f"The baseline is overloaded: its rates ask for {baseline.utilisation:.1%} of {cores}, which Linux "
-            f"cannot sustain; every period is stretched x{baseline.stretch:.3f} and latencies are taken "
-            f"at 95% utilisation."
+        blocks.append(
+            Paragraph(
+                f"The baseline is overloaded: its rates ask for {baseline.utilisation:.1%} of {cores}, which Linux "
+                f"cannot sustain; every period is stretched x{baseline.stretch:.3f} and latencies are taken "
+                f"at 95% utilisation."
+            )
         )
-    table = Table(title="Baseline versus plan (same model)", title_justify="left")
-    for column in ("term", "weight", "baseline ms", "plan ms", "baseline / plan"):
-        table.add_column(column, justify="left" if column == "term" else "right")
     pairs = sorted(
         zip(baseline.terms, explanation.terms, strict=True),
         key=lambda pair: -max(pair[0].contribution, pair[1].contribution),
     )
-    for base, mine in pairs[:ROW_LIMIT]:
-        table.add_row(
-            base.label, f"{base.weight:g}", _ms(base.value_ms), _ms(mine.value_ms), _ratio(base.value_ms, mine.value_ms)
-        )
+    rows = [
+        (base.label, f"{base.weight:g}", _ms(base.value_ms), _ms(mine.value_ms), _ratio(base.value_ms, mine.value_ms))
+        for base, mine in pairs[:ROW_LIMIT]
+    ]
     if len(pairs) > ROW_LIMIT:
-        table.add_row(f"... {len(pairs) - ROW_LIMIT} more terms", "", "", "", "")
-    table.add_row(
-        "objective (weighted sum)",
-        "",
-        _ms(baseline.objective),
-        _ms(explanation.objective),
-        _ratio(baseline.objective, explanation.objective),
+        rows.append((f"... {len(pairs) - ROW_LIMIT} more terms", "", "", "", ""))
+    rows.append(
+        (
+            "objective (weighted sum)",
+            "",
+            _ms(baseline.objective),
+            _ms(explanation.objective),
+            _ratio(baseline.objective, explanation.objective),
+        )
     )
-    return Group(*(Text(line) for line in lines), table)
+    columns = _columns(("term", "weight", "baseline ms", "plan ms", "baseline / plan"), left=("term",))
+    blocks.append(TableBlock(columns, tuple(rows), title="Baseline versus plan (same model)"))
+    return blocks
 
 
 def _ratio(base: float, mine: float) -> str:
     return f"{base / mine:.2f}x" if mine > 0 else "-"
 
 
-def render(explanation: Explanation) -> list[RenderableType]:
-    """The explanation as rich renderables, in reading order."""
+def report_blocks(explanation: Explanation) -> list[Block]:
+    """The whole report, in reading order, as blocks: the one place that decides what it says."""
     scale = (
         "every bound as written"
         if explanation.constraint_scale == 1.0
         else f"every bound scaled by {explanation.constraint_scale:.4g}"
     )
     cores = f"{explanation.cores} core{'s' if explanation.cores > 1 else ''}"
-    parts: list[RenderableType] = [
-        Text(f"{explanation.app} on {cores}: objective {explanation.objective:.3f} ms, {scale}.", style="bold"),
-        Text(explanation.allocation),
-        Text(""),
-        Text("1. Cores: one schedule period each", style="bold"),
+    blocks: list[Block] = [
+        Paragraph(f"{explanation.app} on {cores}: objective {explanation.objective:.3f} ms, {scale}.", strong=True),
+        Paragraph(explanation.allocation),
+        Heading("1. Cores: one schedule period each"),
     ]
     for view in explanation.shared:
-        parts.append(_shared_table(view, explanation))
-    parts.extend(_dedicated_line(view, explanation) for view in explanation.dedicated)
-    parts.extend(Text(f"core {core}: idle (no subchain runs here)") for core in explanation.idle_cores)
-    parts += [Text(""), Text("2. Subchains", style="bold"), _subchain_table(explanation)]
-    count = len(explanation.chains)
-    parts += [
-        Text(""),
-        Text(f"3. Chains ({count}, the most weighted first)", style="bold"),
-        _chain_table(explanation),
-    ]
-    parts += [
-        Text(""),
-        Text("4. What binds and what dominates", style="bold"),
-        _binding_table(explanation),
-        _term_table(explanation),
-    ]
-    parts += [Text(""), Text("5. Warnings", style="bold")]
-    parts.extend(Text(f"- {note}") for note in explanation.warnings)
-    if not explanation.warnings:
-        parts.append(Text("none"))
-    parts += [Text(""), Text("6. Baseline", style="bold"), _baseline_section(explanation)]
-    return parts
+        blocks += _shared_blocks(view, explanation)
+    blocks += [_dedicated_line(view, explanation) for view in explanation.dedicated]
+    blocks += [Paragraph(f"core {core}: idle (no subchain runs here)") for core in explanation.idle_cores]
+    blocks += [Heading("2. Subchains"), _subchain_table(explanation)]
+    blocks += [Heading(f"3. Chains ({len(explanation.chains)}, the most weighted first)"), _chain_table(explanation)]
+    blocks += [Heading("4. What binds and what dominates"), _binding_table(explanation), _term_table(explanation)]
+    blocks.append(Heading("5. Warnings"))
+    blocks.append(Bullets(explanation.warnings) if explanation.warnings else Paragraph("none"))
+    blocks.append(Heading("6. Baseline"))
+    blocks += _baseline_section(explanation)
+    return blocks
+
+
+# --------------------------------------------------------------------------- renderers
+
+
+def _rich_parts(block: Block) -> list[RenderableType]:
+    """One block for a terminal: a blank line before each section, tables boxed, notes indented."""
+    if isinstance(block, Heading):
+        return [Text(""), Text(block.text, style="bold")]
+    if isinstance(block, Paragraph):
+        return [Text(block.text, style="bold" if block.strong else "")]
+    if isinstance(block, Preformatted):
+        return [Text("\n".join(f"  {line}" for line in block.text.splitlines()))]
+    if isinstance(block, Bullets):
+        return [Text(f"- {item}") for item in block.items]
+    if isinstance(block, TableBlock):
+        table = Table(title=block.title, title_justify="left")
+        for column in block.columns:
+            table.add_column(column.header, justify=column.align)
+        for row in block.rows:
+            table.add_row(*row)
+        return [table] if block.footer is None else [table, Text(f"  {block.footer}")]
+    assert_never(block)
+
+
+def render(explanation: Explanation) -> list[RenderableType]:
+    """The explanation as rich renderables, in reading order."""
+    return [part for block in report_blocks(explanation) for part in _rich_parts(block)]
+
+
+_MARKDOWN_INLINE = re.compile(
+    r"[\\`*]"  # escapes, code spans, emphasis
+    r"|(?<![A-Za-z0-9])_|_(?![A-Za-z0-9])"  # emphasis (an underscore inside a word is not)
+    r"|\](?=[(\[:])"  # links: inline, reference, definition
+    r"|<(?=[A-Za-z/!?])|&(?=#?\w+;)"  # HTML tags, entities
+)
+_MARKDOWN_BLOCK_START = re.compile(r"^(?:[#>+-]|\d+[.)])")
+
+
+def _markdown_inline(text: str) -> str:
+    """``text`` as literal Markdown on one line, for a heading or a table cell.
+
+    Backslash-escapes only what could start markup, so that the file reads
+    well raw: ``face_tracking``, ``objective[2]`` and ``f <= 1`` stay as
+    they are.
+    """
+    return _MARKDOWN_INLINE.sub(lambda match: "\\" + match.group(0), " ".join(text.splitlines()).strip())
+
+
+def _markdown_text(text: str) -> str:
+    """``text`` as a literal paragraph or list item: also not a heading, quote, list or rule."""
+    return _MARKDOWN_BLOCK_START.sub(
+        lambda match: match.group(0)[:-1] + "\\" + match.group(0)[-1], _markdown_inline(text)
+    )
+
+
+def _markdown_cell(text: str) -> str:
+    return _markdown_inline(text).replace("|", "\\|")
+
+
+def _markdown_row(cells: Sequence[str]) -> str:
+    return "| " + " | ".join(cells) + " |"
+
+
+def _markdown_lines(block: Block) -> list[str]:
+    """One block as GitHub Markdown lines (no blank line before or after it)."""
+    if isinstance(block, Heading):
+        return [f"## {_markdown_inline(block.text)}"]
+    if isinstance(block, Paragraph):
+        text = _markdown_text(block.text)
+        return [f"**{text}**" if block.strong and text else text]
+    if isinstance(block, Preformatted):
+        lines = [line.rstrip() for line in block.text.splitlines()]
+        ticks = max((len(run) for run in re.findall(r"`+", block.text)), default=0)
+        fence = "`" * max(3, ticks + 1)
+        return [fence, *lines, fence]
+    if isinstance(block, Bullets):
+        return [f"- {_markdown_text(item)}" for item in block.items]
+    if isinstance(block, TableBlock):
+        lines = [] if block.title is None else [f"**{_markdown_inline(block.title)}**", ""]
+        lines.append(_markdown_row([_markdown_cell(column.header) for column in block.columns]))
+        lines.append(_markdown_row(["---:" if column.align == "right" else "---" for column in block.columns]))
+        lines += [_markdown_row([_markdown_cell(cell) for cell in row]) for row in block.rows]
+        if block.footer is not None:
+            lines += ["", _markdown_text(block.footer)]
+        return lines
+    assert_never(block)
+
+
+def blocks_markdown(blocks: Sequence[Block]) -> str:
+    """Blocks as one Markdown document: a blank line between blocks, ``\\n`` endings, one final newline."""
+    chunks = ["\n".join(lines) for lines in map(_markdown_lines, blocks) if any(lines)]
+    return "\n\n".join(chunks) + "\n"
+
+
+def render_markdown(explanation: Explanation) -> str:
+    """The same report as :func:`render`, as GitHub Markdown (for a committed ``PLAN.md``); no file header."""
+    return blocks_markdown(report_blocks(explanation))

@@ -2,20 +2,39 @@
 
 from __future__ import annotations
 
+import io
 import itertools
 import json
 import re
 import subprocess
 import sys
+from collections import Counter
+from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
 
 import pytest
+from rich.console import Console
 from typer.testing import CliRunner
 
 from catanc.cli import app
 from catanc.errors import ExitCode, InfeasibleError
-from catanc.explain import Explanation, SharedCoreView, explain_plan, timeline_bar
+from catanc.explain import (
+    Block,
+    Bullets,
+    Column,
+    Explanation,
+    Heading,
+    Paragraph,
+    Preformatted,
+    SharedCoreView,
+    TableBlock,
+    blocks_markdown,
+    explain_plan,
+    render,
+    render_markdown,
+    timeline_bar,
+)
 from catanc.load import load_spec, parse_spec
 from catanc.planner import Plan, plan
 from catanc.problem import Problem, build_problem
@@ -329,3 +348,166 @@ def test_the_allocation_note_compares_with_stage_ones_choice() -> None:
     assert "Stage I's estimate chose" in text
     same = flat(runner.invoke(app, ["explain", str(SPECS / "vr_illixr.yaml"), "-k", "1"]).output)
     assert "no other allocation was planned" in same
+
+
+# --------------------------------------------------------------------------- Markdown (PLAN.md)
+
+SECTIONS = ("1. Cores", "2. Subchains", "3. Chains", "4. What binds", "5. Warnings", "6. Baseline")
+
+
+@dataclass(frozen=True)
+class Report:
+    name: str
+    cores: int
+    explanation: Explanation
+    markdown: str
+    terminal: str  # what `render` prints on a 200-column console
+
+
+@pytest.fixture(scope="module", params=[(n, k) for n in EXAMPLES for k in (1, 2)], ids=lambda p: f"{p[0]}-{p[1]}")
+def report(request: pytest.FixtureRequest) -> Report:
+    name, cores = request.param
+    explanation = explain_plan(load_spec(SPECS / f"{name}.yaml"), *_problem_and_plan(name, cores))
+    console = Console(record=True, width=200, file=io.StringIO())
+    for part in render(explanation):
+        console.print(part)
+    return Report(name, cores, explanation, render_markdown(explanation), console.export_text())
+
+
+def unescape(text: str) -> str:
+    """CommonMark's backslash escapes undone: the text a reader sees."""
+    return re.sub(r"\\([!-/:-@\[-`{-~])", r"\1", text)
+
+
+def cells(line: str) -> list[str]:
+    """A pipe-table row's cells, split where GitHub splits them (at every unescaped ``|``)."""
+    assert line.startswith("| ")
+    assert line.endswith(" |")
+    return [cell.strip() for cell in re.split(r"(?<!\\)\|", line[1:-1])]
+
+
+def markdown_tables(markdown: str) -> list[list[list[str]]]:
+    """Every table: its rows (header, alignment, body), each a list of cells."""
+    tables: list[list[list[str]]] = []
+    previous = ""
+    fenced = False
+    for line in markdown.splitlines():
+        if line.startswith("```"):
+            fenced = not fenced
+        elif line.startswith("|") and not fenced:
+            if not previous.startswith("|"):
+                tables.append([])
+            tables[-1].append(cells(line))
+        previous = line
+    return tables
+
+
+def sections(text: str, headings: list[str]) -> list[str]:
+    """``text`` cut before each line that is one of ``headings``: the preamble, then one part per heading."""
+    parts: list[list[str]] = [[]]
+    for line in text.splitlines():
+        if line in headings:
+            parts.append([])
+        parts[-1].append(line)
+    assert len(parts) == len(headings) + 1, f"missing headings: {headings}"
+    return ["\n".join(part) for part in parts]
+
+
+NUMERIC = re.compile(r"-|\d[\d.,/]*[%x]?")
+
+
+def test_markdown_is_a_well_formed_reproducible_document(report: Report) -> None:
+    markdown = report.markdown
+    # Byte for byte the same from a fresh plan: `--check` compares it.
+    spec = load_spec(SPECS / f"{report.name}.yaml")
+    assert render_markdown(explain_plan(spec, build_problem(spec), plan(spec, report.cores))) == markdown
+    assert render_markdown(report.explanation) == markdown
+    assert "\r" not in markdown
+    assert markdown.endswith("\n")
+    assert not markdown.endswith("\n\n")
+    assert "\n\n\n" not in markdown
+    lines = markdown.splitlines()
+    assert lines[0].startswith(f"**{report.name} on {report.cores} core")
+    assert [line for line in lines if line != line.rstrip()] == []
+    headings = [line for line in lines if line.startswith("#")]
+    assert len(headings) == len(SECTIONS)
+    assert all(h.startswith(f"## {s}") for h, s in zip(headings, SECTIONS, strict=True))
+    # Each shared core's timeline bar sits alone in a fenced block (it is made of `|`, `.` and letters).
+    fenced = [lines[i + 1] for i, line in enumerate(lines) if line == "```" and lines[i + 2] == "```"]
+    assert [line.split("  (")[0] for line in fenced] == [timeline_bar(view) for view in report.explanation.shared]
+    assert lines.count("```") == 2 * len(report.explanation.shared)
+    tables = markdown_tables(markdown)
+    assert len(tables) >= 4  # subchains, chains, objective terms, baseline (or binding constraints)
+    for header, alignment, *body in tables:
+        assert len(alignment) == len(header)
+        assert all(len(row) == len(header) for row in body), header
+        assert set(alignment) <= {"---", "---:"}
+        for index, align in enumerate(alignment):
+            column = [row[index] for row in body if row[index]]
+            numeric = bool(column) and all(NUMERIC.fullmatch(cell) for cell in column)
+            assert (align == "---:") == numeric, (header[index], column)
+    # The subchain table holds each subchain's numbers, in its row.
+    (subchains,) = [table for table in tables if table[0][:2] == ["subchain", "nodes"]]
+    rows = {row[0]: row for row in subchains[2:]}
+    chosen = planned(report.name, report.cores).subchains
+    assert set(rows) == set(chosen)
+    for name, sub in chosen.items():
+        row = rows[name]
+        assert unescape(row[1]) == " -> ".join(sub.nodes)
+        assert row[5:7] == [f"{1000 / sub.period_ms:.2f}", f"{sub.period_ms:.3f}"]
+        assert row[9:] == [f"{sub.latency_ms:.3f}", str(sub.priority)]
+
+
+def test_markdown_says_what_the_terminal_says(report: Report) -> None:
+    # Section by section, the same numbers (with repeats): nothing dropped, added or moved.
+    headings = [line.removeprefix("## ") for line in report.markdown.splitlines() if line.startswith("## ")]
+    number = re.compile(r"\d+(?:\.\d+)?")
+    pairs = zip(
+        sections(report.markdown, [f"## {h}" for h in headings]), sections(report.terminal, headings), strict=True
+    )
+    for markdown, terminal in pairs:
+        assert Counter(number.findall(markdown)) == Counter(number.findall(terminal)), markdown.splitlines()[0]
+    # Every warning, whole, as a list item.
+    warnings = sections(report.markdown, [f"## {h}" for h in headings])[5].splitlines()[2:]
+    if report.explanation.warnings:
+        assert [unescape(line) for line in warnings] == [f"- {note}" for note in report.explanation.warnings]
+    else:
+        assert warnings == ["none"]
+
+
+def test_markdown_escapes_what_would_become_markup() -> None:
+    blocks: list[Block] = [
+        Paragraph("2. _a_ b_c, 2*3 [x](y)", strong=True),
+        Heading("1. Cores"),
+        TableBlock(
+            (Column("a|b"), Column("n", "right")),
+            (("x | y", ""), ("<= 1", "2")),
+            title="t",
+            footer="- more",
+        ),
+        Preformatted("|AA..  (A a; | switch)  "),
+        Bullets(("# not a heading", "two\nlines")),
+    ]
+    assert blocks_markdown(blocks) == (
+        "**2\\. \\_a\\_ b_c, 2\\*3 [x\\](y)**\n"
+        "\n"
+        "## 1. Cores\n"
+        "\n"
+        "**t**\n"
+        "\n"
+        "| a\\|b | n |\n"
+        "| --- | ---: |\n"
+        "| x \\| y |  |\n"
+        "| <= 1 | 2 |\n"
+        "\n"
+        "\\- more\n"
+        "\n"
+        "```\n"
+        "|AA..  (A a; | switch)\n"
+        "```\n"
+        "\n"
+        "- \\# not a heading\n"
+        "- two lines\n"
+    )
+    with pytest.raises(ValueError, match="a row of 1 cells in a table of 2 columns"):
+        TableBlock((Column("a"), Column("b")), (("x",),))
