@@ -33,6 +33,21 @@ from catanc.stage2.base import Layout, LayoutModel, RelaxedSolution, SharedCore
 
 __all__ = ["Layout", "RelaxedSolution", "RelaxedStage2", "SharedCore"]  # the first three live in base.py
 
+RECORD_TOLERANCES: dict[str, float] = {
+    "tol_gap_abs": 1e-13,
+    "tol_gap_rel": 1e-13,
+    "tol_feas": 1e-13,
+    "tol_ktratio": 1e-10,
+    "max_iter": 400,
+}
+"""Clarabel's settings for the model of record, far tighter than its defaults (1e-8).
+
+The committed plan is printed to 6-9 digits and must be the same bytes on
+any machine.  Where the objective is flat, the default tolerances leave the
+optimum's last printed digits to rounding noise: a 1e-12 relative change
+of one input moved nav2d's numbers by up to 2e-7.  At these tolerances a
+1e-9 change moves no printed digit (measured on the example specs)."""
+
 
 class RelaxedStage2(LayoutModel):
     """The relaxed Stage II GP for one layout, built once and re-solved with new numbers."""
@@ -172,7 +187,7 @@ class RelaxedStage2(LayoutModel):
                 # (Clarabel reports it on badly scaled boxes, e.g. f near 1/500, within 1e-6).
                 # Overflow: an infeasible problem's log-space iterate diverges before the status says so.
                 warnings.filterwarnings("ignore", message="Solution may be inaccurate", category=UserWarning)
-                problem.solve(gp=True, solver=cp.CLARABEL)
+                problem.solve(gp=True, solver=cp.CLARABEL, **RECORD_TOLERANCES)
         except cp.SolverError:
             return None
         if problem.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
