@@ -7,8 +7,10 @@ and meaning (:func:`catanc.problem.build_problem`: names, the DAG, paths).
 
 from __future__ import annotations
 
+import hashlib
 import types
 from collections.abc import Hashable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Union, get_args, get_origin
 
@@ -39,6 +41,19 @@ _KIND_KEYS = ["chain", "chains", "node", "modes"]
 
 def load_spec(path: str | Path) -> Spec:
     """Read, parse and check a spec file; raise :class:`SpecError` on any problem."""
+    return read_spec(path).spec
+
+
+@dataclass(frozen=True)
+class SpecFile:
+    """A checked spec and the sha256 of the bytes it was read from."""
+
+    spec: Spec
+    sha256: str
+
+
+def read_spec(path: str | Path) -> SpecFile:
+    """:func:`load_spec`, also returning the file's sha256 (output headers name it)."""
     file = str(path)
     try:
         raw = Path(path).read_bytes()
@@ -51,7 +66,7 @@ def load_spec(path: str | Path) -> Spec:
         line = raw[: exc.start].count(b"\n") + 1
         location = Location(file, line, exc.start - (raw.rfind(b"\n", 0, exc.start) + 1) + 1)
         raise SpecError([Diagnostic(location, "", "the file is not UTF-8 text")]) from None
-    return parse_spec(text, file)
+    return SpecFile(parse_spec(text, file), hashlib.sha256(raw).hexdigest())
 
 
 def parse_spec(text: str, file: str = "<spec>") -> Spec:

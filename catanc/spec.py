@@ -95,7 +95,7 @@ def _compute_kind(value: Any) -> str | None:
         return None
     if isinstance(value, (int, float)):
         return "<ms>"
-    if isinstance(value, dict):
+    if isinstance(value, dict | ModalCompute):  # a mapping when parsing, the model when dumping
         return "<modes>"
     return None
 
@@ -165,7 +165,7 @@ class Batch(_Model):
 def _batch_kind(value: Any) -> str | None:
     if isinstance(value, bool):
         return "<flag>"
-    if isinstance(value, dict):
+    if isinstance(value, dict | Batch):
         return "<options>"
     return None
 
@@ -327,9 +327,10 @@ def _kind_by_key(*keys: str) -> Callable[[Any], str | None]:
     """A union discriminator: the tag of the first of ``keys`` a mapping has."""
 
     def kind(value: Any) -> str | None:
-        if isinstance(value, dict):
+        present = type(value).model_fields if isinstance(value, BaseModel) else value  # the model when dumping
+        if isinstance(present, dict):
             for key in keys:
-                if key in value:
+                if key in present:
                     return f"<{key}>"
         return None
 
