@@ -18,6 +18,7 @@ from functools import cached_property
 import networkx as nx
 
 from catanc import graph
+from catanc.deploy import deploy_problems
 from catanc.errors import Diagnostic, FieldPath, SpecError, UsageError, close_matches, did_you_mean, format_path
 from catanc.spec import (
     ChainConstraint,
@@ -413,6 +414,8 @@ class _Builder:
                 self.error(path, f"node {name!r} is unscheduled; its rate is its own rate_hz")
         for name in spec.deploy:
             self.known(name, ("deploy", name))
+        for path, message in deploy_problems(spec):
+            self.error(path, message)
 
     def subchain_bounds(self) -> tuple[Subchain, ...]:
         """Subchains with rate bounds from every node constraint on their nodes."""
