@@ -21,6 +21,7 @@ from rich.console import Console
 from catanc.errors import CatancError, Diagnostic, ExitCode, SpecError
 
 if TYPE_CHECKING:
+    from catanc.output import Comparison
     from catanc.problem import Problem
     from catanc.spec import Spec
 
@@ -220,6 +221,88 @@ def explain(
     out = _stdout()
     for part in render(explain_plan(spec, problem, result)):
         out.print(part)
+
+
+@app.command(name="compile")
+@_reporting
+def compile_(
+    specs: Annotated[list[Path], typer.Argument(metavar="SPEC...", help="Spec files.", show_default=False)],
+    cores: Annotated[
+        list[int], typer.Option("--cores", "-k", min=1, help="Identical CPU cores available (repeat for several).")
+    ],
+    out: Annotated[
+        Path | None,
+        typer.Option(help="Output folder (default: out/<app>/cores-<K>); only for one spec and one --cores."),
+    ] = None,
+    check: Annotated[
+        bool, typer.Option("--check", help="Write nothing; exit 1 if the folders are not what compile would write.")
+    ] = False,
+    diff: Annotated[bool, typer.Option("--diff", help="Print a unified diff of every file that differs.")] = False,
+    dry_run: Annotated[bool, typer.Option("--dry-run", help="Write nothing; say what would change.")] = False,
+    stage1: Stage1Opt = "auto",
+    solver: SolverOpt = "highs",
+    time_limit: TimeLimitOpt = None,
+) -> None:
+    """Plan each spec and write its deployment folder: runtime.json, params.yaml, launch.sh, launch.py, PLAN.md."""
+    from catanc.compiler import Options, compile_spec
+    from catanc.errors import UsageError
+    from catanc.output import compare, ensure_comparable, write
+
+    if check and dry_run:
+        raise UsageError("--check and --dry-run both write nothing: pick one")
+    pairs = list(dict.fromkeys((path, k) for path in specs for k in cores))
+    if out is not None and len(pairs) > 1:
+        raise UsageError("--out names one folder: give one spec and one --cores with it")
+    options = Options(stage1=stage1, solver=solver, time_limit_s=time_limit)
+    targets = []
+    for path, k in pairs:  # plan everything before touching any folder
+        target = compile_spec(path, k, out=out, options=options)
+        _print_notes(path, target.warnings)
+        targets.append(target)
+    folders: dict[Path, Path] = {}
+    for target in targets:
+        other = folders.setdefault(target.folder.absolute(), target.spec_path)
+        if other != target.spec_path:
+            raise UsageError(f"{other} and {target.spec_path} would both write {target.folder} (same app name)")
+    console = _stdout()
+    stale = 0
+    for target in targets:
+        comparison = compare(target.folder, target.files, with_diffs=diff)
+        if check:
+            ensure_comparable(comparison)
+        elif not dry_run:
+            write(target.folder, target.files)
+        stale += not comparison.current
+        console.print(_summary(comparison, check=check, dry_run=dry_run), markup=False)
+        for text in comparison.diffs.values():
+            sys.stdout.write(text)
+        sys.stdout.flush()
+    if check and stale:
+        _stderr().print(
+            f"catanc: {stale} of {len(targets)} output folder{'s are' if len(targets) > 1 else ' is'} stale: "
+            "run the same command without --check and commit the result",
+            markup=False,
+        )
+        raise typer.Exit(int(ExitCode.DRIFT))
+
+
+def _summary(comparison: Comparison, *, check: bool, dry_run: bool) -> str:
+    """One line per folder: what changed (or would), by file."""
+    from catanc.output import Status
+
+    folder = comparison.folder
+    if comparison.current:
+        return f"{folder}: up to date"
+    if not comparison.exists:
+        return f"{folder}: {'would be created' if dry_run else 'created'} ({len(comparison.statuses)} files)"
+    parts = []
+    for status in (Status.CHANGED, Status.MISSING, Status.EXTRA, Status.NEW):
+        names = comparison.of(status)
+        if names:
+            parts.append(f"{status.value} {', '.join(names)}")
+    if check:
+        return f"{folder}: stale: {'; '.join(parts)}"
+    return f"{folder}: {'would update' if dry_run else 'updated'}: {'; '.join(parts)}"
 
 
 @app.command()

@@ -34,7 +34,9 @@ class ExitCode(IntEnum):
     BAD_INPUT = 2  # bad spec or bad command-line usage
     INFEASIBLE = 3  # no plan satisfies the spec's hard requirements
     NO_PRIVILEGE = 4  # SCHED_FIFO / affinity not permitted
-    OUTPUT = 5  # output folder cannot be written or compared
+    OUTPUT = 5  # output folder cannot be written or read
+    OUTPUT_BLOCKED = 6  # a file, link or someone else's files where the output folder goes
+    NOT_COMPILED = 7  # `compile --check` found no output folder
     INTERNAL = 70  # a bug in catanc (EX_SOFTWARE)
 
 
@@ -126,6 +128,18 @@ class PrivilegeError(CatancError):
 
 
 class OutputError(CatancError):
-    """An output folder cannot be written or compared."""
+    """An output folder cannot be written or read."""
 
     exit_code = ExitCode.OUTPUT
+
+
+class OutputBlockedError(CatancError):
+    """Something that is not catanc's output sits where the output folder goes."""
+
+    exit_code = ExitCode.OUTPUT_BLOCKED
+
+
+class NotCompiledError(CatancError):
+    """``compile --check`` found no output folder to compare with."""
+
+    exit_code = ExitCode.NOT_COMPILED
