@@ -8,11 +8,15 @@ build its planning problem (:func:`catanc.problem.build_problem`), plan it
 load the solvers on first use, so commands that only read specs stay quick.
 """
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from catanc.errors import CatancError, SpecError
-from catanc.load import load_spec, parse_spec
-from catanc.spec import Spec
+
+if TYPE_CHECKING:
+    from catanc.load import load_spec, parse_spec
+    from catanc.planner import Plan, plan
+    from catanc.replan import Replanner
+    from catanc.spec import Spec
 
 __version__ = "0.1.0"
 
@@ -30,6 +34,15 @@ __all__ = [
 
 
 def __getattr__(name: str) -> Any:
+    # Everything loads on first use: `import catanc.client` in an app node must stay light.
+    if name in ("load_spec", "parse_spec"):
+        from catanc import load  # noqa: PLC0415
+
+        return getattr(load, name)
+    if name == "Spec":
+        from catanc.spec import Spec  # noqa: PLC0415
+
+        return Spec
     if name in ("plan", "Plan"):
         from catanc import planner  # noqa: PLC0415 - the solvers load on first use
 

@@ -701,13 +701,9 @@ def client_imports() -> set[str]:
         "catanc.stage1",
         "catanc.stage2",
         "catanc.replan",
-        pytest.param(
-            "pydantic",
-            marks=pytest.mark.xfail(
-                reason="catanc/__init__.py imports catanc.load (pydantic) eagerly; make it lazy like `plan`",
-                strict=True,
-            ),
-        ),
+        "pydantic",
+        "yaml",
+        "networkx",
     ],
 )
 def test_importing_the_client_loads_no_solver(client_imports: set[str], module: str) -> None:
