@@ -305,6 +305,98 @@ def _summary(comparison: Comparison, *, check: bool, dry_run: bool) -> str:
     return f"{folder}: {'would update' if dry_run else 'updated'}: {'; '.join(parts)}"
 
 
+@app.command(name="run")
+@_reporting
+def run_(
+    table_path: Annotated[
+        Path, typer.Argument(metavar="RUNTIME_JSON", help="A runtime table (out/<app>/cores-<K>/runtime.json).")
+    ],
+    launch: Annotated[bool, typer.Option("--launch", help="Start the spec's deploy commands.")] = False,
+    attach: Annotated[
+        list[str] | None, typer.Option("--attach", metavar="NODE=PID", help="Pin a running process as NODE's.")
+    ] = None,
+    demo: Annotated[bool, typer.Option("--demo", help="Start one synthetic worker per scheduled node.")] = False,
+    duration: Annotated[float | None, typer.Option(min=0.1, help="Stop after this many seconds.")] = None,
+    no_rt: Annotated[bool, typer.Option("--no-rt", help="Rates and affinities only: no SCHED_FIFO.")] = False,
+    log: Annotated[Path | None, typer.Option(help="JSON-lines log (default: catanc-run-<app>.jsonl).")] = None,
+    socket: Annotated[Path | None, typer.Option(help="The enforcer's socket (default: in /tmp).")] = None,
+    start: Annotated[
+        str, typer.Option(help="First plan: bootstrap (every node 5 ms, as the paper) or spec (the table's).")
+    ] = "bootstrap",
+    cores: Annotated[int | None, typer.Option(min=1, help="Plan for this many cores instead of the table's.")] = None,
+    quiet: Annotated[bool, typer.Option("--quiet", help="No live status; a summary at the end.")] = False,
+) -> None:
+    """Enforce a plan on this machine: trigger subchains, run per-core slices, measure and re-solve."""
+    from catanc.errors import UsageError
+    from catanc.runtime.enforcer import Enforcer
+    from catanc.runtime.log import RunLog
+    from catanc.runtime.processes import Children, parse_attach, start_demo, start_launch, threads_of
+    from catanc.runtime.sched import Restorer, check_fifo_allowed
+    from catanc.runtime.schedule import ENFORCER_FIFO
+    from catanc.runtime.status import status_view
+    from catanc.runtime.table import load_table
+    from catanc.runtime.watchdog import Watchdog
+
+    if demo + launch > 1:
+        raise UsageError("--demo and --launch both start the app: pick one")
+    if start not in ("bootstrap", "spec"):
+        raise UsageError(f"--start {start!r}: expected bootstrap or spec")
+    table = load_table(table_path)
+    attached = parse_attach(attach or [], table.spec)
+    if not no_rt:
+        check_fifo_allowed(ENFORCER_FIFO)
+    socket_path = str(socket or Path(f"/tmp/catanc-{os.getuid()}-{table.app}.sock"))
+    log_path = log or Path(f"catanc-run-{table.app}.jsonl")
+    children = Children()
+    restorer = Restorer(Watchdog().start()) if not no_rt else Restorer()
+    with RunLog(log_path) as run_log:
+        enforcer = Enforcer(
+            table,
+            socket_path=socket_path,
+            rt=not no_rt,
+            start="bootstrap" if start == "bootstrap" else "spec",
+            log=run_log,
+            cores=cores,
+            restorer=restorer,
+        )
+
+        def begin(running: Enforcer) -> None:
+            for node, pid in attached.items():
+                running.attach(node, pid, threads_of(pid))
+            if demo:
+                start_demo(children, table.spec, socket_path)
+            elif launch:
+                start_launch(children, table.processes, socket_path)
+
+        live = None
+        if not quiet and sys.stdout.isatty():
+            from rich.live import Live
+
+            live = Live(console=_stdout(), refresh_per_second=4, transient=False)
+            live.start()
+
+        def tick(running: Enforcer) -> None:
+            if live is not None:
+                live.update(
+                    status_view(
+                        table.app, running.schedule.cores, running.status(), running.events, running.elapsed_s()
+                    )
+                )
+
+        try:
+            enforcer.run(duration, on_start=begin, on_tick=tick)
+        except KeyboardInterrupt:
+            pass
+        finally:
+            if live is not None:
+                live.stop()
+            children.stop()
+    _stdout().print(
+        status_view(table.app, enforcer.schedule.cores, enforcer.status(), enforcer.events, enforcer.elapsed_s())
+    )
+    _stdout().print(f"log: {log_path}", markup=False)
+
+
 @app.command()
 @_reporting
 def schema() -> None:

@@ -1,0 +1,596 @@
+"""``catanc run``: apply a plan on a live Linux system and keep it right as compute times drift.
+
+The enforcer (catan-model.md sections 5 and 6) is a handful of threads
+around one mutable state, each with one job:
+
+- the *receiver* (SCHED_FIFO 4) takes registrations and completions from
+  the nodes (:mod:`catanc.runtime.protocol`), pins a node's threads as the
+  plan says, records compute times and triggers the next node of a
+  subchain when the previous one is done;
+- the *clock* (FIFO 4) triggers dedicated subchains, and shared ones that
+  run on their own clock, every planned period;
+- one *core scheduler* per shared core (FIFO 4, pinned there) runs the
+  periodic schedule: in order, it raises the owner of each slot (the slot's
+  subchain, or a late one of higher priority) to FIFO 2 for its slice and
+  puts it back to FIFO 1, triggering slot-aligned subchains every ``n``
+  periods; the rest of the period is slack;
+- the *re-optimiser* (SCHED_OTHER) re-solves Stage II every
+  ``stage2_every_s`` and both stages every ``stage1_every_s`` or when the
+  process's CPU set changes, with the measured p95 compute times, and
+  swaps the new schedule in; the core schedulers restart when the
+  allocation changes.
+
+Every thread the enforcer changes is remembered first; they all get their
+policy, priority and affinity back on exit (and from the watchdog process
+if the enforcer is killed).
+"""
+
+from __future__ import annotations
+
+import heapq
+import os
+import sys
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+from catanc.runtime import protocol
+from catanc.runtime.log import RunLog
+from catanc.runtime.measure import CpuClock, Measurements, cpu_ms, reconcile
+from catanc.runtime.planning import Answer, PlannerProcess, Request
+from catanc.runtime.sched import Restorer, ThreadGone, allowed_cpus, set_affinity, set_fifo
+from catanc.runtime.schedule import (
+    ENFORCER_FIFO,
+    RUNNING_FIFO,
+    CoreSchedule,
+    RuntimeSchedule,
+    SubchainRun,
+    is_late,
+    node_priority,
+    slot_owner,
+    triggers_at_slot,
+)
+from catanc.runtime.table import RuntimeTable
+
+Start = Literal["bootstrap", "spec"]
+
+RECEIVE_TIMEOUT_S = 0.05
+CPU_WATCH_S = 1.0
+SWITCH_INTERVAL_S = 0.0002
+"""The interpreter lock passes to a waking FIFO-4 thread within this (Python's default: 5 ms)."""
+STATUS_EVERY_S = 1.0
+LOST_AFTER = 20.0
+"""A run not done after this many planned latencies (and at least a second) is given up as lost."""
+
+
+def now_ms() -> float:
+    return time.monotonic_ns() / 1e6
+
+
+@dataclass
+class Endpoint:
+    """One registered node thread."""
+
+    node: str
+    pid: int
+    tid: int
+    address: Any
+
+
+@dataclass
+class Flight:
+    """One run of a subchain in flight."""
+
+    index: int  # the node running now
+    triggered_ms: float
+    cpu_ns: int | None  # the running node thread's CPU time when it was triggered (schedstat)
+
+
+@dataclass
+class SubchainState:
+    """Runs of one subchain in flight, and what was seen of them."""
+
+    seq: int = 0
+    in_flight: dict[int, Flight] = field(default_factory=dict)  # by seq
+    last_trigger_ms: float | None = None
+    periods_ms: list[float] = field(default_factory=list)  # measured trigger-to-trigger
+    latencies_ms: list[float] = field(default_factory=list)  # measured trigger-to-done
+    late: int = 0
+    lost: int = 0
+    steals: int = 0
+    skipped: int = 0  # triggers not sent: no registered head node, or the head still busy
+    pending: bool = False  # a trigger came while the head was busy: trigger it as soon as the head is done
+
+
+class Enforcer:
+    """One app's enforcer; :meth:`run` blocks until ``stop()`` or the duration ends."""
+
+    def __init__(
+        self,
+        table: RuntimeTable,
+        *,
+        socket_path: str,
+        rt: bool = True,
+        start: Start = "bootstrap",
+        log: RunLog | None = None,
+        cores: int | None = None,
+        restorer: Restorer | None = None,
+        clock: Callable[[], float] = now_ms,
+    ) -> None:
+        self.table = table
+        self.spec = table.spec
+        self.rt = rt
+        self.log = log
+        self.clock = clock
+        self.socket_path = socket_path
+        self.restorer = restorer if restorer is not None else Restorer()
+        self.measurements = Measurements.for_spec(self.spec)
+        bootstrap = self.spec.runtime.bootstrap_ms if start == "bootstrap" else None
+        self.planner = PlannerProcess(
+            table.spec.model_dump(mode="json", by_alias=True), cores or table.cores, bootstrap_ms=bootstrap
+        )
+        self.answer: Answer = self.planner.initial
+        self.lock = threading.RLock()  # guards the schedule, endpoints and subchain states
+        self.schedule: RuntimeSchedule = self.answer.schedule
+        self.generation = 0  # bumped when the allocation changes: core schedulers restart
+        self.endpoints: dict[str, list[Endpoint]] = {}
+        self.states = {name: SubchainState() for name in self.schedule.subchains}
+        self.raised: dict[int, str | None] = {}  # core -> subchain raised to FIFO 2 now
+        self.busy: dict[str, int | None] = {}  # node -> the run it was triggered for and has not finished
+        self.waiting: dict[str, deque[int]] = {}  # node -> runs that reached it while it was busy
+        self.stopping = threading.Event()
+        self.requested_cores: int | None = None
+        self.last_resolve_s: float | None = None
+        self.started_ms = clock()
+        self.events: list[str] = []  # short notes for the live status (node crashed, ...)
+
+    # ------------------------------------------------------------------ lifecycle
+
+    def run(
+        self,
+        duration_s: float | None = None,
+        *,
+        on_start: Callable[[Enforcer], None] | None = None,
+        on_tick: Callable[[Enforcer], None] | None = None,
+    ) -> None:
+        """Enforce until :meth:`stop`, SIGINT/SIGTERM or ``duration_s``.
+
+        ``on_start`` runs once the socket is bound (start the app's processes there); ``on_tick``
+        about every 0.2 s (a live status).  Call from the main thread: it installs the restorer's
+        signal handlers and runs at FIFO 4 itself, so a restore on SIGINT is never starved.
+        """
+        sys.setswitchinterval(SWITCH_INTERVAL_S)
+        with protocol.EnforcerSocket(self.socket_path) as sock, self.restorer:
+            self.sock = sock
+            self._raise_self(cpus=None)
+            self._log("start", cores=self.schedule.cores, plan=self.answer.summary)
+            threads = [
+                threading.Thread(target=self._receiver, name="catanc-receiver", daemon=True),
+                threading.Thread(target=self._clock_loop, name="catanc-clock", daemon=True),
+                threading.Thread(target=self._reoptimiser, name="catanc-reoptimiser", daemon=True),
+            ]
+            for thread in threads:
+                thread.start()
+            self._start_core_schedulers()
+            if on_start is not None:
+                on_start(self)
+            deadline = None if duration_s is None else time.monotonic() + duration_s
+            next_status = time.monotonic() + STATUS_EVERY_S
+            try:
+                while not self.stopping.is_set():
+                    remaining = None if deadline is None else deadline - time.monotonic()
+                    if remaining is not None and remaining <= 0:
+                        break
+                    self.stopping.wait(0.2 if remaining is None else min(0.2, remaining))
+                    if on_tick is not None:
+                        on_tick(self)
+                    if time.monotonic() >= next_status:
+                        next_status += STATUS_EVERY_S
+                        self._log("status", **self.status())
+            finally:
+                self.stopping.set()
+                for thread in threads:
+                    thread.join(timeout=2.0)
+                self._stop_nodes()
+                self.planner.close()
+                self._log("stop", summary=self.status())
+
+    def stop(self) -> None:
+        self.stopping.set()
+
+    def _stop_nodes(self) -> None:
+        """Tell every registered node the run is over (their loops end; they are not killed)."""
+        with self.lock:
+            endpoints = [e for es in self.endpoints.values() for e in es if e.address is not None]
+        for endpoint in endpoints:
+            self.sock.send(protocol.Stop(), endpoint.address)
+
+    # ------------------------------------------------------------------ registration and completion
+
+    def _receiver(self) -> None:
+        self._raise_self(cpus=None)
+        while not self.stopping.is_set():
+            got = self.sock.receive(RECEIVE_TIMEOUT_S)  # skips and counts garbage datagrams
+            if got is None:
+                self._check_lost()
+                continue
+            message, address = got
+            if isinstance(message, protocol.Hello):
+                self._register(message, address)
+            elif isinstance(message, protocol.Done):
+                self._done(message)
+            elif isinstance(message, protocol.Bye):
+                self._unregister(message.node, message.tid)
+            elif isinstance(message, protocol.SetCores):
+                self.requested_cores = message.cores
+
+    def _register(self, hello: protocol.Hello, address: Any) -> None:
+        if hello.node not in self.spec.nodes:
+            self.sock.send(protocol.Reject(hello.node, f"no node {hello.node!r} in app {self.spec.app}"), address)
+            return
+        endpoint = Endpoint(hello.node, hello.pid, hello.tid, address)
+        with self.lock:
+            self.endpoints.setdefault(hello.node, []).append(endpoint)
+            self._place(endpoint)
+        self.sock.send(protocol.Welcome(hello.node), address)
+        self._log("register", node=hello.node, pid=hello.pid, tid=hello.tid)
+
+    def _unregister(self, node: str, tid: int) -> None:
+        with self.lock:
+            self.endpoints[node] = [e for e in self.endpoints.get(node, []) if e.tid != tid]
+
+    def _place(self, endpoint: Endpoint) -> None:
+        """Pin a node thread to its subchain's cores at its resting priority (rates only without RT)."""
+        run = self.schedule.subchain_of(endpoint.node)
+        cpus = frozenset(run.cores) if run is not None else frozenset(range(self.schedule.cores))
+        try:
+            self.restorer.remember(endpoint.tid)
+            set_affinity(endpoint.tid, cpus)
+            if self.rt:
+                set_fifo(endpoint.tid, node_priority(run))
+        except ThreadGone:
+            self._gone(endpoint)
+
+    def _gone(self, endpoint: Endpoint) -> None:
+        self._unregister(endpoint.node, endpoint.tid)
+        self._note(f"{endpoint.node}: thread {endpoint.tid} exited")
+        self._log("gone", node=endpoint.node, tid=endpoint.tid)
+
+    def _done(self, done: protocol.Done) -> None:
+        run = self.schedule.subchain_of(done.node)
+        with self.lock:
+            state = self.states.get(run.name) if run is not None else None
+            flight = state.in_flight.get(done.seq) if state is not None else None
+            kernel_ms = self._cpu_ms_since(done.node, done.tid, flight)
+        compute = kernel_ms if done.compute_ms is None else reconcile(done.compute_ms, kernel_ms)
+        if compute is not None and done.node in self.measurements.nodes:
+            self.measurements.record(done.node, compute)
+        self._log(
+            "compute",
+            node=done.node,
+            ms=None if compute is None else round(compute, 4),
+            reported_ms=done.compute_ms,
+            kernel_ms=None if kernel_ms is None else round(kernel_ms, 4),
+        )
+        if run is None or state is None or flight is None:
+            with self.lock:
+                self._free(done.node)
+            return  # an unscheduled node, a run given up as lost, or one from before a re-plan
+        with self.lock:
+            self._free(done.node)
+            head_done = flight.index == 0
+            if flight.index + 1 < len(run.nodes):
+                flight.index += 1
+                self._trigger(run.nodes[flight.index], done.seq)
+            else:
+                del state.in_flight[done.seq]
+            if head_done and state.pending:  # its trigger came while it ran: the next run starts now
+                self._trigger_head(run)
+            if done.seq in state.in_flight:
+                return
+            latency = self.clock() - flight.triggered_ms
+            state.latencies_ms = [*state.latencies_ms[-49:], latency]
+            if latency > run.latency_ms:
+                state.late += 1
+        self._log("run", subchain=run.name, seq=done.seq, latency_ms=round(latency, 3))
+
+    def _cpu_ns(self, node: str) -> int | None:
+        """The CPU time (ns) of ``node``'s thread so far, from the kernel; None if unreadable."""
+        endpoint = next(iter(self.endpoints.get(node, [])), None)
+        if endpoint is None:
+            return None
+        try:
+            return CpuClock(endpoint.pid, endpoint.tid).read_ns()
+        except (OSError, ValueError):
+            return None
+
+    def _cpu_ms_since(self, node: str, tid: int, flight: Flight | None) -> float | None:
+        endpoint = next((e for e in self.endpoints.get(node, []) if e.tid == tid), None)
+        if flight is None or flight.cpu_ns is None or endpoint is None:
+            return None
+        try:
+            return cpu_ms(flight.cpu_ns, CpuClock(endpoint.pid, endpoint.tid).read_ns())
+        except (OSError, ValueError):
+            return None
+
+    def _check_lost(self) -> None:
+        now = self.clock()
+        with self.lock:
+            for name, state in self.states.items():
+                run = self.schedule.subchains.get(name)
+                limit = max(1000.0, LOST_AFTER * (run.latency_ms if run else 1000.0))
+                for seq, flight in list(state.in_flight.items()):
+                    if now - flight.triggered_ms > limit:
+                        del state.in_flight[seq]
+                        state.lost += 1
+                        node = run.nodes[flight.index] if run else "?"
+                        if self.busy.get(node) == seq:
+                            self._free(node)
+                        self._note(f"{name}: run {seq} lost at {node} (no answer in {limit / 1000:.1f} s)")
+                        self._log("lost", subchain=name, seq=seq, node=node)
+
+    # ------------------------------------------------------------------ triggering
+
+    def _trigger_head(self, run: SubchainRun) -> None:
+        now = self.clock()
+        with self.lock:
+            state = self.states[run.name]
+            head_busy = any(flight.index == 0 for flight in state.in_flight.values())
+            speaking = [e for e in self.endpoints.get(run.nodes[0], []) if e.address is not None]
+            if not speaking:
+                state.skipped += 1
+                return
+            if head_busy:  # never queue triggers on a busy node (they would pile up in its socket): defer
+                state.skipped += not state.pending
+                state.pending = True
+                return
+            state.pending = False
+            if state.last_trigger_ms is not None:
+                state.periods_ms = [*state.periods_ms[-49:], now - state.last_trigger_ms]
+            state.last_trigger_ms = now
+            state.seq += 1
+            state.in_flight[state.seq] = Flight(0, now, None)
+            self._trigger(run.nodes[0], state.seq)
+
+    def _trigger(self, node: str, seq: int) -> None:
+        """Trigger ``node`` for run ``seq`` now, or once it has finished the run it is busy with.
+
+        A node is never sent a second trigger while it runs: a pipelined subchain's runs
+        queue here, one per stage at most, instead of piling up in the node's socket.
+        """
+        if self.busy.get(node) is not None:
+            self.waiting.setdefault(node, deque()).append(seq)
+            return
+        for endpoint in self.endpoints.get(node, [])[:1]:
+            if endpoint.address is None:
+                continue  # attached without the client: it runs on its own timer
+            run = self.schedule.subchain_of(node)
+            flight = self.states[run.name].in_flight.get(seq) if run is not None else None
+            if flight is not None:
+                flight.cpu_ns = self._cpu_ns(node)
+            if self.sock.send(protocol.Trigger(node, seq), endpoint.address):
+                self.busy[node] = seq
+            else:
+                self._gone(endpoint)
+
+    def _free(self, node: str) -> None:
+        """``node`` finished its run: start the next one queued for it, if any."""
+        self.busy[node] = None
+        queue = self.waiting.get(node)
+        if queue:
+            self._trigger(node, queue.popleft())
+
+    def attach(self, node: str, pid: int, tids: list[int]) -> None:
+        """Pin and prioritise the threads of a process that does not speak the protocol, as ``node``'s."""
+        with self.lock:
+            for tid in tids:
+                endpoint = Endpoint(node, pid, tid, None)
+                self.endpoints.setdefault(node, []).append(endpoint)
+                self._place(endpoint)
+
+    def _clock_loop(self) -> None:
+        self._raise_self(cpus=None)
+        generation = -1
+        heap: list[tuple[float, str]] = []
+        while not self.stopping.is_set():
+            with self.lock:
+                if generation != self.generation:  # a new plan: restart every clock from now
+                    generation = self.generation
+                    start = self.clock()
+                    heap = [(start, run.name) for run in self.schedule.clocked]
+                    heapq.heapify(heap)
+                schedule = self.schedule
+            if not heap:
+                self.stopping.wait(0.1)
+                continue
+            due, name = heap[0]
+            wait_ms = due - self.clock()
+            if wait_ms > 0:
+                self.stopping.wait(min(wait_ms / 1000.0, 0.1))
+                continue
+            heapq.heappop(heap)
+            run = schedule.subchains.get(name)
+            if run is None:
+                continue
+            self._trigger_head(run)
+            heapq.heappush(heap, (max(due + run.period_ms, self.clock()), name))
+
+    # ------------------------------------------------------------------ shared cores
+
+    def _start_core_schedulers(self) -> None:
+        with self.lock:
+            generation = self.generation
+            cores = self.schedule.shared
+        for core in cores:
+            thread = threading.Thread(
+                target=self._core_loop, args=(core, generation), name=f"catanc-core-{core.core}", daemon=True
+            )
+            thread.start()
+
+    def _core_loop(self, core: CoreSchedule, generation: int) -> None:
+        self._raise_self(cpus=frozenset([core.core]))
+        period_index = 0
+        start = self.clock()
+        while not self.stopping.is_set() and generation == self.generation:
+            with self.lock:
+                core = next((c for c in self.schedule.shared if c.core == core.core), core)
+                runs = self.schedule.subchains
+            period_start = start
+            for slot in core.slots:
+                self._sleep_until(period_start + slot.start_ms)
+                late = self._late_on(core, runs)
+                owner = slot_owner(slot, core, runs, late)
+                if owner != slot.subchain:
+                    self.states[owner].steals += 1
+                self._raise(core.core, owner)
+                if triggers_at_slot(runs[slot.subchain], period_index):
+                    self._trigger_head(runs[slot.subchain])
+                self._sleep_until(period_start + slot.start_ms + slot.length_ms)
+            self._raise(core.core, None)
+            start = period_start + core.period_ms
+            self._sleep_until(start)
+            period_index += 1
+        self._raise(core.core, None)
+
+    def _late_on(self, core: CoreSchedule, runs: Mapping[str, SubchainRun]) -> set[str]:
+        now = self.clock()
+        late = set()
+        with self.lock:
+            for slot in core.slots:
+                state = self.states[slot.subchain]
+                oldest = min((flight.triggered_ms for flight in state.in_flight.values()), default=None)
+                if is_late(oldest, now, runs[slot.subchain]):
+                    late.add(slot.subchain)
+        return late
+
+    def _raise(self, core: int, owner: str | None) -> None:
+        """Put the previous owner of ``core`` back to FIFO 1 and raise ``owner`` to FIFO 2."""
+        if not self.rt:
+            return
+        with self.lock:
+            previous = self.raised.get(core)
+            if previous == owner:
+                return
+            self.raised[core] = owner
+            resting = node_priority(self.schedule.subchains.get(previous or ""))
+            for name, level in ((previous, resting), (owner, RUNNING_FIFO)):
+                if name is None or name not in self.schedule.subchains:
+                    continue
+                for node in self.schedule.subchains[name].nodes:
+                    for endpoint in list(self.endpoints.get(node, [])):
+                        try:
+                            set_fifo(endpoint.tid, level)
+                        except ThreadGone:
+                            self._gone(endpoint)
+
+    def _sleep_until(self, when_ms: float) -> None:
+        delay = when_ms - self.clock()
+        if delay > 0:
+            time.sleep(delay / 1000.0)
+
+    def _raise_self(self, cpus: frozenset[int] | None) -> None:
+        """The calling enforcer thread: FIFO 4 (with RT), pinned to ``cpus`` if given."""
+        tid = threading.get_native_id()
+        if cpus is not None:
+            os.sched_setaffinity(tid, cpus)
+        if self.rt:
+            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(ENFORCER_FIFO))
+
+    # ------------------------------------------------------------------ re-optimising
+
+    def _reoptimiser(self) -> None:
+        runtime = self.spec.runtime
+        begin = time.monotonic()
+        next_stage2 = begin + runtime.first_solve_after_s
+        next_stage1 = begin + runtime.first_solve_after_s + runtime.stage1_every_s
+        next_cpu_check = begin + CPU_WATCH_S
+        known_cpus = allowed_cpus()
+        while not self.stopping.wait(0.05):
+            now = time.monotonic()
+            cores = None
+            if self.requested_cores is not None:
+                cores, self.requested_cores = self.requested_cores, None
+            if now >= next_cpu_check:
+                next_cpu_check = now + CPU_WATCH_S
+                cpus = allowed_cpus()
+                if cpus != known_cpus:
+                    known_cpus = cpus
+                    cores = len(cpus)
+            if cores is not None and cores != self.schedule.cores:
+                self._replan(stage1=True, cores=cores, reason="cores")
+                next_stage1 = now + runtime.stage1_every_s
+            elif now >= next_stage1:
+                self._replan(stage1=True, cores=None, reason="stage1")
+                next_stage1 = now + runtime.stage1_every_s
+                next_stage2 = now + runtime.stage2_every_s
+            elif now >= next_stage2:
+                self._replan(stage1=False, cores=None, reason="stage2")
+                next_stage2 = now + runtime.stage2_every_s
+
+    def _replan(self, *, stage1: bool, cores: int | None, reason: str) -> None:
+        estimates = self.measurements.estimates()
+        answer = self.planner.ask(Request("reallocate" if stage1 else "resolve", estimates, cores))
+        self.last_resolve_s = time.monotonic()
+        if answer.error is not None:
+            self._note(f"re-plan failed, keeping the last plan: {answer.error}")
+        with self.lock:
+            changed = answer.layout != self.answer.layout
+            self.answer = answer
+            self.schedule = answer.schedule
+            for name in self.schedule.subchains:
+                self.states.setdefault(name, SubchainState())
+            if changed:
+                self.generation += 1
+                self.raised.clear()
+                for endpoints in self.endpoints.values():
+                    for endpoint in endpoints:
+                        self._place(endpoint)
+        if changed:
+            self._start_core_schedulers()
+        self._log(
+            "resolve",
+            reason=reason,
+            stage1=stage1,
+            allocation_changed=changed,
+            solve_ms=round(answer.solve_ms, 3),
+            error=answer.error,
+            compute_ms={k: round(v, 3) for k, v in sorted(estimates.items())},
+            plan=answer.summary,
+        )
+
+    # ------------------------------------------------------------------ observing
+
+    def elapsed_s(self) -> float:
+        return (self.clock() - self.started_ms) / 1000.0
+
+    def status(self) -> dict[str, Any]:
+        """Per subchain: planned and measured rate, p95 compute, late, lost, steals; for the live view and the log."""
+        estimates = self.measurements.estimates()
+        rows = {}
+        with self.lock:
+            for name, run in sorted(self.schedule.subchains.items()):
+                state = self.states[name]
+                periods = state.periods_ms[-20:]
+                measured = 1000.0 * len(periods) / sum(periods) if periods and sum(periods) > 0 else None
+                rows[name] = {
+                    "planned_hz": round(1000.0 / run.period_ms, 3),
+                    "measured_hz": None if measured is None else round(measured, 3),
+                    "compute_p95_ms": round(sum(estimates.get(node, 0.0) for node in run.nodes), 3),
+                    "late": state.late,
+                    "lost": state.lost,
+                    "steals": state.steals,
+                    "skipped": state.skipped,
+                    "registered": all(self.endpoints.get(node) for node in run.nodes),
+                }
+        since = None if self.last_resolve_s is None else time.monotonic() - self.last_resolve_s
+        return {"subchains": rows, "last_resolve_s": self.last_resolve_s, "since_resolve_s": since}
+
+    def _note(self, text: str) -> None:
+        self.events = [*self.events[-9:], text]
+
+    def _log(self, event: str, **fields: Any) -> None:
+        if self.log is not None:
+            self.log.write(event, (self.clock() - self.started_ms) / 1000.0, fields)

@@ -1,0 +1,137 @@
+"""The re-optimiser as its own process: a warm :class:`~catanc.replan.Replanner` behind a pipe.
+
+The enforcer's trigger and scheduler threads are Python threads at
+SCHED_FIFO 4 and need the interpreter lock within microseconds of waking.
+A solver call holds that lock for its whole run (Stage I's MILP, tens of
+milliseconds), so solving in the enforcer's process would delay every
+trigger and slot switch behind it.  Here the solvers run in a child
+process at SCHED_OTHER that keeps its Replanner (and every Stage II model
+it built) for the whole run: a Stage II re-solve never rebuilds a model.
+The enforcer's process never imports a solver.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import socket
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from multiprocessing.connection import Connection
+from typing import Any, Literal
+
+from catanc.runtime.schedule import RuntimeSchedule
+
+Kind = Literal["resolve", "reallocate"]
+
+
+@dataclass(frozen=True)
+class Request:
+    kind: Kind
+    compute_ms: dict[str, float]  # new compute times for scheduled nodes (empty: keep)
+    cores: int | None = None
+
+
+@dataclass(frozen=True)
+class Answer:
+    schedule: RuntimeSchedule
+    layout: tuple[tuple[str, tuple[int, ...], bool], ...]  # per subchain: cores, shared; a change restarts cores
+    summary: dict[str, Any]  # objective, cores and per subchain cores/period: for the log
+    solve_ms: float
+    error: str | None = None
+
+
+class PlannerProcess:
+    """The parent's handle: :meth:`ask` sends a request and waits for its answer (releasing the GIL)."""
+
+    def __init__(self, spec_data: dict[str, Any], cores: int, *, bootstrap_ms: float | None) -> None:
+        # A fresh interpreter (not a fork of a threaded parent), talking over a socket pair.
+        mine, theirs = socket.socketpair()
+        self._process = subprocess.Popen(
+            [sys.executable, "-c", f"from catanc.runtime.planning import serve_fd; serve_fd({theirs.fileno()})"],
+            pass_fds=[theirs.fileno()],
+        )
+        theirs.close()
+        self._conn = Connection(mine.detach())
+        self._conn.send((spec_data, cores, bootstrap_ms))
+        first = self._conn.recv()
+        if isinstance(first, BaseException):
+            raise first
+        self.initial: Answer = first
+
+    def ask(self, request: Request) -> Answer:
+        self._conn.send(request)
+        answer: Answer = self._conn.recv()
+        return answer
+
+    def close(self) -> None:
+        with contextlib.suppress(OSError):  # the child may be gone already
+            self._conn.send(None)
+        try:
+            self._process.wait(timeout=2.0)
+        except subprocess.TimeoutExpired:
+            self._process.kill()
+            self._process.wait()
+        self._conn.close()
+
+
+def serve(conn: Connection) -> None:
+    """The child: plan once (with every node at ``bootstrap_ms`` if given), then answer requests until None."""
+    from catanc.replan import Replanner  # noqa: PLC0415 - only the child loads the solvers
+    from catanc.spec import Spec  # noqa: PLC0415
+
+    spec_data, cores, bootstrap_ms = conn.recv()
+    try:
+        spec = Spec.model_validate(spec_data)
+        began = time.perf_counter()
+        replanner = Replanner(spec, cores)
+        if bootstrap_ms is not None:  # catan-model section 5: every node 5 ms, both stages, then measure
+            nodes = [node for sub in replanner.problem.subchains for node in sub.nodes]
+            replanner.reallocate(dict.fromkeys(nodes, bootstrap_ms))
+    except Exception as exc:  # the parent re-raises it
+        conn.send(exc)
+        return
+    conn.send(_answer(replanner, spec, began))
+    while True:
+        try:
+            request = conn.recv()
+        except EOFError:  # the enforcer is gone
+            return
+        if request is None:
+            return
+        began = time.perf_counter()
+        try:
+            if request.kind == "resolve":
+                replanner.resolve(request.compute_ms)
+            else:
+                replanner.reallocate(request.compute_ms or None, cores=request.cores)
+        except Exception as exc:  # a bad measurement must not end the run: keep the last plan
+            conn.send(_answer(replanner, spec, began, error=f"{type(exc).__name__}: {exc}"))
+            continue
+        conn.send(_answer(replanner, spec, began))
+
+
+def _answer(replanner: Any, spec: Any, began: float, error: str | None = None) -> Answer:
+    from catanc.runtime.schedule import runtime_schedule  # noqa: PLC0415
+
+    plan = replanner.plan
+    return Answer(
+        schedule=runtime_schedule(plan, replanner.problem, spec.schedule),
+        layout=tuple((name, sub.cores, sub.shared) for name, sub in sorted(plan.subchains.items())),
+        summary={
+            "objective": round(plan.objective, 6),
+            "cores": plan.cores,
+            "subchains": {
+                name: {"cores": list(sub.cores), "shared": sub.shared, "period_ms": round(sub.period_ms, 6)}
+                for name, sub in sorted(plan.subchains.items())
+            },
+        },
+        solve_ms=(time.perf_counter() - began) * 1000.0,
+        error=error,
+    )
+
+
+def serve_fd(fd: int) -> None:
+    """The child's entry point: serve on the inherited socket ``fd``."""
+    serve(Connection(fd))

@@ -1,0 +1,118 @@
+"""The app processes ``catanc run`` starts or attaches to.
+
+- ``--demo``: one synthetic worker per scheduled node (:mod:`catanc.runtime.worker`),
+  burning CPU as the node's compute profile says and talking to the
+  enforcer through :mod:`catanc.client`: catanc at work without a robot;
+- ``--launch``: the spec's deploy commands, as the runtime table lists them;
+- ``--attach NODE=PID``: a running process that does not speak the protocol:
+  its threads are pinned and prioritised as NODE's, and it keeps its own timer.
+
+Started processes get ``CATANC_SOCKET`` in their environment, their own
+process group (so a Ctrl-C reaches the enforcer, which stops them), and
+are stopped with SIGTERM, then SIGKILL, when the run ends.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import subprocess
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from catanc.errors import UsageError
+from catanc.runtime.protocol import SOCKET_ENV
+from catanc.runtime.worker import Profile, worker_command
+from catanc.spec import ModalCompute, Spec
+
+STOP_GRACE_S = 2.0
+
+
+@dataclass
+class Children:
+    """Processes this run started; :meth:`stop` ends them all."""
+
+    processes: list[tuple[str, subprocess.Popen[bytes]]] = field(default_factory=list)
+
+    def start(self, name: str, argv: Sequence[str], socket_path: str) -> None:
+        env = {**os.environ, SOCKET_ENV: socket_path}
+        try:
+            process = subprocess.Popen(list(argv), env=env, start_new_session=True)
+        except OSError as exc:
+            self.stop()
+            raise UsageError(f"cannot start {name} ({argv[0]}): {exc.strerror or exc}") from None
+        self.processes.append((name, process))
+
+    def stop(self) -> None:
+        for _, process in self.processes:
+            if process.poll() is None:
+                _signal_group(process, signal.SIGTERM)
+        for _, process in self.processes:
+            try:
+                process.wait(timeout=STOP_GRACE_S)
+            except subprocess.TimeoutExpired:
+                _signal_group(process, signal.SIGKILL)
+                process.wait()
+        self.processes.clear()
+
+    def exited(self) -> list[tuple[str, int]]:
+        """Started processes that have ended, with their status."""
+        return [(name, code) for name, process in self.processes if (code := process.poll()) is not None]
+
+
+def _signal_group(process: subprocess.Popen[bytes], signum: int) -> None:
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(process.pid, signum)
+
+
+def demo_profiles(spec: Spec) -> dict[str, Profile]:
+    """Each scheduled node's compute profile, as a worker burns it."""
+    profiles: dict[str, Profile] = {}
+    for name, node in spec.nodes.items():
+        if not node.scheduled or node.compute_ms is None:
+            continue
+        compute = node.compute_ms
+        if isinstance(compute, ModalCompute):
+            profiles[name] = [(mode.share, mode.ms) for mode in compute.modes]
+        else:
+            profiles[name] = float(compute)
+    return profiles
+
+
+def start_demo(children: Children, spec: Spec, socket_path: str, *, seed: int = 0) -> None:
+    """One worker process per scheduled node (Python threads of one process would share one interpreter lock)."""
+    for name, profile in demo_profiles(spec).items():
+        children.start(name, worker_command({name: profile}, seed=seed, socket_path=socket_path), socket_path)
+
+
+def start_launch(children: Children, processes: Sequence[Mapping[str, object]], socket_path: str) -> None:
+    """The runtime table's processes that have a command."""
+    for process in processes:
+        argv = process.get("argv")
+        if isinstance(argv, list) and argv:
+            children.start(str(process.get("key")), [str(word) for word in argv], socket_path)
+
+
+def parse_attach(items: Sequence[str], spec: Spec) -> dict[str, int]:
+    """``NODE=PID`` pairs, checked against the spec and /proc."""
+    found: dict[str, int] = {}
+    for item in items:
+        node, sep, pid_text = item.partition("=")
+        if not sep or not pid_text.isdigit():
+            raise UsageError(f"--attach {item!r}: expected NODE=PID, e.g. LM=4242")
+        if node not in spec.nodes:
+            raise UsageError(f"--attach {item!r}: no node {node!r} in app {spec.app}")
+        if not Path(f"/proc/{pid_text}").is_dir():
+            raise UsageError(f"--attach {item!r}: no process {pid_text}")
+        found[node] = int(pid_text)
+    return found
+
+
+def threads_of(pid: int) -> list[int]:
+    """Every thread id of process ``pid`` (empty if it is gone)."""
+    try:
+        return sorted(int(entry.name) for entry in Path(f"/proc/{pid}/task").iterdir())
+    except OSError:
+        return []
