@@ -62,6 +62,10 @@ CPU_WATCH_S = 1.0
 SWITCH_INTERVAL_S = 0.0002
 """The interpreter lock passes to a waking FIFO-4 thread within this (Python's default: 5 ms)."""
 STATUS_EVERY_S = 1.0
+KERNEL_CHECK_EVERY = 8
+"""Every 8th run, a node's reported compute time is checked against the kernel's (two /proc reads)."""
+SWITCH_SAMPLES = 2000
+"""Switch latencies kept per shared core: scheduled switch time to the slot owner raised (and triggered)."""
 LOST_AFTER = 20.0
 """A run not done after this many planned latencies (and at least a second) is given up as lost."""
 
@@ -139,6 +143,7 @@ class Enforcer:
         self.endpoints: dict[str, list[Endpoint]] = {}
         self.states = {name: SubchainState() for name in self.schedule.subchains}
         self.raised: dict[int, str | None] = {}  # core -> subchain raised to FIFO 2 now
+        self.switches: dict[int, deque[float]] = {}  # core -> recent switch latencies (ms)
         self.busy: dict[str, int | None] = {}  # node -> the run it was triggered for and has not finished
         self.waiting: dict[str, deque[int]] = {}  # node -> runs that reached it while it was busy
         self.stopping = threading.Event()
@@ -190,6 +195,8 @@ class Enforcer:
                     if time.monotonic() >= next_status:
                         next_status += STATUS_EVERY_S
                         self._log("status", **self.status())
+                        if self.log is not None:
+                            self.log.flush()
             finally:
                 self.stopping.set()
                 for thread in threads:
@@ -369,7 +376,7 @@ class Enforcer:
                 continue  # attached without the client: it runs on its own timer
             run = self.schedule.subchain_of(node)
             flight = self.states[run.name].in_flight.get(seq) if run is not None else None
-            if flight is not None:
+            if flight is not None and seq % KERNEL_CHECK_EVERY == 0:
                 flight.cpu_ns = self._cpu_ns(node)
             if self.sock.send(protocol.Trigger(node, seq), endpoint.address):
                 self.busy[node] = seq
@@ -440,7 +447,8 @@ class Enforcer:
                 runs = self.schedule.subchains
             period_start = start
             for slot in core.slots:
-                self._sleep_until(period_start + slot.start_ms)
+                switch_at = period_start + slot.start_ms - core.switch_ms  # the switch is budgeted before the slice
+                self._sleep_until(switch_at)
                 late = self._late_on(core, runs)
                 owner = slot_owner(slot, core, runs, late)
                 if owner != slot.subchain:
@@ -448,9 +456,13 @@ class Enforcer:
                 self._raise(core.core, owner)
                 if triggers_at_slot(runs[slot.subchain], period_index):
                     self._trigger_head(runs[slot.subchain])
+                self.switches.setdefault(core.core, deque(maxlen=SWITCH_SAMPLES)).append(self.clock() - switch_at)
                 self._sleep_until(period_start + slot.start_ms + slot.length_ms)
             self._raise(core.core, None)
             start = period_start + core.period_ms
+            behind = self.clock() - start
+            if behind > core.period_ms:  # fell a whole period behind (e.g. suspended): resume from now
+                start += behind
             self._sleep_until(start)
             period_index += 1
         self._raise(core.core, None)
@@ -586,7 +598,21 @@ class Enforcer:
                     "registered": all(self.endpoints.get(node) for node in run.nodes),
                 }
         since = None if self.last_resolve_s is None else time.monotonic() - self.last_resolve_s
-        return {"subchains": rows, "last_resolve_s": self.last_resolve_s, "since_resolve_s": since}
+        switches = {}
+        for core, samples in sorted(self.switches.items()):
+            ordered = sorted(samples)
+            if ordered:
+                switches[str(core)] = {
+                    "p50_ms": round(ordered[len(ordered) // 2], 4),
+                    "p95_ms": round(ordered[min(len(ordered) - 1, int(0.95 * len(ordered)))], 4),
+                    "max_ms": round(ordered[-1], 4),
+                }
+        return {
+            "subchains": rows,
+            "last_resolve_s": self.last_resolve_s,
+            "since_resolve_s": since,
+            "switches": switches,
+        }
 
     def _note(self, text: str) -> None:
         self.events = [*self.events[-9:], text]
