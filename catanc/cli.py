@@ -329,7 +329,6 @@ def run_(
     """Enforce a plan on this machine: trigger subchains, run per-core slices, measure and re-solve."""
     from catanc.errors import UsageError
     from catanc.runtime.enforcer import Enforcer
-    from catanc.runtime.log import RunLog
     from catanc.runtime.processes import Children, parse_attach, start_demo, start_launch, threads_of
     from catanc.runtime.sched import Restorer, check_fifo_allowed
     from catanc.runtime.schedule import ENFORCER_FIFO
@@ -349,52 +348,62 @@ def run_(
     log_path = log or Path(f"catanc-run-{table.app}.jsonl")
     children = Children()
     restorer = Restorer(Watchdog().start()) if not no_rt else Restorer()
-    with RunLog(log_path) as run_log:
-        enforcer = Enforcer(
-            table,
-            socket_path=socket_path,
-            rt=not no_rt,
-            start="bootstrap" if start == "bootstrap" else "spec",
-            log=run_log,
-            cores=cores,
-            restorer=restorer,
-        )
+    enforcer = Enforcer(
+        table,
+        socket_path=socket_path,
+        rt=not no_rt,
+        start="bootstrap" if start == "bootstrap" else "spec",
+        log_path=log_path,
+        cores=cores,
+        restorer=restorer,
+    )
 
-        def begin(running: Enforcer) -> None:
-            for node, pid in attached.items():
-                running.attach(node, pid, threads_of(pid))
-            if demo:
-                start_demo(children, table.spec, socket_path)
-            elif launch:
-                start_launch(children, table.processes, socket_path)
+    def begin(running: Enforcer) -> None:
+        for node, pid in attached.items():
+            running.attach(node, pid, threads_of(pid))
+        if demo:
+            start_demo(children, table.spec, socket_path)
+        elif launch:
+            start_launch(children, table.processes, socket_path)
 
-        live = None
-        if not quiet and sys.stdout.isatty():
-            from rich.live import Live
+    live = None
+    if not quiet and sys.stdout.isatty():
+        from rich.live import Live
 
-            live = Live(console=_stdout(), refresh_per_second=4, transient=False)
-            live.start()
+        live = Live(console=_stdout(), refresh_per_second=4, transient=False)
+        live.start()
 
-        def tick(running: Enforcer) -> None:
-            if live is not None:
-                live.update(
-                    status_view(
-                        table.app, running.schedule.cores, running.status(), running.events, running.elapsed_s()
-                    )
-                )
+    def tick(running: Enforcer) -> None:
+        if live is not None:
+            live.update(
+                status_view(table.app, running.schedule.cores, running.status(), running.events, running.elapsed_s())
+            )
 
-        try:
-            enforcer.run(duration, on_start=begin, on_tick=tick)
-        except KeyboardInterrupt:
-            pass
-        finally:
-            if live is not None:
-                live.stop()
-            children.stop()
+    try:
+        enforcer.run(duration, on_start=begin, on_tick=tick)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        if live is not None:
+            live.stop()
+        children.stop()
     _stdout().print(
         status_view(table.app, enforcer.schedule.cores, enforcer.status(), enforcer.events, enforcer.elapsed_s())
     )
     _stdout().print(f"log: {log_path}", markup=False)
+
+
+@app.command()
+@_reporting
+def report(
+    log: Annotated[Path, typer.Argument(metavar="LOG", help="A `catanc run` log (JSON lines).", show_default=False)],
+    plot: Annotated[Path | None, typer.Option(metavar="FILE.png", help="Also draw a timeline plot (PNG).")] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of tables.")] = False,
+) -> None:
+    """Summarise a `catanc run` log: rates, latencies, compute times, re-plans; optionally plot a timeline."""
+    from catanc.runtime.report import report_command
+
+    report_command(log, plot, as_json)
 
 
 @app.command()

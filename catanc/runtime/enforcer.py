@@ -35,6 +35,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Literal
 
 from catanc.runtime import protocol
@@ -119,7 +120,7 @@ class Enforcer:
         socket_path: str,
         rt: bool = True,
         start: Start = "bootstrap",
-        log: RunLog | None = None,
+        log_path: str | Path | None = None,
         cores: int | None = None,
         restorer: Restorer | None = None,
         clock: Callable[[], float] = now_ms,
@@ -127,7 +128,8 @@ class Enforcer:
         self.table = table
         self.spec = table.spec
         self.rt = rt
-        self.log = log
+        self.log_path = log_path
+        self.log: RunLog | None = None  # opened once the socket is ours: never truncate another run's log
         self.clock = clock
         self.socket_path = socket_path
         self.restorer = restorer if restorer is not None else Restorer()
@@ -170,6 +172,8 @@ class Enforcer:
         sys.setswitchinterval(SWITCH_INTERVAL_S)
         with protocol.EnforcerSocket(self.socket_path) as sock, self.restorer:
             self.sock = sock
+            if self.log_path is not None:
+                self.log = RunLog(self.log_path)
             self._raise_self(cpus=None)
             self._log("start", cores=self.schedule.cores, plan=self.answer.summary)
             threads = [
@@ -204,6 +208,8 @@ class Enforcer:
                 self._stop_nodes()
                 self.planner.close()
                 self._log("stop", summary=self.status())
+                if self.log is not None:
+                    self.log.close()
 
     def stop(self) -> None:
         self.stopping.set()
@@ -545,7 +551,7 @@ class Enforcer:
     def _replan(self, *, stage1: bool, cores: int | None, reason: str) -> None:
         estimates = self.measurements.estimates()
         answer = self.planner.ask(Request("reallocate" if stage1 else "resolve", estimates, cores))
-        self.last_resolve_s = time.monotonic()
+        self.last_resolve_s = self.elapsed_s()
         if answer.error is not None:
             self._note(f"re-plan failed, keeping the last plan: {answer.error}")
         with self.lock:
@@ -597,7 +603,7 @@ class Enforcer:
                     "skipped": state.skipped,
                     "registered": all(self.endpoints.get(node) for node in run.nodes),
                 }
-        since = None if self.last_resolve_s is None else time.monotonic() - self.last_resolve_s
+        since = None if self.last_resolve_s is None else self.elapsed_s() - self.last_resolve_s
         switches = {}
         for core, samples in sorted(self.switches.items()):
             ordered = sorted(samples)
