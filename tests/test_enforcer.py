@@ -1,0 +1,974 @@
+"""``catanc run`` on the real kernel: real node processes on this machine's CPUs 0 and 1.
+
+Each test compiles a small spec of its own into its folder and starts the enforcer as ``python -m
+catanc run`` would (with ``--socket`` and ``--log`` in the test's folders), then starts node
+processes that talk to it through :mod:`catanc.client`: :func:`catanc.runtime.worker.worker_command`
+workers, or :data:`LINGERING_NODE` where a thread must outlive the run so that the test can see what
+the enforcer left it with.  The specs whose rates are checked have runs of 8-36 ms and rates of
+18-50 Hz, so the ~0.1-0.3 ms a trigger and a done message cost stay a few percent of a period.
+
+What each thread runs at is read from ``/proc/<pid>/task/<tid>`` (``stat`` fields 40 and 41,
+``status``'s Cpus_allowed_list), never through catanc; what the enforcer planned and measured comes
+from its JSON-lines log (:mod:`catanc.runtime.log`, flushed once a second).  The plan a check compares
+with is the one in force at the time (the latest ``start`` or ``resolve`` event).  Rates are
+measured from the ``run`` events' timestamps over the last seconds of a run.  Bounds are generous:
+this checks that the mechanism works; it is not a benchmark.
+
+Everything skips with the reason when SCHED_FIFO is not permitted or CPUs 0 and 1 are not both
+allowed.  Every wait has a timeout; every process started here (each in its own session) and the
+enforcer's watchdog are SIGKILLed at teardown, the nodes first (so none is left at SCHED_FIFO
+without its enforcer).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import pwd
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TypeVar
+
+import pytest
+
+from catanc.compiler import compile_spec
+from catanc.errors import ExitCode
+from catanc.output import write
+from catanc.runtime.log import read_log
+from catanc.runtime.schedule import ENFORCER_FIFO, RUNNING_FIFO, SHARED_FIFO, UNSCHEDULED_FIFO
+from catanc.runtime.watchdog import WATCHDOG_PRIORITY
+from catanc.runtime.worker import Profile, worker_command
+
+WAIT_S = 10.0  # the longest any single wait in here may take
+KILL_BOUND_S = 1.0  # the issue: after the enforcer's SIGKILL, every app thread is back within this
+RATE_TOLERANCE = 0.10  # the issue: measured rates within 10% of planned
+BOTH = frozenset({0, 1})
+MINE = frozenset(os.sched_getaffinity(0))  # what the node processes started here may run on
+T = TypeVar("T")
+
+# The enforcer as `python -m catanc run`, but with Python's own SIGINT handler installed even if
+# SIGINT was ignored where the tests run (a CI job in the background): it is what a terminal gives.
+ENFORCER_MAIN = (
+    "import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+    "sys.argv[0] = 'catanc'; from catanc.cli import main; main()"
+)
+
+# A node whose thread lives on after its run ends (the enforcer stopped it, or went away), as an
+# app's would: the test reads the policy and affinity it was left with.
+LINGERING_NODE = """\
+import sys, time
+from catanc.client import ClientError, Node
+from catanc.runtime.worker import burn
+
+name, compute_ms, socket_path = sys.argv[1], float(sys.argv[2]), sys.argv[3]
+try:
+    with Node(name, socket_path=socket_path) as node:
+        for _trigger in node:
+            burn(compute_ms)
+            node.done()
+except ClientError as exc:
+    print(exc, file=sys.stderr, flush=True)
+time.sleep(60)
+"""
+
+# Two cores: one dedicated subchain, two sharing the other core, one unscheduled node that registers.
+# Stage I puts `front` (cam + track, 18 ms, capped at 25 Hz) alone on core 0: its period is the cap,
+# 40 ms; `map` (12 ms, f = 1) and `plan` (15 ms, f = 1/2) share core 1 with T ~ 20.8 ms, i.e. ~48
+# and ~24 Hz.  Every period is >= 20 ms and every run >= 8 ms, so the trigger/done hops (~0.1-0.3 ms
+# each) and the 0.12 ms switches are ~1-3% of a period: a 10% rate check is honest for this spec.
+# The only re-solve (Stage II with the measured times, at 2.5 s, once every node has run) keeps the
+# allocation.
+MIXED_SPEC = """\
+catan: 1
+app: mixed
+nodes:
+  imu: {scheduled: false, rate_hz: 100}
+  cam: {compute_ms: 10}
+  track: {compute_ms: 8}
+  map: {compute_ms: 12}
+  plan: {compute_ms: 15}
+edges:
+  - [imu, track]
+  - [cam, track]
+  - [track, map]
+  - [map, plan]
+subchains:
+  front: [cam, track]
+  map: [map]
+  plan: [plan]
+objective:
+  - {chain: [cam, track], weight: 1.0}
+  - {node: map, weight: 0.3}
+  - {node: plan, weight: 0.1}
+constraints:
+  - {node: cam, max_rate_hz: 25}
+runtime: {first_solve_after_s: 2.5, stage2_every_s: 100, stage1_every_s: 100}
+"""
+MIXED_COMPUTE: dict[str, float] = {"cam": 10, "track": 8, "map": 12, "plan": 15, "imu": 0}
+
+# The same app, re-solving Stage II every second with a short window, for the slow-down test.
+SLOWING_SPEC = MIXED_SPEC.replace(
+    "runtime: {first_solve_after_s: 2.5, stage2_every_s: 100, stage1_every_s: 100}",
+    "runtime: {window: 20, first_solve_after_s: 2, stage2_every_s: 1, stage1_every_s: 100}",
+)
+
+# One core, two subchains.  `hi` (weight 1) outranks `lo` (weight 0.1) for stealing.  It is planned
+# with its mean, 0.8 * 5 + 0.2 * 30 = 10 ms: a 10 ms slice every T ~ 14 ms.  One run in five takes
+# 30 ms, two periods and more: it is late at `lo`'s slot and takes it.  No re-solve, so the plan
+# stays the mean's.
+STEALING_SPEC = """\
+catan: 1
+app: stealing
+nodes:
+  hi: {compute_ms: {modes: [{share: 0.8, ms: 5}, {share: 0.2, ms: 30}]}}
+  lo: {compute_ms: 10}
+subchains: {hi: [hi], lo: [lo]}
+objective:
+  - {node: hi, weight: 1.0}
+  - {node: lo, weight: 0.1}
+runtime: {first_solve_after_s: 100, stage2_every_s: 100, stage1_every_s: 100}
+"""
+
+
+# --------------------------------------------------------------------------- reading /proc
+
+
+@dataclass(frozen=True)
+class Sched:
+    policy: int
+    priority: int
+    cpus: frozenset[int]
+
+    def __str__(self) -> str:
+        name = {os.SCHED_OTHER: "OTHER", os.SCHED_FIFO: "FIFO", os.SCHED_RR: "RR"}.get(self.policy, str(self.policy))
+        return f"{name} {self.priority} on {sorted(self.cpus)}"
+
+
+OTHER = Sched(os.SCHED_OTHER, 0, MINE)  # every node thread started here, before and after a run
+
+
+def stat_fields(path: str) -> list[str]:
+    """A ``stat`` file from field 3 (state) on: the name before it may hold spaces."""
+    return Path(path).read_text().rsplit(")", 1)[1].split()
+
+
+def cpu_set(text: str) -> frozenset[int]:
+    """``0-2,5`` -> {0, 1, 2, 5}."""
+    cpus: set[int] = set()
+    for part in text.split(","):
+        low, _, high = part.partition("-")
+        cpus.update(range(int(low), int(high or low) + 1))
+    return frozenset(cpus)
+
+
+def sched_of(pid: int, tid: int) -> Sched | None:
+    """Thread ``tid``'s policy (stat field 41), rt_priority (field 40) and CPUs; None once it is gone."""
+    folder = f"/proc/{pid}/task/{tid}"
+    try:
+        fields = stat_fields(f"{folder}/stat")
+        status = Path(f"{folder}/status").read_text()
+    except (FileNotFoundError, ProcessLookupError):
+        return None
+    if fields[0] in ("Z", "X"):
+        return None
+    for line in status.splitlines():
+        if line.startswith("Cpus_allowed_list:"):
+            return Sched(int(fields[41 - 3]), int(fields[40 - 3]), cpu_set(line.split(":", 1)[1].strip()))
+    raise AssertionError(f"no Cpus_allowed_list in {folder}/status")
+
+
+def threads_of(pid: int) -> list[int]:
+    try:
+        return sorted(int(entry.name) for entry in Path(f"/proc/{pid}/task").iterdir())
+    except FileNotFoundError:
+        return []
+
+
+def children_of(pid: int) -> list[int]:
+    found: list[int] = []
+    for tid in threads_of(pid):
+        with contextlib.suppress(FileNotFoundError, ProcessLookupError):
+            found += [int(word) for word in Path(f"/proc/{pid}/task/{tid}/children").read_text().split()]
+    return found
+
+
+def cmdline(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+    except (FileNotFoundError, ProcessLookupError):
+        return ""
+
+
+def alive(pid: int) -> bool:
+    try:
+        return stat_fields(f"/proc/{pid}/stat")[0] not in ("Z", "X")
+    except (FileNotFoundError, ProcessLookupError):
+        return False
+
+
+def poll(check: Callable[[], T | None], what: str, timeout: float = WAIT_S, step: float = 0.01) -> T:
+    """``check()``'s first truthy value, tried every ``step`` s; fails after ``timeout``."""
+    deadline = time.monotonic() + timeout
+    while True:
+        value = check()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            pytest.fail(f"timed out after {timeout} s waiting for {what}")
+        time.sleep(step)
+
+
+# --------------------------------------------------------------------------- reading the log
+
+
+Event = dict[str, Any]
+
+
+def of_kind(events: Sequence[Event], kind: str) -> list[Event]:
+    return [event for event in events if event["event"] == kind]
+
+
+def plans(events: Sequence[Event]) -> list[tuple[float, dict[str, Any]]]:
+    """Every plan the enforcer put in force, with when: the first one, then each re-solve's."""
+    return [(event["t"], event["plan"]) for event in events if event["event"] in ("start", "resolve")]
+
+
+def plans_during(events: Sequence[Event], since: float, until: float) -> list[dict[str, Any]]:
+    """The plans in force at some time in ``[since, until]``."""
+    timed = plans(events)
+    first = max((i for i, (t, _) in enumerate(timed) if t <= since), default=0)
+    return [plan for t, plan in timed[first:] if t <= until]
+
+
+def runs_of(events: Sequence[Event], subchain: str, since: float, until: float) -> list[float]:
+    return [e["t"] for e in of_kind(events, "run") if e["subchain"] == subchain and since <= e["t"] <= until]
+
+
+def measured_hz(events: Sequence[Event], subchain: str, since: float, until: float) -> float:
+    """Completed runs per second of ``subchain`` in ``[since, until]`` (first to last completion)."""
+    times = runs_of(events, subchain, since, until)
+    assert len(times) >= 10, f"{subchain}: only {len(times)} runs between {since:.1f} s and {until:.1f} s"
+    return (len(times) - 1) / (times[-1] - times[0])
+
+
+def planned_hz(plan_list: Sequence[dict[str, Any]], subchain: str) -> float:
+    """The planned rate of ``subchain``, after checking every plan in ``plan_list`` agrees on it within 3%."""
+    periods: list[float] = [plan["subchains"][subchain]["period_ms"] for plan in plan_list]
+    assert max(periods) <= 1.03 * min(periods), f"{subchain}: the plan changed meanwhile: {periods}"
+    return 1000.0 * len(periods) / sum(periods)
+
+
+# --------------------------------------------------------------------------- the processes
+
+
+def compile_table(spec_text: str, folder: Path, cores: int) -> Path:
+    """``catanc compile`` the spec into ``folder``; the runtime table's path."""
+    folder.mkdir(parents=True, exist_ok=True)
+    spec = folder / "spec.yaml"
+    spec.write_text(spec_text)
+    target = compile_spec(spec, cores, out=folder / f"cores-{cores}")
+    write(target.folder, target.files)
+    return target.folder / "runtime.json"
+
+
+def table_subchains(table: Path) -> dict[str, dict[str, Any]]:
+    subchains: dict[str, dict[str, Any]] = json.loads(table.read_text())["plan"]["subchains"]
+    return subchains
+
+
+@dataclass
+class Harness:
+    """One test's enforcer and node processes; :meth:`close` kills what is left of them."""
+
+    folder: Path
+    short: Path  # for the socket: a Unix socket's path must stay under 108 bytes
+    enforcer: subprocess.Popen[bytes] | None = None
+    workers: list[subprocess.Popen[bytes]] = field(default_factory=list)
+    helpers: list[int] = field(default_factory=list)  # the enforcer's watchdog and planner
+    began: float = 0.0
+
+    @property
+    def socket(self) -> Path:
+        return self.short / "s.sock"
+
+    @property
+    def log(self) -> Path:
+        return self.folder / "log.jsonl"
+
+    @property
+    def pid(self) -> int:
+        assert self.enforcer is not None
+        return self.enforcer.pid
+
+    def events(self) -> list[Event]:
+        return read_log(self.log) if self.log.exists() else []
+
+    def start(self, table: Path, *options: str, duration: float, stdout: int | None = None) -> None:
+        """Start the enforcer and wait until it is up: its socket bound (its log is flushed once a second)."""
+        argv = [sys.executable, "-c", ENFORCER_MAIN, "run", str(table), "--quiet"]
+        argv += ["--socket", str(self.socket), "--log", str(self.log), "--duration", str(duration), *options]
+        with (self.folder / "enforcer.out").open("wb") as out, (self.folder / "enforcer.err").open("wb") as err:
+            output = out.fileno() if stdout is None else stdout
+            self.enforcer = subprocess.Popen(argv, stdout=output, stderr=err, start_new_session=True)
+        enforcer = self.enforcer
+        poll(lambda: enforcer.poll() is not None or self.socket.exists(), "the enforcer's socket")
+        assert enforcer.poll() is None, self.stderr()
+        self.began = time.monotonic()
+        self.helpers = children_of(self.pid)  # the planner and the watchdog start before the socket is bound
+
+    def stderr(self) -> str:
+        return (self.folder / "enforcer.err").read_text(errors="replace")
+
+    def node(self, argv: Sequence[str]) -> subprocess.Popen[bytes]:
+        index = len(self.workers)
+        with (self.folder / f"node-{index}.err").open("wb") as err:
+            proc = subprocess.Popen(list(argv), stdout=subprocess.DEVNULL, stderr=err, start_new_session=True)
+        self.workers.append(proc)
+        return proc
+
+    def worker(self, nodes: dict[str, Profile], **options: Any) -> subprocess.Popen[bytes]:
+        """A :mod:`catanc.runtime.worker` process serving ``nodes``."""
+        return self.node(worker_command(nodes, socket_path=self.socket, **options))
+
+    def lingering(self, name: str, compute_ms: float) -> subprocess.Popen[bytes]:
+        """A :data:`LINGERING_NODE` process."""
+        return self.node([sys.executable, "-c", LINGERING_NODE, name, repr(compute_ms), str(self.socket)])
+
+    def registered(self, nodes: Sequence[str]) -> dict[str, tuple[int, int]]:
+        """Wait until every node in ``nodes`` registered; ``{node: (pid, tid)}``."""
+
+        def check() -> dict[str, tuple[int, int]] | None:
+            found = {e["node"]: (e["pid"], e["tid"]) for e in of_kind(self.events(), "register")}
+            return found if set(nodes) <= set(found) else None
+
+        return poll(check, f"nodes {sorted(nodes)} to register")
+
+    def wait(self, timeout: float = WAIT_S) -> int:
+        assert self.enforcer is not None
+        try:
+            return self.enforcer.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            pytest.fail(f"the enforcer still runs {timeout} s later")
+
+    def close(self) -> None:
+        for proc in [*self.workers, *([self.enforcer] if self.enforcer else [])]:  # nodes first
+            if proc.poll() is None:
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(proc.pid, signal.SIGKILL)
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                proc.wait(timeout=WAIT_S)
+        registered = [e["pid"] for e in of_kind(self.events(), "register")]  # --demo's workers have their sessions
+        for pid in {*self.helpers, *registered}:  # and so has the watchdog
+            if "catanc" in cmdline(pid) or "watchdog" in cmdline(pid):
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGKILL)
+        shutil.rmtree(self.short, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def harness_in(folder: Path) -> Iterator[Harness]:
+    harness = Harness(folder, Path(tempfile.mkdtemp(prefix="catanc-test-")))
+    try:
+        yield harness
+    finally:
+        harness.close()
+
+
+@pytest.fixture
+def harness(tmp_path: Path) -> Iterator[Harness]:
+    with harness_in(tmp_path) as made:
+        yield made
+
+
+def expected_sched(
+    node: str, plan: dict[str, Any], table: dict[str, dict[str, Any]]
+) -> tuple[set[int], frozenset[int]]:
+    """The SCHED_FIFO priorities ``node``'s thread may show under ``plan``, and its CPUs."""
+    for name, sub in table.items():
+        if node in sub["nodes"]:
+            planned = plan["subchains"][name]
+            cpus = frozenset(planned["cores"])
+            return ({SHARED_FIFO, RUNNING_FIFO} if planned["shared"] else {RUNNING_FIFO}), cpus
+    return {UNSCHEDULED_FIFO}, frozenset(range(plan["cores"]))
+
+
+def sample(threads: dict[str, tuple[int, int]]) -> dict[str, Sched | None]:
+    return {node: sched_of(pid, tid) for node, (pid, tid) in threads.items()}
+
+
+def restored(threads: dict[str, tuple[int, int]]) -> bool:
+    return all(found == OTHER for found in sample(threads).values())
+
+
+# --------------------------------------------------------------------------- what the machine allows
+
+
+@pytest.fixture(scope="module", autouse=True)
+def real_kernel() -> None:
+    """Skips unless CPUs 0 and 1 are allowed and SCHED_FIFO up to the watchdog's priority is permitted.
+
+    Probed without catanc's code, so a bug in catanc's own check fails tests instead of skipping them.
+    """
+    if not os.sched_getaffinity(0) >= BOTH:
+        pytest.skip(f"needs CPUs 0 and 1 (allowed: {sorted(os.sched_getaffinity(0))})")
+    probe = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            f"import os; os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param({WATCHDOG_PRIORITY}))",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=WAIT_S,
+        check=False,
+    )
+    if probe.returncode != 0:
+        why = (probe.stderr.strip().splitlines() or ["refused"])[-1]
+        pytest.skip(f"SCHED_FIFO {WATCHDOG_PRIORITY} is not permitted here: {why}")
+
+
+# --------------------------------------------------------------------------- a plain run, watched throughout
+
+MIXED_DURATION_S = 7.0
+
+
+@dataclass
+class MixedRun:
+    """What one 7 s run of :data:`MIXED_SPEC` on two cores showed."""
+
+    table: dict[str, dict[str, Any]]
+    events: list[Event]
+    threads: dict[str, tuple[int, int]]  # node -> (pid, tid), from the register events
+    samples: list[tuple[float, dict[str, Sched | None]]]  # (seconds since the start, each node's thread)
+    enforcer_threads: dict[int, Sched | None]  # mid-run
+    helpers: dict[str, Sched | None]  # "planner", "watchdog": their main threads, mid-run
+    returncode: int
+    after: dict[str, Sched | None]  # each node's thread once the enforcer has exited
+
+
+@pytest.fixture(scope="module")
+def mixed(tmp_path_factory: pytest.TempPathFactory) -> Iterator[MixedRun]:
+    folder = tmp_path_factory.mktemp("mixed")
+    table = compile_table(MIXED_SPEC, folder, 2)
+    with harness_in(folder) as run:
+        run.start(table, "--start", "spec", duration=MIXED_DURATION_S)
+        for node, compute in MIXED_COMPUTE.items():
+            run.lingering(node, compute)
+        threads = run.registered(list(MIXED_COMPUTE))
+        samples = []
+        enforcer_threads: dict[int, Sched | None] = {}
+        helpers: dict[str, Sched | None] = {}
+        time.sleep(0.5)  # the first runs
+        while time.monotonic() < run.began + MIXED_DURATION_S - 0.7:
+            samples.append((time.monotonic() - run.began, sample(threads)))
+            if not enforcer_threads and time.monotonic() > run.began + 3.0:
+                enforcer_threads = {tid: sched_of(run.pid, tid) for tid in threads_of(run.pid)}
+                for pid in run.helpers:
+                    kind = "watchdog" if "watchdog" in cmdline(pid) else "planner" if "planning" in cmdline(pid) else ""
+                    helpers[kind or str(pid)] = sched_of(pid, pid)
+            time.sleep(0.03)
+        returncode = run.wait()
+        after = sample(threads)
+        yield MixedRun(
+            table_subchains(table), run.events(), threads, samples, enforcer_threads, helpers, returncode, after
+        )
+
+
+def test_the_run_ends_cleanly_after_its_duration(mixed: MixedRun) -> None:
+    assert mixed.returncode == 0
+    kinds = [event["event"] for event in mixed.events]
+    assert kinds[0] == "start"
+    assert kinds[-1] == "stop"
+    assert mixed.events[-1]["t"] == pytest.approx(MIXED_DURATION_S, abs=1.0)
+    assert not of_kind(mixed.events, "lost")
+    resolves = of_kind(mixed.events, "resolve")
+    assert [(r["reason"], r["allocation_changed"], r["error"]) for r in resolves] == [("stage2", False, None)]
+
+
+def test_node_threads_get_the_planned_policy_priority_and_cpus(mixed: MixedRun) -> None:
+    allocations = {
+        json.dumps({n: (s["cores"], s["shared"]) for n, s in plan["subchains"].items()})
+        for _, plan in plans(mixed.events)
+    }
+    assert len(allocations) == 1, "Stage I never ran: every plan keeps the allocation"
+    plan = plans(mixed.events)[-1][1]
+    assert len(mixed.samples) >= 50
+    seen: dict[str, set[int]] = {node: set() for node in mixed.threads}
+    for when, found in mixed.samples:
+        for node, sched in found.items():
+            priorities, cpus = expected_sched(node, plan, mixed.table)
+            assert sched is not None, f"{node}'s thread exited during the run"
+            assert sched.policy == os.SCHED_FIFO, f"{node} at {when:.2f} s: {sched}"
+            assert sched.priority in priorities, f"{node} at {when:.2f} s: {sched}, expected one of {priorities}"
+            assert sched.cpus == cpus, f"{node} at {when:.2f} s: {sched}, expected CPUs {sorted(cpus)}"
+            seen[node].add(sched.priority)
+    # The layout this spec is about: front dedicated on core 0, map and plan sharing core 1.
+    assert {n: (s["cores"], s["shared"]) for n, s in plan["subchains"].items()} == {
+        "front": ([0], False),
+        "map": ([1], True),
+        "plan": ([1], True),
+    }
+    assert seen == {
+        "cam": {RUNNING_FIFO},
+        "track": {RUNNING_FIFO},
+        "map": {SHARED_FIFO, RUNNING_FIFO},  # raised for its slice, back between slices
+        "plan": {SHARED_FIFO, RUNNING_FIFO},
+        "imu": {UNSCHEDULED_FIFO},
+    }
+
+
+def test_enforcer_threads_run_at_fifo_4_and_each_core_scheduler_on_its_core(mixed: MixedRun) -> None:
+    found = {tid: sched for tid, sched in mixed.enforcer_threads.items() if sched is not None}
+    main = next(iter(found))
+    assert found[main] == Sched(os.SCHED_FIFO, ENFORCER_FIFO, MINE)  # the main thread (lowest tid)
+    at_4 = [sched for sched in found.values() if sched.policy == os.SCHED_FIFO]
+    assert all(sched.priority == ENFORCER_FIFO for sched in at_4), [str(s) for s in found.values()]
+    # main, receiver, clock and one core scheduler: the only one pinned, to the shared core 1
+    assert len(at_4) >= 4, [str(s) for s in found.values()]
+    assert [sched.cpus for sched in at_4 if sched.cpus != MINE] == [frozenset({1})]
+    assert mixed.helpers["planner"] == OTHER  # the solvers never run at a real-time priority
+    assert mixed.helpers["watchdog"] == Sched(os.SCHED_FIFO, WATCHDOG_PRIORITY, MINE)
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason=(
+        "the re-optimiser thread runs at SCHED_FIFO 4, not SCHED_OTHER (catan-model.md section 6, the enforcer's "
+        "docstring): Enforcer.run raises the main thread to FIFO 4 (_raise_self) before it starts the "
+        "catanc-reoptimiser thread, a new thread inherits its creator's policy, and _reoptimiser never lowers itself"
+    ),
+)
+def test_the_reoptimiser_thread_runs_at_sched_other(mixed: MixedRun) -> None:
+    found = [sched for sched in mixed.enforcer_threads.values() if sched is not None]
+    assert [sched for sched in found if sched.policy == os.SCHED_OTHER] == [OTHER], [str(s) for s in found]
+
+
+def test_measured_rates_are_within_10_percent_of_the_plan_in_force(mixed: MixedRun) -> None:
+    end = of_kind(mixed.events, "stop")[0]["t"]
+    resolve = of_kind(mixed.events, "resolve")[0]
+    for node in ("cam", "track", "map", "plan"):  # so it planned with measured times: see the xfail below
+        assert resolve["compute_ms"][node] == pytest.approx(MIXED_COMPUTE[node], rel=0.1), resolve["compute_ms"]
+    since, until = resolve["t"] + 1.0, end - 0.1  # the plan it made, settled
+    in_force = plans_during(mixed.events, since, until)
+    report = {}
+    for name in ("front", "map", "plan"):
+        planned = planned_hz(in_force, name)
+        measured = measured_hz(mixed.events, name, since, until)
+        report[name] = (round(planned, 2), round(measured, 2))
+        assert measured == pytest.approx(planned, rel=RATE_TOLERANCE), (
+            f"{name}: planned {planned:.2f} Hz, measured {measured:.2f} Hz"
+        )
+    print("planned vs measured Hz:", report)
+    assert not of_kind(mixed.events, "lost")
+
+
+def test_a_normal_end_puts_every_node_thread_back(mixed: MixedRun) -> None:
+    assert mixed.after == dict.fromkeys(mixed.threads, OTHER)
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason=(
+        "with --start spec, a re-solve before a node has run plans that node at bootstrap_ms (5 ms) instead of "
+        "the spec's compute time: Enforcer._replan sends Measurements.estimates(), which fills every node "
+        "without samples with bootstrap_ms; estimates(measured_only=True) would let the Replanner keep the "
+        "times it planned with (the spec's here, bootstrap_ms after a bootstrap start)"
+    ),
+)
+def test_a_re_solve_before_the_nodes_ran_keeps_the_spec_times(harness: Harness, tmp_path: Path) -> None:
+    table = compile_table(MIXED_SPEC.replace("first_solve_after_s: 2.5", "first_solve_after_s: 0.5"), tmp_path, 2)
+    harness.start(table, "--start", "spec", duration=2.0)
+    resolve = poll(lambda: of_kind(harness.events(), "resolve"), "the first re-solve")[0]
+    start = of_kind(harness.events(), "start")[0]
+    harness.wait()
+    assert resolve["error"] is None
+    for name, planned in start["plan"]["subchains"].items():
+        assert resolve["plan"]["subchains"][name]["period_ms"] == pytest.approx(planned["period_ms"], rel=0.01), (
+            f"{name}: re-solved with {resolve['compute_ms']} before any node ran"
+        )
+
+
+# --------------------------------------------------------------------------- re-solving
+
+
+def test_a_node_that_slows_down_3x_gets_a_re_solve_that_lowers_its_rate(harness: Harness, tmp_path: Path) -> None:
+    table = compile_table(SLOWING_SPEC, tmp_path, 2)
+    duration = 9.0
+    harness.start(table, "--start", "spec", duration=duration)
+    for node, compute in MIXED_COMPUTE.items():
+        slowing = {"scale_after": (2.5, 3.0)} if node == "map" else {}
+        harness.worker({node: compute}, **slowing)
+    harness.registered(list(MIXED_COMPUTE))
+    assert harness.wait(duration + WAIT_S) == 0
+    events = harness.events()
+
+    slow = [e["t"] for e in of_kind(events, "compute") if e["node"] == "map" and e["ms"] > 2 * MIXED_COMPUTE["map"]]
+    assert slow, "map never slowed down"
+    slowed_at = slow[0]
+    resolves = of_kind(events, "resolve")
+    before = [r for r in resolves if r["t"] < slowed_at]
+    after = [r for r in resolves if r["t"] > slowed_at + 1.0]  # its window holds slow runs by then
+    assert before, f"no re-solve before the slow-down at {slowed_at:.2f} s"
+    assert len(after) >= 3, f"re-solves: {[round(r['t'], 2) for r in resolves]}, slow-down at {slowed_at:.2f} s"
+    assert all(r["error"] is None and not r["allocation_changed"] for r in resolves)
+    last_fast, first_slow = before[-1], after[0]
+    assert last_fast["compute_ms"]["map"] == pytest.approx(MIXED_COMPUTE["map"], rel=0.1)
+    assert first_slow["compute_ms"]["map"] / last_fast["compute_ms"]["map"] == pytest.approx(3.0, rel=0.1)
+    fast_period = last_fast["plan"]["subchains"]["map"]["period_ms"]
+    slow_period = first_slow["plan"]["subchains"]["map"]["period_ms"]
+    assert slow_period > 1.5 * fast_period, f"map's period: {fast_period:.2f} ms, then {slow_period:.2f} ms"
+
+    # The measured rate follows: over the last seconds, against the plans in force then.
+    end = of_kind(events, "stop")[0]["t"]
+    since, until = max(first_slow["t"] + 1.0, end - 3.0), end - 0.1
+    planned = planned_hz(plans_during(events, since, until), "map")
+    measured = measured_hz(events, "map", since, until)
+    fast = measured_hz(events, "map", last_fast["t"] + 0.2, slowed_at)
+    print(f"map: {fast:.2f} Hz before (planned {1000 / fast_period:.2f}); after {measured:.2f} (planned {planned:.2f})")
+    assert measured == pytest.approx(planned, rel=RATE_TOLERANCE)
+    assert measured < 0.7 * fast
+
+
+# --------------------------------------------------------------------------- priority stealing
+
+
+def test_a_late_high_priority_subchain_steals_the_lower_ones_slot(harness: Harness, tmp_path: Path) -> None:
+    table = compile_table(STEALING_SPEC, tmp_path, 1)
+    subchains = table_subchains(table)
+    assert subchains["hi"]["priority"] > subchains["lo"]["priority"]
+    assert subchains["hi"]["cores"] == subchains["lo"]["cores"] == [0]
+    assert subchains["hi"]["slice_ms"] == pytest.approx(10.0)  # planned with the mean: the 30 ms runs overrun
+    duration = 4.0
+    harness.start(table, "--start", "spec", duration=duration)
+    harness.worker({"hi": [(0.8, 5.0), (0.2, 30.0)]}, seed=1)
+    harness.worker({"lo": 10.0})
+    harness.registered(["hi", "lo"])
+    assert harness.wait(duration + WAIT_S) == 0
+    events = harness.events()
+    assert not of_kind(events, "resolve")
+    final = of_kind(events, "stop")[0]["summary"]["subchains"]
+    print(
+        {
+            name: {key: row[key] for key in ("planned_hz", "measured_hz", "late", "steals", "skipped")}
+            for name, row in final.items()
+        }
+    )
+    assert final["hi"]["late"] > 0
+    assert final["hi"]["steals"] > 0
+    assert final["lo"]["steals"] == 0  # never from a subchain that outranks it
+    statuses = [e["subchains"]["hi"]["steals"] for e in of_kind(events, "status")]
+    assert statuses == sorted(statuses)
+
+
+# --------------------------------------------------------------------------- ending: signals
+
+
+def running_app(harness: Harness, tmp_path: Path) -> dict[str, tuple[int, int]]:
+    """The mixed app on two cores, lingering nodes, running for a second: ``{node: (pid, tid)}``."""
+    harness.start(compile_table(MIXED_SPEC, tmp_path, 2), "--start", "spec", duration=60.0)
+    for node, compute in MIXED_COMPUTE.items():
+        harness.lingering(node, compute)
+    threads = harness.registered(list(MIXED_COMPUTE))
+    time.sleep(1.0)
+    before = sample(threads)
+    assert all(sched is not None and sched.policy == os.SCHED_FIFO for sched in before.values()), before
+    assert of_kind(harness.events(), "run")
+    return threads
+
+
+def time_to_restore(threads: dict[str, tuple[int, int]], since: float) -> float:
+    """Seconds from ``since`` until every thread in ``threads`` is back to :data:`OTHER` (polled every 2 ms)."""
+    poll(lambda: restored(threads), "every node thread back to SCHED_OTHER on its original CPUs", step=0.002)
+    return time.monotonic() - since
+
+
+def assert_helpers_exit(harness: Harness, timeout: float = 5.0) -> None:
+    """The enforcer's planner and watchdog exit within ``timeout``."""
+    poll(lambda: not [pid for pid in harness.helpers if alive(pid)], "the planner and the watchdog to exit", timeout)
+
+
+def test_sigint_stops_the_run_and_puts_every_thread_back(harness: Harness, tmp_path: Path) -> None:
+    threads = running_app(harness, tmp_path)
+    sent = time.monotonic()
+    os.kill(harness.pid, signal.SIGINT)
+    took = time_to_restore(threads, sent)
+    returncode = harness.wait()
+    print(f"SIGINT: every thread back after {1000 * took:.1f} ms; exit status {returncode}")
+    assert returncode == ExitCode.OK  # Ctrl-C is how a run without --duration ends: a normal end, summary printed
+    assert "Traceback" not in harness.stderr()
+    assert "log:" in (harness.folder / "enforcer.out").read_text()
+    events = harness.events()
+    assert events[-1]["event"] == "stop"
+    assert sample(threads) == dict.fromkeys(threads, OTHER)
+    assert_helpers_exit(harness)  # the planner and the watchdog are gone with it
+
+
+def test_sigkill_puts_every_thread_back_within_a_second(harness: Harness, tmp_path: Path) -> None:
+    threads = running_app(harness, tmp_path)
+    sent = time.monotonic()
+    os.kill(harness.pid, signal.SIGKILL)
+    took = time_to_restore(threads, sent)
+    print(f"SIGKILL: every thread back after {1000 * took:.1f} ms (the watchdog)")
+    assert took < KILL_BOUND_S
+    assert harness.wait() == -signal.SIGKILL
+    assert "stop" not in [event["event"] for event in harness.events()]
+    time.sleep(0.3)  # nothing puts them back to FIFO afterwards
+    assert sample(threads) == dict.fromkeys(threads, OTHER)
+    assert_helpers_exit(harness)  # no orphans: the planner sees its pipe close, the watchdog ends after restoring
+
+
+@dataclass
+class Ended:
+    """How a run of the mixed app ended on a signal."""
+
+    threads: dict[str, tuple[int, int]]
+    restore_s: float  # from the signal until every node thread was back
+    returncode: int
+    events: list[Event]
+    stdout: str
+    after: dict[str, Sched | None]
+
+
+@pytest.fixture(scope="module")
+def sigterm(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Ended]:
+    """SIGTERM, as systemd, docker or a supervisor stop a service."""
+    folder = tmp_path_factory.mktemp("sigterm")
+    with harness_in(folder) as harness:
+        threads = running_app(harness, folder)
+        sent = time.monotonic()
+        os.kill(harness.pid, signal.SIGTERM)
+        took = time_to_restore(threads, sent)
+        returncode = harness.wait()
+        stdout = (folder / "enforcer.out").read_text()
+        yield Ended(threads, took, returncode, harness.events(), stdout, sample(threads))
+
+
+def test_sigterm_puts_every_thread_back(sigterm: Ended) -> None:
+    print(f"SIGTERM: every thread back after {1000 * sigterm.restore_s:.1f} ms; exit status {sigterm.returncode}")
+    assert sigterm.restore_s < KILL_BOUND_S
+    assert sigterm.after == dict.fromkeys(sigterm.threads, OTHER)
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason=(
+        "SIGTERM kills catanc run instead of ending the run like SIGINT (Enforcer.run's docstring: 'until stop(), "
+        "SIGINT/SIGTERM or duration_s'): nothing but the Restorer handles SIGTERM, and its handler, after the "
+        "restore, re-raises the default action, so the process dies by the signal (status -15): run()'s finally "
+        "never runs: no 'stop' event and the last second of the (buffered) log is lost, the nodes are never "
+        "told to stop (workers report 'it went away without stopping node ...'), --demo/--launch children are "
+        "not stopped (Children.stop), no summary is printed"
+    ),
+)
+def test_sigterm_ends_the_run_like_sigint(sigterm: Ended) -> None:
+    assert sigterm.events[-1]["event"] == "stop", sigterm.events[-1]
+    assert "log:" in sigterm.stdout
+
+
+# --------------------------------------------------------------------------- without real-time priorities
+
+
+def test_no_rt_pins_node_threads_but_leaves_them_at_sched_other(harness: Harness, tmp_path: Path) -> None:
+    table = compile_table(MIXED_SPEC, tmp_path, 2)
+    duration = 4.0
+    harness.start(table, "--no-rt", "--demo", "--start", "spec", duration=duration)
+    scheduled = [node for node in MIXED_COMPUTE if node != "imu"]  # --demo starts the scheduled nodes
+    threads = harness.registered(scheduled)
+    assert harness.helpers, "the planner"
+    assert not [pid for pid in harness.helpers if "watchdog" in cmdline(pid)]  # nothing to put back after a SIGKILL
+    own = [sched_of(harness.pid, tid) for tid in threads_of(harness.pid)]
+    assert all(sched is not None and sched.policy == os.SCHED_OTHER for sched in own), own  # nor its own threads
+    plan = of_kind(harness.events(), "start")[0]["plan"]
+    subchains = table_subchains(table)
+    time.sleep(0.5)
+    for _ in range(20):
+        for node, sched in sample(threads).items():
+            _, cpus = expected_sched(node, plan, subchains)
+            assert sched == Sched(os.SCHED_OTHER, 0, cpus), f"{node}: {sched}"
+        time.sleep(0.05)
+    assert harness.wait(duration + WAIT_S) == 0
+    events = harness.events()
+    end = of_kind(events, "stop")[0]["t"]
+    for name in subchains:  # rates are still enforced (no bound: CFS gives no guarantee)
+        assert len(runs_of(events, name, 0.0, end)) >= 10, name
+
+
+@pytest.fixture(scope="module")
+def nobody() -> tuple[int, int]:
+    """``nobody``'s uid and gid; skips unless the tests may switch to it."""
+    if missing := [tool for tool in ("setpriv", "prlimit") if shutil.which(tool) is None]:
+        pytest.skip(f"needs {', '.join(missing)}")
+    if os.geteuid() != 0:
+        pytest.skip("switching to an unprivileged user needs root")
+    try:
+        user = pwd.getpwnam("nobody")
+    except KeyError:
+        pytest.skip("no user 'nobody'")
+    return user.pw_uid, user.pw_gid
+
+
+@pytest.fixture
+def shared_folder() -> Iterator[Path]:
+    """A folder under /tmp that ``nobody`` may use (pytest's own are the test user's alone)."""
+    folder = Path(tempfile.mkdtemp(prefix="catanc-nobody-"))
+    folder.chmod(0o777)
+    try:
+        yield folder
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def as_nobody(uid: int, gid: int) -> list[str]:
+    """Run a command as ``uid`` with RLIMIT_RTPRIO 0 and no capabilities (as in tests/test_sched.py)."""
+    return [
+        *("prlimit", "--rtprio=0:0", "setpriv", f"--reuid={uid}", f"--regid={gid}", "--clear-groups"),
+        *("--inh-caps=-all", "--ambient-caps=-all", "--bounding-set=-all"),
+    ]
+
+
+def nobody_run(
+    nobody: tuple[int, int], folder: Path, tmp_path: Path, *options: str
+) -> subprocess.CompletedProcess[str]:
+    """``catanc run`` of the mixed app as ``nobody``, without privileges, its files in ``folder``."""
+    table = folder / "runtime.json"
+    if not table.exists():
+        shutil.copyfile(compile_table(MIXED_SPEC, tmp_path, 2), table)
+        table.chmod(0o644)
+    argv = [*as_nobody(*nobody), sys.executable, "-c", ENFORCER_MAIN, "run", str(table), "--quiet"]
+    argv += ["--socket", str(folder / "s.sock"), "--log", str(folder / "log.jsonl"), *options]
+    return subprocess.run(
+        argv,
+        capture_output=True,
+        text=True,
+        timeout=30,
+        check=False,
+        cwd="/",
+        env={**os.environ, "PYTHONDONTWRITEBYTECODE": "1"},
+        start_new_session=True,
+    )
+
+
+def test_without_privilege_catanc_run_exits_4_and_says_why(
+    nobody: tuple[int, int], shared_folder: Path, tmp_path: Path
+) -> None:
+    refused = nobody_run(nobody, shared_folder, tmp_path, "--duration", "1")
+    assert refused.returncode == ExitCode.NO_PRIVILEGE, refused.stderr
+    assert int(ExitCode.NO_PRIVILEGE) == 4  # as the README documents
+    assert f"cannot use SCHED_FIFO priority {ENFORCER_FIFO}" in refused.stderr
+    assert "catanc run --no-rt" in refused.stderr
+    assert "Traceback" not in refused.stderr
+    assert not (shared_folder / "log.jsonl").exists()  # refused before it started anything
+
+
+def test_without_privilege_no_rt_runs(nobody: tuple[int, int], shared_folder: Path, tmp_path: Path) -> None:
+    probe = subprocess.run(
+        [
+            *as_nobody(*nobody),
+            sys.executable,
+            "-c",
+            "import subprocess, sys; subprocess.run([sys.executable, '-c', ''])",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=WAIT_S,
+        check=False,
+        cwd="/",
+    )
+    if probe.returncode != 0:  # e.g. a Python under /root: setpriv's own exec may still reach it, nobody's cannot
+        pytest.skip(f"nobody cannot start {sys.executable}: {(probe.stderr.strip().splitlines() or ['?'])[-1]}")
+    allowed = nobody_run(nobody, shared_folder, tmp_path, "--no-rt", "--demo", "--start", "spec", "--duration", "2")
+    assert allowed.returncode == 0, allowed.stderr
+    events = read_log(shared_folder / "log.jsonl")
+    assert {e["node"] for e in of_kind(events, "register")} == {"cam", "track", "map", "plan"}
+    assert of_kind(events, "run")
+
+
+# One core, six subchains of 100 ms each at f = 1: T ~ 630 ms, a slot boundary every ~100 ms.
+LONG_PERIOD_SPEC = """\
+catan: 1
+app: long
+nodes:
+  n1: {compute_ms: 100}
+  n2: {compute_ms: 100}
+  n3: {compute_ms: 100}
+  n4: {compute_ms: 100}
+  n5: {compute_ms: 100}
+  n6: {compute_ms: 100}
+subchains: {s1: [n1], s2: [n2], s3: [n3], s4: [n4], s5: [n5], s6: [n6]}
+objective:
+  - {chains: {}, weight: 1}
+runtime: {first_solve_after_s: 100, stage2_every_s: 100, stage1_every_s: 100}
+"""
+
+
+def full_pipe() -> tuple[int, int]:
+    """A pipe whose buffer is full: the first write to its write end blocks until the read end is read."""
+    read_end, write_end = os.pipe()
+    os.set_blocking(write_end, False)
+    with contextlib.suppress(BlockingIOError):
+        while True:
+            os.write(write_end, b"x" * 4096)
+    os.set_blocking(write_end, True)
+    return read_end, write_end
+
+
+def drain(fd: int, timeout: float = WAIT_S) -> None:
+    """Read ``fd`` until end of file (its writers exited); fails after ``timeout``."""
+    deadline = time.monotonic() + timeout
+    os.set_blocking(fd, False)
+    while time.monotonic() < deadline:
+        try:
+            if not os.read(fd, 1 << 16):
+                return
+        except BlockingIOError:
+            time.sleep(0.01)
+    pytest.fail(f"the enforcer's stdout still open {timeout} s later")
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason=(
+        "the shared cores' scheduler threads outlive the end of the run: Enforcer.run's finally joins only the "
+        "receiver, clock and re-optimiser threads, then stops the nodes, closes the log and lets Restorer.close() "
+        "put every node thread back, while each _core_loop checks `stopping` once per period and so runs the rest "
+        "of its period: (1) a slot after the restore raises its owner to FIFO 2 again (and the period's end puts it "
+        "to FIFO 1), and the watchdog was dismissed ('C'), so that thread stays SCHED_FIFO after catanc exits; "
+        "(2) a trigger to a node that already left (its loop ended on the stop message) calls _gone, whose "
+        "_log writes to the closed log: 'ValueError: I/O operation on closed file' kills the thread with a "
+        "traceback on stderr.  Stopping and joining the core schedulers before _stop_nodes would fix both.  A "
+        "blocked stdout holds the window open here; in plain runs it is the ~10-50 ms before the interpreter "
+        "exits (a thread was left at FIFO 1 or 2 in 2 of ~30 plain runs of similar specs)"
+    ),
+)
+def test_the_end_of_a_run_leaves_no_thread_raised_and_no_traceback(harness: Harness, tmp_path: Path) -> None:
+    table = compile_table(LONG_PERIOD_SPEC, tmp_path, 1)
+    period_s = json.loads(table.read_text())["plan"]["cores"][0]["period_ms"] / 1000.0
+    assert period_s > 0.5
+    # Stop ~50 ms into a period: the core scheduler has most of it still to run when the run ends.
+    duration = -(-1.5 // period_s) * period_s + 0.05
+    read_end, write_end = full_pipe()  # the summary catanc prints at the end waits until the test reads
+    try:
+        harness.start(table, "--start", "spec", duration=duration, stdout=write_end)
+    finally:
+        os.close(write_end)
+    try:
+        nodes = [f"n{i}" for i in range(1, 7)]
+        for node in nodes:
+            harness.lingering(node, 100.0)
+        threads = harness.registered(nodes)
+        poll(lambda: of_kind(harness.events(), "stop"), "the run's end")  # logged just before the restore
+        time.sleep(period_s)  # catanc is blocked writing its summary: its core scheduler is not
+        drain(read_end)
+    finally:
+        os.close(read_end)
+    assert harness.wait() == 0
+    assert {node: str(sched) for node, sched in sample(threads).items()} == dict.fromkeys(threads, str(OTHER))
+    assert "Traceback" not in harness.stderr()
