@@ -538,14 +538,6 @@ def test_enforcer_threads_run_at_fifo_4_and_each_core_scheduler_on_its_core(mixe
     assert mixed.helpers["watchdog"] == Sched(os.SCHED_FIFO, WATCHDOG_PRIORITY, MINE)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason=(
-        "the re-optimiser thread runs at SCHED_FIFO 4, not SCHED_OTHER (catan-model.md section 6, the enforcer's "
-        "docstring): Enforcer.run raises the main thread to FIFO 4 (_raise_self) before it starts the "
-        "catanc-reoptimiser thread, a new thread inherits its creator's policy, and _reoptimiser never lowers itself"
-    ),
-)
 def test_the_reoptimiser_thread_runs_at_sched_other(mixed: MixedRun) -> None:
     found = [sched for sched in mixed.enforcer_threads.values() if sched is not None]
     assert [sched for sched in found if sched.policy == os.SCHED_OTHER] == [OTHER], [str(s) for s in found]
@@ -554,7 +546,7 @@ def test_the_reoptimiser_thread_runs_at_sched_other(mixed: MixedRun) -> None:
 def test_measured_rates_are_within_10_percent_of_the_plan_in_force(mixed: MixedRun) -> None:
     end = of_kind(mixed.events, "stop")[0]["t"]
     resolve = of_kind(mixed.events, "resolve")[0]
-    for node in ("cam", "track", "map", "plan"):  # so it planned with measured times: see the xfail below
+    for node in ("cam", "track", "map", "plan"):  # so it planned with measured times (unmeasured nodes keep the plan's)
         assert resolve["compute_ms"][node] == pytest.approx(MIXED_COMPUTE[node], rel=0.1), resolve["compute_ms"]
     since, until = resolve["t"] + 1.0, end - 0.1  # the plan it made, settled
     in_force = plans_during(mixed.events, since, until)
@@ -574,15 +566,6 @@ def test_a_normal_end_puts_every_node_thread_back(mixed: MixedRun) -> None:
     assert mixed.after == dict.fromkeys(mixed.threads, OTHER)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason=(
-        "with --start spec, a re-solve before a node has run plans that node at bootstrap_ms (5 ms) instead of "
-        "the spec's compute time: Enforcer._replan sends Measurements.estimates(), which fills every node "
-        "without samples with bootstrap_ms; estimates(measured_only=True) would let the Replanner keep the "
-        "times it planned with (the spec's here, bootstrap_ms after a bootstrap start)"
-    ),
-)
 def test_a_re_solve_before_the_nodes_ran_keeps_the_spec_times(harness: Harness, tmp_path: Path) -> None:
     table = compile_table(MIXED_SPEC.replace("first_solve_after_s: 2.5", "first_solve_after_s: 0.5"), tmp_path, 2)
     harness.start(table, "--start", "spec", duration=2.0)
@@ -757,17 +740,6 @@ def test_sigterm_puts_every_thread_back(sigterm: Ended) -> None:
     assert sigterm.after == dict.fromkeys(sigterm.threads, OTHER)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason=(
-        "SIGTERM kills catanc run instead of ending the run like SIGINT (Enforcer.run's docstring: 'until stop(), "
-        "SIGINT/SIGTERM or duration_s'): nothing but the Restorer handles SIGTERM, and its handler, after the "
-        "restore, re-raises the default action, so the process dies by the signal (status -15): run()'s finally "
-        "never runs: no 'stop' event and the last second of the (buffered) log is lost, the nodes are never "
-        "told to stop (workers report 'it went away without stopping node ...'), --demo/--launch children are "
-        "not stopped (Children.stop), no summary is printed"
-    ),
-)
 def test_sigterm_ends_the_run_like_sigint(sigterm: Ended) -> None:
     assert sigterm.events[-1]["event"] == "stop", sigterm.events[-1]
     assert "log:" in sigterm.stdout
@@ -933,21 +905,6 @@ def drain(fd: int, timeout: float = WAIT_S) -> None:
     pytest.fail(f"the enforcer's stdout still open {timeout} s later")
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason=(
-        "the shared cores' scheduler threads outlive the end of the run: Enforcer.run's finally joins only the "
-        "receiver, clock and re-optimiser threads, then stops the nodes, closes the log and lets Restorer.close() "
-        "put every node thread back, while each _core_loop checks `stopping` once per period and so runs the rest "
-        "of its period: (1) a slot after the restore raises its owner to FIFO 2 again (and the period's end puts it "
-        "to FIFO 1), and the watchdog was dismissed ('C'), so that thread stays SCHED_FIFO after catanc exits; "
-        "(2) a trigger to a node that already left (its loop ended on the stop message) calls _gone, whose "
-        "_log writes to the closed log: 'ValueError: I/O operation on closed file' kills the thread with a "
-        "traceback on stderr.  Stopping and joining the core schedulers before _stop_nodes would fix both.  A "
-        "blocked stdout holds the window open here; in plain runs it is the ~10-50 ms before the interpreter "
-        "exits (a thread was left at FIFO 1 or 2 in 2 of ~30 plain runs of similar specs)"
-    ),
-)
 def test_the_end_of_a_run_leaves_no_thread_raised_and_no_traceback(harness: Harness, tmp_path: Path) -> None:
     table = compile_table(LONG_PERIOD_SPEC, tmp_path, 1)
     period_s = json.loads(table.read_text())["plan"]["cores"][0]["period_ms"] / 1000.0

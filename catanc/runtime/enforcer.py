@@ -27,8 +27,10 @@ if the enforcer is killed).
 
 from __future__ import annotations
 
+import gc
 import heapq
 import os
+import signal
 import sys
 import threading
 import time
@@ -145,6 +147,7 @@ class Enforcer:
         self.endpoints: dict[str, list[Endpoint]] = {}
         self.states = {name: SubchainState() for name in self.schedule.subchains}
         self.raised: dict[int, str | None] = {}  # core -> subchain raised to FIFO 2 now
+        self.core_threads: list[threading.Thread] = []
         self.switches: dict[int, deque[float]] = {}  # core -> recent switch latencies (ms)
         self.busy: dict[str, int | None] = {}  # node -> the run it was triggered for and has not finished
         self.waiting: dict[str, deque[int]] = {}  # node -> runs that reached it while it was busy
@@ -170,6 +173,21 @@ class Enforcer:
         signal handlers and runs at FIFO 4 itself, so a restore on SIGINT is never starved.
         """
         sys.setswitchinterval(SWITCH_INTERVAL_S)
+        # SIGTERM (systemd, docker) ends the run as SIGINT does: nodes stopped, log closed, summary.
+        # The restorer, installed next, puts the threads back first and then calls this.
+        previous_term = signal.signal(signal.SIGTERM, self._on_sigterm)
+        try:
+            self._run(duration_s, on_start=on_start, on_tick=on_tick)
+        finally:
+            signal.signal(signal.SIGTERM, previous_term)
+
+    def _run(
+        self,
+        duration_s: float | None,
+        *,
+        on_start: Callable[[Enforcer], None] | None,
+        on_tick: Callable[[Enforcer], None] | None,
+    ) -> None:
         with protocol.EnforcerSocket(self.socket_path) as sock, self.restorer:
             self.sock = sock
             if self.log_path is not None:
@@ -186,6 +204,7 @@ class Enforcer:
             self._start_core_schedulers()
             if on_start is not None:
                 on_start(self)
+            gc.freeze()  # start-up's objects never need collecting: later collections stay short
             deadline = None if duration_s is None else time.monotonic() + duration_s
             next_status = time.monotonic() + STATUS_EVERY_S
             try:
@@ -203,16 +222,20 @@ class Enforcer:
                             self.log.flush()
             finally:
                 self.stopping.set()
-                for thread in threads:
+                for thread in [*threads, *self.core_threads]:  # no slot may raise a thread after this
                     thread.join(timeout=2.0)
                 self._stop_nodes()
                 self.planner.close()
                 self._log("stop", summary=self.status())
                 if self.log is not None:
-                    self.log.close()
+                    log, self.log = self.log, None
+                    log.close()
 
     def stop(self) -> None:
         self.stopping.set()
+
+    def _on_sigterm(self, signum: int, frame: object) -> None:  # noqa: ARG002 - a signal handler's signature
+        self.stop()
 
     def _stop_nodes(self) -> None:
         """Tell every registered node the run is over (their loops end; they are not killed)."""
@@ -442,6 +465,7 @@ class Enforcer:
                 target=self._core_loop, args=(core, generation), name=f"catanc-core-{core.core}", daemon=True
             )
             thread.start()
+            self.core_threads.append(thread)
 
     def _core_loop(self, core: CoreSchedule, generation: int) -> None:
         self._raise_self(cpus=frozenset([core.core]))
@@ -455,6 +479,8 @@ class Enforcer:
             for slot in core.slots:
                 switch_at = period_start + slot.start_ms - core.switch_ms  # the switch is budgeted before the slice
                 self._sleep_until(switch_at)
+                if self.stopping.is_set() or generation != self.generation:
+                    break
                 late = self._late_on(core, runs)
                 owner = slot_owner(slot, core, runs, late)
                 if owner != slot.subchain:
@@ -464,6 +490,8 @@ class Enforcer:
                     self._trigger_head(runs[slot.subchain])
                 self.switches.setdefault(core.core, deque(maxlen=SWITCH_SAMPLES)).append(self.clock() - switch_at)
                 self._sleep_until(period_start + slot.start_ms + slot.length_ms)
+            if self.stopping.is_set():
+                break
             self._raise(core.core, None)
             start = period_start + core.period_ms
             behind = self.clock() - start
@@ -505,21 +533,24 @@ class Enforcer:
                             self._gone(endpoint)
 
     def _sleep_until(self, when_ms: float) -> None:
+        """Sleep until ``when_ms``, or until the run stops (so no slot outlives it)."""
         delay = when_ms - self.clock()
         if delay > 0:
-            time.sleep(delay / 1000.0)
+            self.stopping.wait(delay / 1000.0)
 
     def _raise_self(self, cpus: frozenset[int] | None) -> None:
         """The calling enforcer thread: FIFO 4 (with RT), pinned to ``cpus`` if given."""
         tid = threading.get_native_id()
         if cpus is not None:
             os.sched_setaffinity(tid, cpus)
-        if self.rt:
-            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(ENFORCER_FIFO))
+        if self.rt:  # processes it starts (--demo workers) must not inherit FIFO 4: reset on fork
+            os.sched_setscheduler(tid, os.SCHED_FIFO | os.SCHED_RESET_ON_FORK, os.sched_param(ENFORCER_FIFO))
 
     # ------------------------------------------------------------------ re-optimising
 
     def _reoptimiser(self) -> None:
+        if self.rt:  # started by the FIFO-4 main thread: back to SCHED_OTHER (catan-model section 6)
+            os.sched_setscheduler(threading.get_native_id(), os.SCHED_OTHER, os.sched_param(0))
         runtime = self.spec.runtime
         begin = time.monotonic()
         next_stage2 = begin + runtime.first_solve_after_s
@@ -549,7 +580,8 @@ class Enforcer:
                 next_stage2 = now + runtime.stage2_every_s
 
     def _replan(self, *, stage1: bool, cores: int | None, reason: str) -> None:
-        estimates = self.measurements.estimates()
+        # Nodes not measured yet keep the planner's current time (bootstrap or the spec's).
+        estimates = self.measurements.estimates(measured_only=True)
         answer = self.planner.ask(Request("reallocate" if stage1 else "resolve", estimates, cores))
         self.last_resolve_s = self.elapsed_s()
         if answer.error is not None:

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from typing import Any, Literal
 
+from catanc.errors import UsageError
 from catanc.runtime.schedule import RuntimeSchedule
 
 Kind = Literal["resolve", "reallocate"]
@@ -48,10 +49,15 @@ class PlannerProcess:
     def __init__(self, spec_data: dict[str, Any], cores: int, *, bootstrap_ms: float | None) -> None:
         # A fresh interpreter (not a fork of a threaded parent), talking over a socket pair.
         mine, theirs = socket.socketpair()
-        self._process = subprocess.Popen(
-            [sys.executable, "-c", f"from catanc.runtime.planning import serve_fd; serve_fd({theirs.fileno()})"],
-            pass_fds=[theirs.fileno()],
-        )
+        try:
+            self._process = subprocess.Popen(
+                [sys.executable, "-c", f"from catanc.runtime.planning import serve_fd; serve_fd({theirs.fileno()})"],
+                pass_fds=[theirs.fileno()],
+            )
+        except OSError as exc:
+            mine.close()
+            theirs.close()
+            raise UsageError(f"cannot start the planner process ({sys.executable}): {exc.strerror or exc}") from None
         theirs.close()
         self._conn = Connection(mine.detach())
         self._conn.send((spec_data, cores, bootstrap_ms))
