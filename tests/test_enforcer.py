@@ -25,7 +25,6 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-import pwd
 import shutil
 import signal
 import subprocess
@@ -46,6 +45,7 @@ from catanc.runtime.log import read_log
 from catanc.runtime.schedule import ENFORCER_FIFO, RUNNING_FIFO, SHARED_FIFO, UNSCHEDULED_FIFO
 from catanc.runtime.watchdog import WATCHDOG_PRIORITY
 from catanc.runtime.worker import Profile, worker_command
+from tests.kernel import nobody_ids, require_fifo
 
 WAIT_S = 10.0  # the longest any single wait in here may take
 KILL_BOUND_S = 1.0  # the issue: after the enforcer's SIGKILL, every app thread is back within this
@@ -413,26 +413,8 @@ def restored(threads: dict[str, tuple[int, int]]) -> bool:
 
 @pytest.fixture(scope="module", autouse=True)
 def real_kernel() -> None:
-    """Skips unless CPUs 0 and 1 are allowed and SCHED_FIFO up to the watchdog's priority is permitted.
-
-    Probed without catanc's code, so a bug in catanc's own check fails tests instead of skipping them.
-    """
-    if not os.sched_getaffinity(0) >= BOTH:
-        pytest.skip(f"needs CPUs 0 and 1 (allowed: {sorted(os.sched_getaffinity(0))})")
-    probe = subprocess.run(
-        [
-            sys.executable,
-            "-c",
-            f"import os; os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param({WATCHDOG_PRIORITY}))",
-        ],
-        capture_output=True,
-        text=True,
-        timeout=WAIT_S,
-        check=False,
-    )
-    if probe.returncode != 0:
-        why = (probe.stderr.strip().splitlines() or ["refused"])[-1]
-        pytest.skip(f"SCHED_FIFO {WATCHDOG_PRIORITY} is not permitted here: {why}")
+    """Skips unless CPUs 0 and 1 are allowed and SCHED_FIFO up to the watchdog's priority is permitted."""
+    require_fifo(WATCHDOG_PRIORITY)
 
 
 # --------------------------------------------------------------------------- a plain run, watched throughout
@@ -776,15 +758,7 @@ def test_no_rt_pins_node_threads_but_leaves_them_at_sched_other(harness: Harness
 @pytest.fixture(scope="module")
 def nobody() -> tuple[int, int]:
     """``nobody``'s uid and gid; skips unless the tests may switch to it."""
-    if missing := [tool for tool in ("setpriv", "prlimit") if shutil.which(tool) is None]:
-        pytest.skip(f"needs {', '.join(missing)}")
-    if os.geteuid() != 0:
-        pytest.skip("switching to an unprivileged user needs root")
-    try:
-        user = pwd.getpwnam("nobody")
-    except KeyError:
-        pytest.skip("no user 'nobody'")
-    return user.pw_uid, user.pw_gid
+    return nobody_ids()
 
 
 @pytest.fixture

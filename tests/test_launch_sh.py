@@ -20,7 +20,6 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-import pwd
 import shlex
 import shutil
 import signal
@@ -50,6 +49,7 @@ from catanc.load import parse_spec
 from catanc.planner import Plan, plan
 from catanc.problem import build_problem
 from catanc.spec import Spec
+from tests.kernel import as_user, missing_tools, nobody_ids
 
 SPECS = sorted((Path(__file__).parent.parent / "specs").glob("*.yaml"))
 WAIT_S = 10.0  # the longest any single wait in here may take
@@ -354,10 +354,6 @@ def kill_run(run: Run) -> None:
 # --------------------------------------------------------------------------- what the machine allows
 
 
-def missing_tools(*tools: str) -> list[str]:
-    return [tool for tool in tools if shutil.which(tool) is None]
-
-
 @pytest.fixture(scope="module")
 def real_kernel() -> None:
     """Skips unless this machine lets the tests use SCHED_FIFO up to :data:`TOP_PRIORITY` and CPUs 0 and 1."""
@@ -386,31 +382,7 @@ def shared_folder() -> Iterator[Path]:
 @pytest.fixture(scope="module")
 def nobody(real_kernel: None) -> tuple[int, int]:
     """``nobody``'s uid and gid; skips unless the tests may switch to it."""
-    if missing := missing_tools("setpriv", "prlimit"):
-        pytest.skip(f"needs {', '.join(missing)}")
-    if os.geteuid() != 0:
-        pytest.skip("switching to an unprivileged user needs root")
-    try:
-        user = pwd.getpwnam("nobody")
-    except KeyError:
-        pytest.skip("no user 'nobody'")
-    return user.pw_uid, user.pw_gid
-
-
-def as_user(uid: int, gid: int, *, rtprio: int, caps: str = "") -> list[str]:
-    """A prefix running a command as ``uid``, with RLIMIT_RTPRIO ``rtprio`` and no capabilities but ``caps``."""
-    keep = f",+{caps}" if caps else ""
-    return [
-        "prlimit",
-        f"--rtprio={rtprio}:{rtprio}",
-        "setpriv",
-        f"--reuid={uid}",
-        f"--regid={gid}",
-        "--clear-groups",
-        f"--inh-caps=-all{keep}",
-        f"--ambient-caps=-all{keep}",
-        f"--bounding-set=-all{keep}",
-    ]
+    return nobody_ids()
 
 
 # --------------------------------------------------------------------------- the tests

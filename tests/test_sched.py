@@ -22,9 +22,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-import pwd
 import select
-import shutil
 import signal
 import subprocess
 import sys
@@ -52,6 +50,7 @@ from catanc.runtime.sched import (
     set_other,
 )
 from catanc.runtime.watchdog import WATCHDOG_PRIORITY
+from tests.kernel import as_user, nobody_ids, require_fifo
 
 WAIT_S = 10.0  # the longest any single wait in here may take
 KILL_BOUND_S = 1.0  # the issue: no app thread stays at SCHED_FIFO longer than this after a SIGKILL
@@ -318,56 +317,14 @@ def realtime(priority: int) -> Iterator[None]:
 
 @pytest.fixture(scope="module")
 def real_kernel() -> None:
-    """Skips unless SCHED_FIFO up to :data:`OBSERVER_PRIORITY` is permitted and CPUs 0 and 1 are allowed.
-
-    Probed without catanc's code, so a bug in :func:`check_fifo_allowed` fails tests instead of skipping them.
-    """
-    if not os.sched_getaffinity(0) >= BOTH:
-        pytest.skip(f"needs CPUs 0 and 1 (allowed: {sorted(os.sched_getaffinity(0))})")
-    probe = subprocess.run(
-        [
-            sys.executable,
-            "-c",
-            f"import os; os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param({OBSERVER_PRIORITY}))",
-        ],
-        capture_output=True,
-        text=True,
-        timeout=WAIT_S,
-        check=False,
-    )
-    if probe.returncode != 0:
-        why = (probe.stderr.strip().splitlines() or ["refused"])[-1]
-        pytest.skip(f"SCHED_FIFO {OBSERVER_PRIORITY} is not permitted here: {why}")
+    """Skips unless SCHED_FIFO up to :data:`OBSERVER_PRIORITY` is permitted and CPUs 0 and 1 are allowed."""
+    require_fifo(OBSERVER_PRIORITY)
 
 
 @pytest.fixture(scope="module")
 def nobody(real_kernel: None) -> tuple[int, int]:
     """``nobody``'s uid and gid; skips unless the tests may switch to it."""
-    if missing := [tool for tool in ("setpriv", "prlimit") if shutil.which(tool) is None]:
-        pytest.skip(f"needs {', '.join(missing)}")
-    if os.geteuid() != 0:
-        pytest.skip("switching to an unprivileged user needs root")
-    try:
-        user = pwd.getpwnam("nobody")
-    except KeyError:
-        pytest.skip("no user 'nobody'")
-    return user.pw_uid, user.pw_gid
-
-
-def as_user(uid: int, gid: int, *, rtprio: int, caps: str = "") -> list[str]:
-    """A prefix running a command as ``uid``, with RLIMIT_RTPRIO ``rtprio`` and no capabilities but ``caps``."""
-    keep = f",+{caps}" if caps else ""
-    return [
-        "prlimit",
-        f"--rtprio={rtprio}:{rtprio}",
-        "setpriv",
-        f"--reuid={uid}",
-        f"--regid={gid}",
-        "--clear-groups",
-        f"--inh-caps=-all{keep}",
-        f"--ambient-caps=-all{keep}",
-        f"--bounding-set=-all{keep}",
-    ]
+    return nobody_ids()
 
 
 def run_probe(prefix: Sequence[str], priority: int) -> subprocess.CompletedProcess[str]:

@@ -1,0 +1,67 @@
+"""Helpers the real-kernel tests share: probing for SCHED_FIFO, and running a command as ``nobody``.
+
+Probes use Python and util-linux directly, never catanc's own checks, so a bug
+in those fails a test instead of skipping it.
+"""
+
+from __future__ import annotations
+
+import os
+import pwd
+import shutil
+import subprocess
+import sys
+
+import pytest
+
+BOTH_CPUS = frozenset({0, 1})
+PROBE_TIMEOUT_S = 10.0
+
+
+def missing_tools(*tools: str) -> list[str]:
+    return [tool for tool in tools if shutil.which(tool) is None]
+
+
+def require_fifo(priority: int) -> None:
+    """Skip unless CPUs 0 and 1 are allowed and a process may use SCHED_FIFO ``priority``."""
+    if not os.sched_getaffinity(0) >= BOTH_CPUS:
+        pytest.skip(f"needs CPUs 0 and 1 (allowed: {sorted(os.sched_getaffinity(0))})")
+    probe = subprocess.run(
+        [sys.executable, "-c", f"import os; os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param({priority}))"],
+        capture_output=True,
+        text=True,
+        timeout=PROBE_TIMEOUT_S,
+        check=False,
+    )
+    if probe.returncode != 0:
+        why = (probe.stderr.strip().splitlines() or ["refused"])[-1]
+        pytest.skip(f"SCHED_FIFO {priority} is not permitted here: {why}")
+
+
+def nobody_ids() -> tuple[int, int]:
+    """``nobody``'s uid and gid; skips unless the tests may switch to it."""
+    if missing := missing_tools("setpriv", "prlimit"):
+        pytest.skip(f"needs {', '.join(missing)}")
+    if os.geteuid() != 0:
+        pytest.skip("switching to an unprivileged user needs root")
+    try:
+        user = pwd.getpwnam("nobody")
+    except KeyError:
+        pytest.skip("no user 'nobody'")
+    return user.pw_uid, user.pw_gid
+
+
+def as_user(uid: int, gid: int, *, rtprio: int, caps: str = "") -> list[str]:
+    """A prefix running a command as ``uid``, with RLIMIT_RTPRIO ``rtprio`` and no capabilities but ``caps``."""
+    keep = f",+{caps}" if caps else ""
+    return [
+        "prlimit",
+        f"--rtprio={rtprio}:{rtprio}",
+        "setpriv",
+        f"--reuid={uid}",
+        f"--regid={gid}",
+        "--clear-groups",
+        f"--inh-caps=-all{keep}",
+        f"--ambient-caps=-all{keep}",
+        f"--bounding-set=-all{keep}",
+    ]
