@@ -11,6 +11,7 @@ import pwd
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -65,3 +66,17 @@ def as_user(uid: int, gid: int, *, rtprio: int, caps: str = "") -> list[str]:
         f"--ambient-caps=-all{keep}",
         f"--bounding-set=-all{keep}",
     ]
+
+
+def stat_fields(path: str) -> list[str]:
+    """A ``stat`` file from field 3 (state) on: the name before it may hold spaces."""
+    return Path(path).read_text().rsplit(")", 1)[1].split()
+
+
+def cpu_set(text: str) -> frozenset[int]:
+    """``0-2,5`` -> {0, 1, 2, 5}."""
+    cpus: set[int] = set()
+    for part in text.split(","):
+        low, _, high = part.partition("-")
+        cpus.update(range(int(low), int(high or low) + 1))
+    return frozenset(cpus)

@@ -45,7 +45,7 @@ from catanc.runtime.log import read_log
 from catanc.runtime.schedule import ENFORCER_FIFO, RUNNING_FIFO, SHARED_FIFO, UNSCHEDULED_FIFO
 from catanc.runtime.watchdog import WATCHDOG_PRIORITY
 from catanc.runtime.worker import Profile, worker_command
-from tests.kernel import nobody_ids, require_fifo
+from tests.kernel import cpu_set, nobody_ids, require_fifo, stat_fields
 
 WAIT_S = 10.0  # the longest any single wait in here may take
 KILL_BOUND_S = 1.0  # the issue: after the enforcer's SIGKILL, every app thread is back within this
@@ -153,20 +153,6 @@ class Sched:
 
 
 OTHER = Sched(os.SCHED_OTHER, 0, MINE)  # every node thread started here, before and after a run
-
-
-def stat_fields(path: str) -> list[str]:
-    """A ``stat`` file from field 3 (state) on: the name before it may hold spaces."""
-    return Path(path).read_text().rsplit(")", 1)[1].split()
-
-
-def cpu_set(text: str) -> frozenset[int]:
-    """``0-2,5`` -> {0, 1, 2, 5}."""
-    cpus: set[int] = set()
-    for part in text.split(","):
-        low, _, high = part.partition("-")
-        cpus.update(range(int(low), int(high or low) + 1))
-    return frozenset(cpus)
 
 
 def sched_of(pid: int, tid: int) -> Sched | None:

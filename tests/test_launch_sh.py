@@ -49,7 +49,7 @@ from catanc.load import parse_spec
 from catanc.planner import Plan, plan
 from catanc.problem import build_problem
 from catanc.spec import Spec
-from tests.kernel import as_user, missing_tools, nobody_ids
+from tests.kernel import as_user, cpu_set, missing_tools, nobody_ids
 
 SPECS = sorted((Path(__file__).parent.parent / "specs").glob("*.yaml"))
 WAIT_S = 10.0  # the longest any single wait in here may take
@@ -175,15 +175,6 @@ def status_field(pid: int, field: str) -> str:
         if name == field:
             return value.strip()
     raise AssertionError(f"no {field} in /proc/{pid}/status")
-
-
-def cpu_set(text: str) -> frozenset[int]:
-    """``0-2,5`` -> {0, 1, 2, 5}."""
-    cpus: set[int] = set()
-    for part in text.split(","):
-        low, _, high = part.partition("-")
-        cpus.update(range(int(low), int(high or low) + 1))
-    return frozenset(cpus)
 
 
 def sched_of(pid: int) -> Sched:

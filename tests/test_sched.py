@@ -50,7 +50,7 @@ from catanc.runtime.sched import (
     set_other,
 )
 from catanc.runtime.watchdog import WATCHDOG_PRIORITY
-from tests.kernel import as_user, nobody_ids, require_fifo
+from tests.kernel import as_user, cpu_set, nobody_ids, require_fifo, stat_fields
 
 WAIT_S = 10.0  # the longest any single wait in here may take
 KILL_BOUND_S = 1.0  # the issue: no app thread stays at SCHED_FIFO longer than this after a SIGKILL
@@ -145,20 +145,6 @@ class Sched:
 
 
 OTHER = Sched(os.SCHED_OTHER, 0, BOTH)
-
-
-def stat_fields(path: str) -> list[str]:
-    """A ``stat`` file from field 3 (state) on: the name before it may hold spaces."""
-    return Path(path).read_text().rsplit(")", 1)[1].split()
-
-
-def cpu_set(text: str) -> frozenset[int]:
-    """``0-2,5`` -> {0, 1, 2, 5}."""
-    cpus: set[int] = set()
-    for part in text.split(","):
-        low, _, high = part.partition("-")
-        cpus.update(range(int(low), int(high or low) + 1))
-    return frozenset(cpus)
 
 
 def sched_of(pid: int, tid: int) -> Sched:
