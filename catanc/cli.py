@@ -393,6 +393,18 @@ def run_(
     _stdout().print(f"log: {log_path}", markup=False)
 
 
+@app.command(name="set-cores")
+@_reporting
+def set_cores_(
+    cores: Annotated[int, typer.Argument(min=1, help="Cores the running app may use from now on.")],
+    socket: Annotated[Path, typer.Option(help="The enforcer's socket (as given to catanc run --socket).")],
+) -> None:
+    """Tell a running `catanc run` to re-plan for another number of cores (Stage I again, then re-pinning)."""
+    from catanc.client import set_cores
+
+    set_cores(cores, str(socket))
+
+
 @app.command()
 @_reporting
 def report(

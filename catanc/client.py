@@ -99,13 +99,14 @@ from catanc.runtime.protocol import (
     Message,
     ProtocolError,
     Reject,
+    SetCores,
     Stop,
     Trigger,
     Welcome,
     decode,
 )
 
-__all__ = ["SOCKET_ENV", "ClientError", "Node", "Trigger"]
+__all__ = ["SOCKET_ENV", "ClientError", "Node", "Trigger", "set_cores"]
 
 log = logging.getLogger(__name__)
 
@@ -379,3 +380,16 @@ class Node:
         finally:
             probe.close()
         return True
+
+
+def set_cores(cores: int, socket_path: str | None = None) -> None:
+    """Tell a running enforcer to plan for ``cores`` cores from now on (Stage I again, then re-pinning)."""
+    path = socket_path or os.environ.get(SOCKET_ENV)
+    if not path:
+        raise ClientError(f"no enforcer socket: pass one or set {SOCKET_ENV}")
+    message = SetCores(cores).encode()
+    with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as sock:
+        try:
+            sock.sendto(message, path)
+        except OSError as exc:
+            raise ClientError(f"no catanc enforcer at {path}: {exc.strerror or exc}") from None

@@ -889,3 +889,36 @@ def test_the_end_of_a_run_leaves_no_thread_raised_and_no_traceback(harness: Harn
     assert harness.wait() == 0
     assert {node: str(sched) for node, sched in sample(threads).items()} == dict.fromkeys(threads, str(OTHER))
     assert "Traceback" not in harness.stderr()
+
+
+# --------------------------------------------------------------------------- cores coming and going
+
+
+def test_a_core_count_change_re_plans_and_re_pins(harness: Harness, tmp_path: Path) -> None:
+    """`catanc set-cores 1` mid-run: Stage I again for one core, and every node thread ends up on CPU 0."""
+    table = compile_table(MIXED_SPEC, tmp_path, 2)
+    harness.start(table, "--start", "spec", duration=6.0)
+    scheduled = [node for node in MIXED_COMPUTE if node != "imu"]
+    for node in scheduled:
+        harness.worker({node: MIXED_COMPUTE[node]})
+    threads = harness.registered(scheduled)
+    before = {node: sched_of(pid, tid) for node, (pid, tid) in threads.items()}
+    assert {1} <= {cpu for sched in before.values() if sched is not None for cpu in sched.cpus}  # both cores used
+    command = [sys.executable, "-m", "catanc", "set-cores", "1", "--socket", str(harness.socket)]
+    changed = subprocess.run(command, capture_output=True, text=True, timeout=WAIT_S, check=False)
+    assert changed.returncode == 0, changed.stderr
+
+    def re_planned() -> Event | None:
+        return next((e for e in of_kind(harness.events(), "resolve") if e["reason"] == "cores"), None)
+
+    event = poll(re_planned, "a re-plan for the new core count", timeout=5.0)
+    assert event["stage1"] is True
+    assert event["plan"]["cores"] == 1
+    assert all(sub["cores"] == [0] for sub in event["plan"]["subchains"].values())
+
+    def on_cpu_0() -> bool | None:
+        now = [sched_of(pid, tid) for pid, tid in threads.values()]
+        return all(sched is not None and sched.cpus == frozenset({0}) for sched in now) or None
+
+    poll(on_cpu_0, "every node thread pinned to CPU 0", timeout=3.0)
+    assert harness.wait(6.0 + WAIT_S) == 0
