@@ -45,7 +45,7 @@ from catanc.runtime.log import read_log
 from catanc.runtime.schedule import ENFORCER_FIFO, RUNNING_FIFO, SHARED_FIFO, UNSCHEDULED_FIFO
 from catanc.runtime.watchdog import WATCHDOG_PRIORITY
 from catanc.runtime.worker import Profile, worker_command
-from tests.kernel import cpu_set, nobody_ids, require_fifo, stat_fields
+from tests.kernel import cpu_set, missing_tools, nobody_ids, require_fifo, stat_fields
 
 WAIT_S = 10.0  # the longest any single wait in here may take
 KILL_BOUND_S = 1.0  # the issue: after the enforcer's SIGKILL, every app thread is back within this
@@ -297,9 +297,11 @@ class Harness:
     def events(self) -> list[Event]:
         return read_log(self.log) if self.log.exists() else []
 
-    def start(self, table: Path, *options: str, duration: float, stdout: int | None = None) -> None:
+    def start(
+        self, table: Path, *options: str, duration: float, stdout: int | None = None, prefix: Sequence[str] = ()
+    ) -> None:
         """Start the enforcer and wait until it is up: its socket bound (its log is flushed once a second)."""
-        argv = [sys.executable, "-c", ENFORCER_MAIN, "run", str(table), "--quiet"]
+        argv = [*prefix, sys.executable, "-c", ENFORCER_MAIN, "run", str(table), "--quiet"]
         argv += ["--socket", str(self.socket), "--log", str(self.log), "--duration", str(duration), *options]
         with (self.folder / "enforcer.out").open("wb") as out, (self.folder / "enforcer.err").open("wb") as err:
             output = out.fileno() if stdout is None else stdout
@@ -922,3 +924,22 @@ def test_a_core_count_change_re_plans_and_re_pins(harness: Harness, tmp_path: Pa
 
     poll(on_cpu_0, "every node thread pinned to CPU 0", timeout=3.0)
     assert harness.wait(6.0 + WAIT_S) == 0
+
+
+def test_plan_cores_are_the_cpus_the_enforcer_may_use(harness: Harness, tmp_path: Path) -> None:
+    """Confined to CPU 1 (a cpuset, `taskset -c 1`), a one-core plan's core 0 is CPU 1, not CPU 0."""
+    if missing_tools("taskset"):
+        pytest.skip("needs taskset")
+    table = compile_table(MIXED_SPEC, tmp_path, 1)
+    harness.start(table, "--start", "spec", duration=3.0, prefix=["taskset", "-c", "1"])
+    scheduled = [node for node in MIXED_COMPUTE if node != "imu"]
+    for node in scheduled:
+        harness.worker({node: MIXED_COMPUTE[node]})
+    threads = harness.registered(scheduled)
+
+    def on_cpu_1() -> bool | None:
+        now = [sched_of(pid, tid) for pid, tid in threads.values()]
+        return all(sched is not None and sched.cpus == frozenset({1}) for sched in now) or None
+
+    poll(on_cpu_1, "every node thread pinned to CPU 1", timeout=3.0)
+    assert harness.wait(3.0 + WAIT_S) == 0

@@ -35,7 +35,7 @@ import sys
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -148,6 +148,7 @@ class Enforcer:
         self.states = {name: SubchainState() for name in self.schedule.subchains}
         self.raised: dict[int, str | None] = {}  # core -> subchain raised to FIFO 2 now
         self.core_threads: list[threading.Thread] = []
+        self.cpu_ids = sorted(allowed_cpus())  # plan core i runs on the i-th CPU this process may use
         self.switches: dict[int, deque[float]] = {}  # core -> recent switch latencies (ms)
         self.busy: dict[str, int | None] = {}  # node -> the run it was triggered for and has not finished
         self.waiting: dict[str, deque[int]] = {}  # node -> runs that reached it while it was busy
@@ -281,7 +282,8 @@ class Enforcer:
     def _place(self, endpoint: Endpoint) -> None:
         """Pin a node thread to its subchain's cores at its resting priority (rates only without RT)."""
         run = self.schedule.subchain_of(endpoint.node)
-        cpus = frozenset(run.cores) if run is not None else frozenset(range(self.schedule.cores))
+        cores = run.cores if run is not None else range(self.schedule.cores)
+        cpus = self.cpus_of(cores)
         try:
             self.restorer.remember(endpoint.tid)
             set_affinity(endpoint.tid, cpus)
@@ -289,6 +291,11 @@ class Enforcer:
                 set_fifo(endpoint.tid, node_priority(run))
         except ThreadGone:
             self._gone(endpoint)
+
+    def cpus_of(self, cores: Iterable[int]) -> frozenset[int]:
+        """The CPUs of plan cores: core ``i`` is the ``i``-th allowed CPU (a cpuset {2, 3} runs cores 0, 1 there)."""
+        ids = self.cpu_ids
+        return frozenset(ids[core % len(ids)] for core in cores)
 
     def _gone(self, endpoint: Endpoint) -> None:
         self._unregister(endpoint.node, endpoint.tid)
@@ -468,7 +475,7 @@ class Enforcer:
             self.core_threads.append(thread)
 
     def _core_loop(self, core: CoreSchedule, generation: int) -> None:
-        self._raise_self(cpus=frozenset([core.core]))
+        self._raise_self(cpus=self.cpus_of([core.core]))
         period_index = 0
         start = self.clock()
         while not self.stopping.is_set() and generation == self.generation:
@@ -567,6 +574,7 @@ class Enforcer:
                 cpus = allowed_cpus()
                 if cpus != known_cpus:
                     known_cpus = cpus
+                    self.cpu_ids = sorted(cpus)
                     cores = len(cpus)
             if cores is not None and cores != self.schedule.cores:
                 self._replan(stage1=True, cores=cores, reason="cores")
