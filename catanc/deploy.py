@@ -208,7 +208,8 @@ def _first(values: Iterable[str | None]) -> str | None:
 
 def node_period_ms(spec: Spec, plan: Plan, node: str, membership: dict[str, str]) -> float | None:
     """The period the plan gives ``node``: its subchain's, or its own clock's; None for a rate-less sink."""
-    from catanc.table import ms  # noqa: PLC0415 - the table's rounding, without loading it at import
+    # Imported here: at the top it would be circular (problem -> deploy -> table -> problem).
+    from catanc.table import ms  # noqa: PLC0415
 
     if node in membership:
         return ms(plan.subchains[membership[node]].period_ms)
