@@ -943,3 +943,30 @@ def test_plan_cores_are_the_cpus_the_enforcer_may_use(harness: Harness, tmp_path
 
     poll(on_cpu_1, "every node thread pinned to CPU 1", timeout=3.0)
     assert harness.wait(3.0 + WAIT_S) == 0
+
+
+def test_losing_a_cpu_re_plans_for_the_cores_left(harness: Harness, tmp_path: Path) -> None:
+    """The enforcer's CPU set shrinks mid-run (`taskset -a -p -c 0`, as a cpuset change would): Stage I for one core."""
+    if missing_tools("taskset"):
+        pytest.skip("needs taskset")
+    table = compile_table(MIXED_SPEC, tmp_path, 2)
+    harness.start(table, "--start", "spec", duration=6.0)
+    scheduled = [node for node in MIXED_COMPUTE if node != "imu"]
+    for node in scheduled:
+        harness.worker({node: MIXED_COMPUTE[node]})
+    threads = harness.registered(scheduled)
+    shrink = ["taskset", "-a", "-p", "-c", "0", str(harness.pid)]
+    subprocess.run(shrink, capture_output=True, text=True, timeout=WAIT_S, check=True)
+
+    def re_planned() -> Event | None:
+        return next((e for e in of_kind(harness.events(), "resolve") if e["reason"] == "cores"), None)
+
+    event = poll(re_planned, "a re-plan for the cores left", timeout=5.0)
+    assert event["plan"]["cores"] == 1
+
+    def on_cpu_0() -> bool | None:
+        now = [sched_of(pid, tid) for pid, tid in threads.values()]
+        return all(sched is not None and sched.cpus == frozenset({0}) for sched in now) or None
+
+    poll(on_cpu_0, "every node thread pinned to CPU 0", timeout=3.0)
+    assert harness.wait(6.0 + WAIT_S) == 0
