@@ -24,14 +24,12 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from catanc.errors import FieldPath
+from catanc.priorities import resting_fifo
 from catanc.spec import Deploy, Spec
 
 if TYPE_CHECKING:
     from catanc.planner import Plan
 
-SHARED_PRIORITY = 1
-DEDICATED_PRIORITY = 2
-UNSCHEDULED_PRIORITY = 3
 RESERVED_PREFIX = "catan"  # params.yaml's own parameters live under ``catan.``
 
 ROS_NAME_TOKEN = r"[A-Za-z_][A-Za-z0-9_]*"
@@ -164,7 +162,6 @@ def processes(spec: Spec, plan: Plan) -> tuple[Process, ...]:
         if name in spec.deploy:
             grouped.setdefault(process_key(name, spec.deploy[name]), []).append(name)
     membership = {node: sub.name for sub in plan.subchains.values() for node in sub.nodes}
-    every_cpu = tuple(range(plan.cores))
     found = []
     for key in sorted(grouped):
         nodes = tuple(grouped[key])
@@ -172,13 +169,9 @@ def processes(spec: Spec, plan: Plan) -> tuple[Process, ...]:
         cpus: set[int] = set()
         priority = 0
         for node in nodes:
-            if node in membership:
-                sub = plan.subchains[membership[node]]
-                cpus.update(sub.cores)
-                priority = max(priority, SHARED_PRIORITY if sub.shared else DEDICATED_PRIORITY)
-            else:
-                cpus.update(every_cpu)
-                priority = max(priority, UNSCHEDULED_PRIORITY)
+            node_cpus, level = _placement(plan, node, membership)
+            cpus.update(node_cpus)
+            priority = max(priority, level)
         command = _first(entry.command for entry in entries)
         ros_node = _first(entry.ros_node for entry in entries)
         process_cpus = tuple(sorted(cpus))
@@ -262,16 +255,21 @@ def _params(
     return nest(flat)
 
 
+def _placement(plan: Plan, node: str, membership: dict[str, str]) -> tuple[tuple[int, ...], int]:
+    """A node's CPUs and resting SCHED_FIFO priority: its subchain's cores, or every core when unscheduled."""
+    if node in membership:
+        sub = plan.subchains[membership[node]]
+        return sub.cores, resting_fifo(sub.shared)
+    return tuple(range(plan.cores)), resting_fifo(None)
+
+
 def _node_params(spec: Spec, plan: Plan, node: str, membership: dict[str, str]) -> dict[str, ParamValue]:
     found: dict[str, ParamValue] = {}
     if node in membership:
-        sub = plan.subchains[membership[node]]
-        found["subchain"] = sub.name
-        found["cpus"] = list(sub.cores)
-        found["priority"] = SHARED_PRIORITY if sub.shared else DEDICATED_PRIORITY
-    else:
-        found["cpus"] = list(range(plan.cores))
-        found["priority"] = UNSCHEDULED_PRIORITY
+        found["subchain"] = membership[node]
+    cpus, priority = _placement(plan, node, membership)
+    found["cpus"] = list(cpus)
+    found["priority"] = priority
     period = node_period_ms(spec, plan, node, membership)
     if period is not None:
         found["period_ms"] = period

@@ -30,30 +30,25 @@ import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
 import pytest
 import yaml
 
 from catanc.compiler import compile_spec
-from catanc.deploy import (
-    DEDICATED_PRIORITY,
-    SHARED_PRIORITY,
-    UNSCHEDULED_PRIORITY,
-    Process,
-    processes,
-)
+from catanc.deploy import Process, processes
 from catanc.emit import Provenance, emit
 from catanc.errors import ExitCode
 from catanc.load import parse_spec
 from catanc.planner import Plan, plan
+from catanc.priorities import RUNNING_FIFO, SHARED_FIFO, UNSCHEDULED_FIFO
 from catanc.problem import build_problem
 from catanc.spec import Spec
-from tests.kernel import as_user, cpu_set, missing_tools, nobody_ids
+from tests.kernel import as_user, cpu_set, missing_tools, nobody_ids, poll
 
 SPECS = sorted((Path(__file__).parent.parent / "specs").glob("*.yaml"))
 WAIT_S = 10.0  # the longest any single wait in here may take
-TOP_PRIORITY = UNSCHEDULED_PRIORITY  # the highest SCHED_FIFO priority a launch.sh here asks for
+TOP_PRIORITY = UNSCHEDULED_FIFO  # the highest SCHED_FIFO priority a launch.sh here asks for
 
 GRAPH: dict[str, Any] = {
     "catan": 1,
@@ -110,8 +105,6 @@ except Stop:
     pass
 time.sleep(0.2)  # linger: a second copy of the signal would be noted now
 """
-
-T = TypeVar("T")
 
 
 # --------------------------------------------------------------------------- the spec and its launch.sh
@@ -209,18 +202,6 @@ def children_of(pid: int) -> set[int]:
             except (FileNotFoundError, ProcessLookupError, IndexError):
                 continue
     return found
-
-
-def poll(check: Callable[[], T | None], what: str, timeout: float = WAIT_S) -> T:
-    """``check()``'s first truthy value, tried every few milliseconds; fails after ``timeout``."""
-    deadline = time.monotonic() + timeout
-    while True:
-        value = check()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            pytest.fail(f"timed out after {timeout} s waiting for {what}")
-        time.sleep(0.005)
 
 
 # --------------------------------------------------------------------------- running launch.sh
@@ -383,10 +364,10 @@ def test_the_plan_mixes_shared_dedicated_and_unscheduled(two_cores: Plan) -> Non
     """The premise of the other tests: the processes differ in CPUs and priority."""
     found = {p.key: (p.cpus, p.priority) for p in processes(make_spec(dict.fromkeys(KEYS, "true")), two_cores)}
     assert set(found) == set(KEYS)
-    assert {priority for _, priority in found.values()} == {SHARED_PRIORITY, DEDICATED_PRIORITY, UNSCHEDULED_PRIORITY}
-    assert found["sensor"] == ((0, 1), UNSCHEDULED_PRIORITY)
-    assert found["fast"][1] == DEDICATED_PRIORITY
-    assert found["/slow"][1] == SHARED_PRIORITY
+    assert {priority for _, priority in found.values()} == {SHARED_FIFO, RUNNING_FIFO, UNSCHEDULED_FIFO}
+    assert found["sensor"] == ((0, 1), UNSCHEDULED_FIFO)
+    assert found["fast"][1] == RUNNING_FIFO
+    assert found["/slow"][1] == SHARED_FIFO
     assert len({cpus for cpus, _ in found.values()}) == 3
 
 

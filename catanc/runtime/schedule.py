@@ -25,6 +25,7 @@ from collections.abc import Mapping, Set
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+from catanc.priorities import resting_fifo
 from catanc.problem import Problem
 from catanc.spec import Schedule
 
@@ -33,11 +34,6 @@ if TYPE_CHECKING:
 
 CLOCK_TOLERANCE = 1e-6
 """Relative: a shared subchain whose period is this close to ``n * T`` is triggered at its slices."""
-
-SHARED_FIFO = 1  # every node thread on a shared core, between its slices
-RUNNING_FIFO = 2  # the subchain whose slice it is; every dedicated subchain
-UNSCHEDULED_FIFO = 3
-ENFORCER_FIFO = 4  # the enforcer's trigger and scheduler threads
 
 
 @dataclass(frozen=True)
@@ -156,6 +152,4 @@ def slot_owner(slot: Slot, core: CoreSchedule, runs: Mapping[str, SubchainRun], 
 
 def node_priority(run: SubchainRun | None) -> int:
     """The SCHED_FIFO priority a node's threads rest at: 1 shared, 2 dedicated, 3 unscheduled."""
-    if run is None:
-        return UNSCHEDULED_FIFO
-    return SHARED_FIFO if run.shared else RUNNING_FIFO
+    return resting_fifo(None if run is None else run.shared)
