@@ -40,14 +40,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
+from catanc.priorities import ENFORCER_FIFO, RUNNING_FIFO
 from catanc.runtime import protocol
 from catanc.runtime.log import RunLog
-from catanc.runtime.measure import CpuClock, Measurements, cpu_ms, reconcile
+from catanc.runtime.measure import CpuClock, Measurements, cpu_ms, percentile, reconcile
 from catanc.runtime.planning import Answer, PlannerProcess, Request
 from catanc.runtime.sched import Restorer, ThreadGone, allowed_cpus, set_affinity, set_fifo
 from catanc.runtime.schedule import (
-    ENFORCER_FIFO,
-    RUNNING_FIFO,
     CoreSchedule,
     RuntimeSchedule,
     SubchainRun,
@@ -65,6 +64,8 @@ CPU_WATCH_S = 1.0
 SWITCH_INTERVAL_S = 0.0002
 """The interpreter lock passes to a waking FIFO-4 thread within this (Python's default: 5 ms)."""
 STATUS_EVERY_S = 1.0
+RATE_WINDOW = 20
+"""A subchain's measured rate is over its last 20 trigger-to-trigger periods."""
 KERNEL_CHECK_EVERY = 8
 """Every 8th run, a node's reported compute time is checked against the kernel's (two /proc reads)."""
 SWITCH_SAMPLES = 2000
@@ -103,8 +104,7 @@ class SubchainState:
     seq: int = 0
     in_flight: dict[int, Flight] = field(default_factory=dict)  # by seq
     last_trigger_ms: float | None = None
-    periods_ms: list[float] = field(default_factory=list)  # measured trigger-to-trigger
-    latencies_ms: list[float] = field(default_factory=list)  # measured trigger-to-done
+    periods_ms: deque[float] = field(default_factory=lambda: deque(maxlen=RATE_WINDOW))  # trigger to trigger
     late: int = 0
     lost: int = 0
     steals: int = 0
@@ -335,7 +335,6 @@ class Enforcer:
             if done.seq in state.in_flight:
                 return
             latency = self.clock() - flight.triggered_ms
-            state.latencies_ms = [*state.latencies_ms[-49:], latency]
             if latency > run.latency_ms:
                 state.late += 1
         self._log("run", subchain=run.name, seq=done.seq, latency_ms=round(latency, 3))
@@ -392,7 +391,7 @@ class Enforcer:
                 return
             state.pending = False
             if state.last_trigger_ms is not None:
-                state.periods_ms = [*state.periods_ms[-49:], now - state.last_trigger_ms]
+                state.periods_ms.append(now - state.last_trigger_ms)
             state.last_trigger_ms = now
             state.seq += 1
             state.in_flight[state.seq] = Flight(0, now, None)
@@ -631,7 +630,7 @@ class Enforcer:
         with self.lock:
             for name, run in sorted(self.schedule.subchains.items()):
                 state = self.states[name]
-                periods = state.periods_ms[-20:]
+                periods = state.periods_ms
                 measured = 1000.0 * len(periods) / sum(periods) if periods and sum(periods) > 0 else None
                 rows[name] = {
                     "planned_hz": round(1000.0 / run.period_ms, 3),
@@ -646,12 +645,11 @@ class Enforcer:
         since = None if self.last_resolve_s is None else self.elapsed_s() - self.last_resolve_s
         switches = {}
         for core, samples in sorted(self.switches.items()):
-            ordered = sorted(samples)
-            if ordered:
+            if samples:
                 switches[str(core)] = {
-                    "p50_ms": round(ordered[len(ordered) // 2], 4),
-                    "p95_ms": round(ordered[min(len(ordered) - 1, int(0.95 * len(ordered)))], 4),
-                    "max_ms": round(ordered[-1], 4),
+                    "p50_ms": round(percentile(samples, 50), 4),
+                    "p95_ms": round(percentile(samples, 95), 4),
+                    "max_ms": round(max(samples), 4),
                 }
         return {
             "subchains": rows,
