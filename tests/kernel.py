@@ -11,12 +11,17 @@ import pwd
 import shutil
 import subprocess
 import sys
+import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
 
 import pytest
 
+T = TypeVar("T")
+
 BOTH_CPUS = frozenset({0, 1})
-PROBE_TIMEOUT_S = 10.0
+WAIT_S = 10.0
 
 
 def missing_tools(*tools: str) -> list[str]:
@@ -31,7 +36,7 @@ def require_fifo(priority: int) -> None:
         [sys.executable, "-c", f"import os; os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param({priority}))"],
         capture_output=True,
         text=True,
-        timeout=PROBE_TIMEOUT_S,
+        timeout=WAIT_S,
         check=False,
     )
     if probe.returncode != 0:
@@ -80,3 +85,15 @@ def cpu_set(text: str) -> frozenset[int]:
         low, _, high = part.partition("-")
         cpus.update(range(int(low), int(high or low) + 1))
     return frozenset(cpus)
+
+
+def poll(check: Callable[[], T | None], what: str, timeout: float = WAIT_S, step: float = 0.005) -> T:
+    """``check()``'s first truthy value, tried every ``step`` s; fails after ``timeout``."""
+    deadline = time.monotonic() + timeout
+    while True:
+        value = check()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            pytest.fail(f"timed out after {timeout} s waiting for {what}")
+        time.sleep(step)

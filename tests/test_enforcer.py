@@ -31,28 +31,27 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
 import pytest
 
 from catanc.compiler import compile_spec
 from catanc.errors import ExitCode
 from catanc.output import write
+from catanc.priorities import ENFORCER_FIFO, RUNNING_FIFO, SHARED_FIFO, UNSCHEDULED_FIFO
 from catanc.runtime.log import read_log
-from catanc.runtime.schedule import ENFORCER_FIFO, RUNNING_FIFO, SHARED_FIFO, UNSCHEDULED_FIFO
 from catanc.runtime.watchdog import WATCHDOG_PRIORITY
 from catanc.runtime.worker import Profile, worker_command
-from tests.kernel import cpu_set, missing_tools, nobody_ids, require_fifo, stat_fields
+from tests.kernel import cpu_set, missing_tools, nobody_ids, poll, require_fifo, stat_fields
 
 WAIT_S = 10.0  # the longest any single wait in here may take
 KILL_BOUND_S = 1.0  # the issue: after the enforcer's SIGKILL, every app thread is back within this
 RATE_TOLERANCE = 0.10  # the issue: measured rates within 10% of planned
 BOTH = frozenset({0, 1})
 MINE = frozenset(os.sched_getaffinity(0))  # what the node processes started here may run on
-T = TypeVar("T")
 
 # The enforcer as `python -m catanc run`, but with Python's own SIGINT handler installed even if
 # SIGINT was ignored where the tests run (a CI job in the background): it is what a terminal gives.
@@ -198,18 +197,6 @@ def alive(pid: int) -> bool:
         return stat_fields(f"/proc/{pid}/stat")[0] not in ("Z", "X")
     except (FileNotFoundError, ProcessLookupError):
         return False
-
-
-def poll(check: Callable[[], T | None], what: str, timeout: float = WAIT_S, step: float = 0.01) -> T:
-    """``check()``'s first truthy value, tried every ``step`` s; fails after ``timeout``."""
-    deadline = time.monotonic() + timeout
-    while True:
-        value = check()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            pytest.fail(f"timed out after {timeout} s waiting for {what}")
-        time.sleep(step)
 
 
 # --------------------------------------------------------------------------- reading the log

@@ -31,7 +31,7 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Any, TypeVar
+from typing import IO, Any
 
 import pytest
 
@@ -50,7 +50,7 @@ from catanc.runtime.sched import (
     set_other,
 )
 from catanc.runtime.watchdog import WATCHDOG_PRIORITY
-from tests.kernel import as_user, cpu_set, nobody_ids, require_fifo, stat_fields
+from tests.kernel import as_user, cpu_set, nobody_ids, poll, require_fifo, stat_fields
 
 WAIT_S = 10.0  # the longest any single wait in here may take
 KILL_BOUND_S = 1.0  # the issue: no app thread stays at SCHED_FIFO longer than this after a SIGKILL
@@ -131,8 +131,6 @@ except CatancError as err:
 print("allowed")
 """
 
-T = TypeVar("T")
-
 
 # --------------------------------------------------------------------------- reading /proc
 
@@ -169,18 +167,6 @@ def alive(pid: int) -> bool:
 def on_cpu_ns(pid: int, tid: int) -> int:
     """How long thread ``tid`` has run (``schedstat``'s first field, in ns)."""
     return int(Path(f"/proc/{pid}/task/{tid}/schedstat").read_text().split()[0])
-
-
-def poll(check: Callable[[], T | None], what: str, timeout: float = WAIT_S, step: float = 0.005) -> T:
-    """``check()``'s first truthy value, tried every ``step`` s; fails after ``timeout``."""
-    deadline = time.monotonic() + timeout
-    while True:
-        value = check()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            pytest.fail(f"timed out after {timeout} s waiting for {what}")
-        time.sleep(step)
 
 
 # --------------------------------------------------------------------------- the children
