@@ -36,6 +36,8 @@ from catanc.runtime.watchdog import Watchdog, thread_start_time
 
 SCHED_DEADLINE = 6  # not in the os module; os.sched_setscheduler cannot set it back
 SCHED_RESET_ON_FORK = getattr(os, "SCHED_RESET_ON_FORK", 0x40000000)
+FIFO_PRIORITIES = range(os.sched_get_priority_min(os.SCHED_FIFO), os.sched_get_priority_max(os.SCHED_FIFO) + 1)
+"""The SCHED_FIFO priorities (1-99 on Linux), read once: setting one is asked at every slot switch."""
 POLICY_NAMES = {
     os.SCHED_OTHER: "SCHED_OTHER",
     os.SCHED_FIFO: "SCHED_FIFO",
@@ -101,7 +103,7 @@ def read_policy(tid: int) -> ThreadPolicy:
 
 def set_fifo(tid: int, priority: int) -> None:
     """Run thread ``tid`` at SCHED_FIFO ``priority``."""
-    if not os.sched_get_priority_min(os.SCHED_FIFO) <= priority <= os.sched_get_priority_max(os.SCHED_FIFO):
+    if priority not in FIFO_PRIORITIES:
         raise ValueError(f"{priority} is not a SCHED_FIFO priority")
     param = os.sched_param(priority)
     _call(tid, f"set SCHED_FIFO {priority}", lambda: os.sched_setscheduler(tid, os.SCHED_FIFO, param), priority)
@@ -125,6 +127,14 @@ def apply_policy(tid: int, wanted: ThreadPolicy) -> None:
     param = os.sched_param(wanted.priority)
     _call(tid, f"set {wanted}", lambda: os.sched_setscheduler(tid, wanted.policy, param), wanted.priority or None)
     _call(tid, f"set {wanted}", lambda: os.sched_setaffinity(tid, wanted.cpus))
+
+
+def threads_of(pid: int) -> list[int]:
+    """Every thread id of process ``pid`` (empty if it is gone)."""
+    try:
+        return sorted(int(entry.name) for entry in Path(f"/proc/{pid}/task").iterdir())
+    except OSError:
+        return []
 
 
 def allowed_cpus() -> frozenset[int]:
@@ -201,7 +211,7 @@ def check_fifo_allowed(priority: int) -> None:
 
     Tries it for real, on a helper thread that sleeps meanwhile, and puts the helper back.
     """
-    if not os.sched_get_priority_min(os.SCHED_FIFO) <= priority <= os.sched_get_priority_max(os.SCHED_FIFO):
+    if priority not in FIFO_PRIORITIES:
         raise ValueError(f"{priority} is not a SCHED_FIFO priority")
     tid: list[int] = []
     started, release = threading.Event(), threading.Event()
@@ -325,17 +335,22 @@ class Restorer:
                 watchdog.remember(tid, entry.original, entry.start_time)
             self._watchdog = watchdog
 
-    def remember(self, tid: int) -> ThreadPolicy:
+    def remember(self, tid: int, original: ThreadPolicy | None = None) -> ThreadPolicy:
         """Record thread ``tid``'s original (once) and return it; :class:`ThreadGone` if it exited.
 
-        A tid seen before but now naming another thread (its start time differs) is recorded anew.
+        ``original`` stands in for what the thread runs at now when that is not its own (a
+        thread that inherited a raised thread's priority).  A tid seen before but now naming
+        another thread (its start time differs) is recorded anew.
         """
         with self._lock:
             start_time = thread_start_time(tid)
             known = self._threads.get(tid)
             if known is not None and known.start_time == start_time:
                 return known.original
-            original = read_policy(tid)
+            if original is None:
+                original = read_policy(tid)
+            elif start_time is None:
+                raise ThreadGone(tid, "remember it")
             if original.policy & ~SCHED_RESET_ON_FORK == SCHED_DEADLINE:
                 raise SchedError(f"thread {tid} runs at SCHED_DEADLINE, which catanc could not put back")
             self._threads[tid] = Remembered(original, start_time)
