@@ -330,8 +330,8 @@ def run_(
     from catanc.errors import UsageError
     from catanc.priorities import ENFORCER_FIFO
     from catanc.runtime.enforcer import Enforcer
-    from catanc.runtime.processes import Children, parse_attach, start_demo, start_launch, threads_of
-    from catanc.runtime.sched import Restorer, check_fifo_allowed
+    from catanc.runtime.processes import Children, parse_attach, start_demo, start_launch
+    from catanc.runtime.sched import Restorer, check_fifo_allowed, threads_of
     from catanc.runtime.status import status_view
     from catanc.runtime.table import load_table
     from catanc.runtime.watchdog import Watchdog

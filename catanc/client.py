@@ -19,6 +19,15 @@ signal handler.  Calling :meth:`Node.wait` (or the next loop step) without
 :meth:`Node.done` reports the pending run as done.  Triggers are delivered
 in the order sent, one per run.
 
+Multi-threaded nodes: ``trigger.threads`` is how many threads the plan
+gives this run (more than 1 only for a node whose spec lists a speedup, on
+a subchain with dedicated cores).  Spread the work over that many threads
+and report the run's time with ``node.done(compute_ms=...)`` (wall time,
+or the registered thread's CPU time if it works throughout): the enforcer
+turns it back into one-thread time with the spec's speedup.  Only the
+registered thread is pinned and prioritised; register helper threads as
+nodes of their own if they must be too.
+
 This module and :mod:`catanc.runtime.protocol` use only the standard
 library: importing them loads no solver.
 
@@ -64,8 +73,8 @@ The protocol is just JSON datagrams (:mod:`catanc.runtime.protocol`):
    ``{"v":1,"type":"hello","node":"LM","pid":<getpid()>,"tid":<gettid()>}``
    and wait for ``{"v":1,"type":"welcome","node":"LM"}`` (or
    ``{"v":1,"type":"reject","node":"LM","reason":"..."}``).
-3. Loop on ``recv``: on ``{"v":1,"type":"trigger","node":"LM","seq":17}``
-   run the callback body, then send
+3. Loop on ``recv``: on ``{"v":1,"type":"trigger","node":"LM","seq":17,"threads":1}``
+   run the callback body (on ``threads`` threads if it can use more than one), then send
    ``{"v":1,"type":"done","node":"LM","tid":<tid>,"seq":17,"compute_ms":3.2}``
    (``compute_ms``: ``CLOCK_THREAD_CPUTIME_ID`` elapsed since the trigger,
    or ``null``); on ``{"v":1,"type":"stop"}`` leave the loop.

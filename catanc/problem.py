@@ -29,8 +29,8 @@ from catanc.spec import (
     NodeTerm,
     RateConstraint,
     Spec,
-    best_speedup,
 )
+from catanc.speedup import best_speedup
 
 MAX_SELECTOR_PATHS = 10_000
 """A selector matching more paths than this is an error, not a slow solve."""

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from typing import Annotated, Any, Literal
 
 from pydantic import (
@@ -29,6 +29,7 @@ from pydantic import (
 from pydantic_core import InitErrorDetails, PydanticCustomError
 
 from catanc.source import SourceMap
+from catanc.speedup import best_speedup
 
 SPEC_VERSIONS = (1,)
 """The ``catan:`` versions this catanc reads."""
@@ -108,11 +109,6 @@ Compute = Annotated[
         custom_error_message="expected a time in ms (e.g. 2.5) or {modes: [{share, ms}, ...]}",
     ),
 ]
-
-
-def best_speedup(speedups: Sequence[float], threads: int) -> float:
-    """Best speedup with *at most* ``threads`` threads: more threads are never forced."""
-    return max(speedups[: max(1, min(threads, len(speedups)))])
 
 
 class Threads(_Model):

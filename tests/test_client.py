@@ -44,7 +44,14 @@ from catanc.runtime.protocol import (
     Welcome,
     decode,
 )
-from catanc.runtime.worker import check_profile, format_modes, parse_args, parse_modes, worker_command
+from catanc.runtime.worker import (
+    burn_parallel,
+    check_profile,
+    format_modes,
+    parse_args,
+    parse_modes,
+    worker_command,
+)
 
 TIMEOUT_S = 30.0
 """The bound on every wait: generous, since nothing here is timed."""
@@ -332,7 +339,7 @@ messages: st.SearchStrategy[Message] = st.one_of(
     st.builds(Done, names, positive, counts, compute),
     st.builds(Bye, names, positive),
     st.builds(Welcome, names),
-    st.builds(Trigger, names, counts),
+    st.builds(Trigger, names, counts, positive),
     st.builds(Reject, names, st.text(max_size=3000)),
     st.just(Stop()),
     st.builds(SetCores, positive),
@@ -709,3 +716,36 @@ def client_imports() -> set[str]:
 def test_importing_the_client_loads_no_solver(client_imports: set[str], module: str) -> None:
     loaded = sorted(name for name in client_imports if name == module or name.startswith(module + "."))
     assert not loaded, f"importing catanc.client loads {loaded}"
+
+
+def test_a_trigger_without_threads_means_one_and_zero_threads_is_refused() -> None:
+    assert decode(b'{"v":1,"type":"trigger","node":"LM","seq":3}') == Trigger("LM", 3, 1)
+    assert decode(b'{"v":1,"type":"trigger","node":"LM","seq":3,"threads":2}') == Trigger("LM", 3, 2)
+    with pytest.raises(ProtocolError, match="threads"):
+        decode(b'{"v":1,"type":"trigger","node":"LM","seq":3,"threads":0}')
+    with pytest.raises(ProtocolError, match="missing field"):
+        decode(b'{"v":1,"type":"trigger","node":"LM"}')  # seq has no default
+
+
+def test_parallel_burn_uses_the_threads_the_speedup_makes_worth_it() -> None:
+    # 2 threads at speedup 1.8: each burns 20 / 1.8 ms, so the process uses about 2 x 11.1 ms of CPU.
+    began = time.process_time()
+    burn_parallel(20.0, 2, (1.0, 1.8))
+    assert time.process_time() - began == pytest.approx(2 * 20.0 / 1.8 / 1000, rel=0.25)
+    # A third thread would not help (speedup 1.8 again): still two.
+    began = time.process_time()
+    burn_parallel(20.0, 3, (1.0, 1.8, 1.8))
+    assert time.process_time() - began == pytest.approx(2 * 20.0 / 1.8 / 1000, rel=0.25)
+    began = time.process_time()
+    burn_parallel(10.0, 1, (1.0, 1.8))
+    assert time.process_time() - began == pytest.approx(0.010, rel=0.25)
+
+
+def test_worker_speedup_option() -> None:
+    argv = worker_command({"A": 5.0, "B": 1.0}, speedups={"A": (1.0, 1.8), "B": (1.0,), "C": (1.0, 2.0)})
+    options = parse_args(argv[3:])
+    assert options.speedups == {"A": (1.0, 1.8)}  # B gains nothing from threads; C is not served here
+    with pytest.raises(ValueError, match="starts with 1"):
+        worker_command({"A": 5.0}, speedups={"A": (2.0, 3.0)})
+    with pytest.raises(SystemExit):
+        parse_args(["--node", "A", "--compute-ms", "1", "--speedup", "Z=1,2"])

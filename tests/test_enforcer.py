@@ -957,3 +957,85 @@ def test_losing_a_cpu_re_plans_for_the_cores_left(harness: Harness, tmp_path: Pa
 
     poll(on_cpu_0, "every node thread pinned to CPU 0", timeout=3.0)
     assert harness.wait(6.0 + WAIT_S) == 0
+
+
+# --------------------------------------------------------------------------- multi-threaded nodes
+
+# One subchain of one node on both cores.  With 2 threads at speedup 1.8 a run takes 20 / 1.8 =
+# 11.1 ms against 20 ms on one, so Eq. 1 picks q = 2: period = response/2 = 11.1 ms (90 Hz), and
+# triggers say `threads: 2`.  The worker burns 11.1 ms of CPU on each of two threads.  The re-solve
+# at 2 s must plan with the one-thread 20 ms (the measured 11.1 ms times the speedup); planning
+# with the raw 11.1 ms would shrink the period to 11.1 / 1.8 = 6.2 ms, which no run can meet.
+THREADED_SPEC = """\
+catan: 1
+app: threaded
+nodes:
+  solve: {compute_ms: 20, threads: {max: 2, speedup: [1.0, 1.8]}}
+subchains: {solve: [solve]}
+objective:
+  - {node: solve, weight: 1.0}
+runtime: {first_solve_after_s: 2, stage2_every_s: 1, stage1_every_s: 100}
+"""
+THREADED_ONE_THREAD_MS = 20.0
+THREADED_SPEEDUP = 1.8
+
+
+def test_a_multi_threaded_node_runs_on_its_threads_and_is_planned_with_its_one_thread_time(
+    harness: Harness, tmp_path: Path
+) -> None:
+    table = compile_table(THREADED_SPEC, tmp_path, 2)
+    planned = table_subchains(table)["solve"]
+    run_ms = THREADED_ONE_THREAD_MS / THREADED_SPEEDUP
+    assert planned["threads"] == 2
+    assert planned["period_ms"] == pytest.approx(run_ms, rel=1e-6)  # Eq. 1 by hand
+    duration = 6.0
+    harness.start(table, "--start", "spec", duration=duration)
+    worker = harness.worker({"solve": THREADED_ONE_THREAD_MS}, speedups={"solve": (1.0, THREADED_SPEEDUP)})
+    harness.registered(["solve"])
+    poll(lambda: len(threads_of(worker.pid)) >= 3 or None, "the worker's helper thread")  # main, node, helper
+    assert harness.wait(duration + WAIT_S) == 0
+    events = harness.events()
+
+    computes = [e["ms"] for e in of_kind(events, "compute") if e["node"] == "solve" and e["ms"] is not None]
+    assert len(computes) > 50
+    median = sorted(computes)[len(computes) // 2]
+    assert median == pytest.approx(THREADED_ONE_THREAD_MS, rel=0.15), "compute is logged as one-thread time"
+    latencies = sorted(e["latency_ms"] for e in of_kind(events, "run") if e["subchain"] == "solve")
+    typical = latencies[len(latencies) // 2]  # on two threads in parallel: far nearer 11.1 ms than 20
+    assert 0.9 * run_ms <= typical <= 0.8 * THREADED_ONE_THREAD_MS, f"a run took {typical} ms"
+    resolves = of_kind(events, "resolve")
+    assert resolves, "no re-solve"
+    for resolve in resolves:  # a p95 of wall times: above the median under load, never near the raw 11.1 ms
+        assert 0.85 * THREADED_ONE_THREAD_MS <= resolve["compute_ms"]["solve"] <= 1.5 * THREADED_ONE_THREAD_MS
+        assert resolve["plan"]["subchains"]["solve"]["period_ms"] >= 0.85 * run_ms
+
+
+# A node thread that starts a helper thread on its first run, after the enforcer raised it: the
+# helper inherits SCHED_FIFO and the node's CPUs.  Both live on after the run ends.
+SPAWNING_NODE = """\
+import sys, threading, time
+from catanc.client import Node
+from catanc.runtime.worker import burn
+
+name, socket_path = sys.argv[1], sys.argv[2]
+with Node(name, socket_path=socket_path) as node:
+    for seq, _trigger in enumerate(node):
+        if seq == 0:
+            threading.Thread(target=time.sleep, args=(60,), daemon=True).start()
+        burn(5)
+        node.done()
+time.sleep(60)
+"""
+
+
+def test_threads_a_node_starts_while_raised_are_put_back_too(harness: Harness, tmp_path: Path) -> None:
+    table = compile_table(THREADED_SPEC, tmp_path, 2)
+    harness.start(table, "--start", "spec", duration=4.0)
+    node = harness.node([sys.executable, "-c", SPAWNING_NODE, "solve", str(harness.socket)])
+    ((pid, tid),) = harness.registered(["solve"]).values()
+    helpers = poll(lambda: [t for t in threads_of(pid) if t not in (pid, tid)] or None, "the node's helper thread")
+    during = [sched_of(pid, helper) for helper in helpers]
+    assert all(found is not None and found.policy == os.SCHED_FIFO for found in during), during  # inherited
+    assert harness.wait() == 0
+    assert node.poll() is None  # still there, as an app's process would be
+    assert [sched_of(pid, helper) for helper in [tid, *helpers]] == [OTHER] * (1 + len(helpers))

@@ -84,7 +84,9 @@ def demo_profiles(spec: Spec) -> dict[str, Profile]:
 def start_demo(children: Children, spec: Spec, socket_path: str, *, seed: int = 0) -> None:
     """One worker process per scheduled node (Python threads of one process would share one interpreter lock)."""
     for name, profile in demo_profiles(spec).items():
-        children.start(name, worker_command({name: profile}, seed=seed, socket_path=socket_path), socket_path)
+        speedups = {name: spec.nodes[name].threads.speedups}  # a multi-threaded node burns on the threads it is given
+        argv = worker_command({name: profile}, seed=seed, socket_path=socket_path, speedups=speedups)
+        children.start(name, argv, socket_path)
 
 
 def start_launch(children: Children, processes: Sequence[Mapping[str, object]], socket_path: str) -> None:
@@ -108,11 +110,3 @@ def parse_attach(items: Sequence[str], spec: Spec) -> dict[str, int]:
             raise UsageError(f"--attach {item!r}: no process {pid_text}")
         found[node] = int(pid_text)
     return found
-
-
-def threads_of(pid: int) -> list[int]:
-    """Every thread id of process ``pid`` (empty if it is gone)."""
-    try:
-        return sorted(int(entry.name) for entry in Path(f"/proc/{pid}/task").iterdir())
-    except OSError:
-        return []

@@ -17,15 +17,19 @@ Messages (JSON on the wire; the dataclasses below)::
                        {"v":1,"type":"done","node":"LM","tid":4245,"seq":17,"compute_ms":3.2}
                        {"v":1,"type":"bye","node":"LM","tid":4245}
     enforcer -> node   {"v":1,"type":"welcome","node":"LM"}
-                       {"v":1,"type":"trigger","node":"LM","seq":17}
+                       {"v":1,"type":"trigger","node":"LM","seq":17,"threads":1}
                        {"v":1,"type":"reject","node":"LM","reason":"unknown node 'LM'"}
                        {"v":1,"type":"stop"}
     anyone -> enforcer {"v":1,"type":"set_cores","cores":3}
 
-``compute_ms`` may be ``null`` (the node does not measure itself).  Field
+``compute_ms`` may be ``null`` (the node does not measure itself).  A
+trigger's ``threads`` (optional, 1 when absent) is how many threads the plan
+gives the run: a multi-threaded node spreads its work over that many and
+reports the run's time; the enforcer multiplies it by the spec's speedup for
+those threads to get back the one-thread time the planner budgets.  Field
 rules, checked when a message is built or decoded: node names are 1 to
 :data:`MAX_NAME` printable characters; ``pid``, ``tid`` and ``cores`` are
-positive integers and ``seq`` a non-negative one (all below 2**63);
+positive integers (``threads`` too) and ``seq`` a non-negative one (all below 2**63);
 ``compute_ms`` is a finite number >= 0 or null; a reject's ``reason`` is
 shortened so that the datagram fits.  Unknown fields are refused: a change
 of shape is a new version.
@@ -44,7 +48,7 @@ import os
 import socket
 import stat
 import time
-from dataclasses import dataclass, fields
+from dataclasses import MISSING, dataclass, fields
 from pathlib import Path
 from types import TracebackType
 from typing import Any, ClassVar, Self
@@ -107,8 +111,8 @@ class _Message:
 
     def _body(self) -> dict[str, Any]:
         body: dict[str, Any] = {"v": VERSION, "type": self.TYPE}
-        for field in fields(self):
-            body[field.name] = getattr(self, field.name)
+        for name in FIELD_NAMES[self.TYPE]:
+            body[name] = getattr(self, name)
         return body
 
     def _raw(self) -> bytes:
@@ -185,15 +189,21 @@ class Welcome(_Message):
 
 @dataclass(frozen=True)
 class Trigger(_Message):
-    """Enforcer -> node: run once now; answer with a :class:`Done` carrying the same ``seq``."""
+    """Enforcer -> node: run once now; answer with a :class:`Done` carrying the same ``seq``.
+
+    ``threads`` is how many threads the plan gives this run (Eq. 1's q, where the node's
+    speedup gains from more than one; optional in a datagram, 1 when absent).
+    """
 
     TYPE: ClassVar[str] = "trigger"
     node: str
     seq: int
+    threads: int = 1
 
     def __post_init__(self) -> None:
         _check_name(self.TYPE, self.node)
         _check_int(self.TYPE, "seq", self.seq, 0)
+        _check_int(self.TYPE, "threads", self.threads, 1)
 
 
 @dataclass(frozen=True)
@@ -248,6 +258,16 @@ MESSAGE_TYPES: dict[str, type[Message]] = {
 }
 """Message classes by their ``"type"``."""
 
+FIELD_NAMES: dict[str, tuple[str, ...]] = {
+    kind: tuple(field.name for field in fields(cls)) for kind, cls in MESSAGE_TYPES.items()
+}
+"""Each message type's fields, in order (looked up once: the enforcer decodes hundreds of datagrams a second)."""
+
+REQUIRED_FIELDS: dict[str, frozenset[str]] = {
+    kind: frozenset(f.name for f in fields(cls) if f.default is MISSING) for kind, cls in MESSAGE_TYPES.items()
+}
+"""The fields a datagram must carry; the others have defaults."""
+
 
 def decode(data: bytes) -> Message:
     """Parse and check one datagram; raise :class:`ProtocolError` (and nothing else) if it is not a message."""
@@ -275,8 +295,8 @@ def decode(data: bytes) -> Message:
         known = ", ".join(MESSAGE_TYPES)
         what = "no message type" if kind is None else f"unknown message type {_show(kind)}"
         raise ProtocolError(f"{what} (expected one of: {known})")
-    names = [field.name for field in fields(cls)]
-    missing = [name for name in names if name not in body]
+    names = FIELD_NAMES[cls.TYPE]
+    missing = [name for name in names if name in REQUIRED_FIELDS[cls.TYPE] and name not in body]
     if missing:
         raise ProtocolError(f"{cls.TYPE}: missing field(s): {', '.join(missing)}")
     unknown = sorted(name for name in body if name not in names)

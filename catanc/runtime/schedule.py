@@ -23,11 +23,13 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Set
 from dataclasses import dataclass
+from functools import cached_property
 from typing import TYPE_CHECKING
 
 from catanc.priorities import resting_fifo
 from catanc.problem import Problem
 from catanc.spec import Schedule
+from catanc.speedup import threads_used
 
 if TYPE_CHECKING:
     from catanc.planner import Plan
@@ -48,6 +50,14 @@ class SubchainRun:
     latency_ms: float  # planned: a run is late once it takes longer
     runs: int | None  # n: triggered at its slice every n periods; None: on its own clock
     priority: int  # stealing priority: higher steals from lower
+    node_threads: tuple[int, ...] = ()  # per node, the threads it runs with (Eq. 1's q); empty: one each
+    node_speedups: tuple[float, ...] = ()  # per node, its speedup with those threads; empty: 1 each
+
+    def threads_of(self, index: int) -> tuple[int, float]:
+        """Node ``index``'s threads and the speedup they give (a measured run times it is one thread's time)."""
+        if not self.node_threads:
+            return 1, 1.0
+        return self.node_threads[index], self.node_speedups[index]
 
     @property
     def on_clock(self) -> bool:
@@ -83,7 +93,11 @@ class RuntimeSchedule:
     shared: tuple[CoreSchedule, ...]
 
     def subchain_of(self, node: str) -> SubchainRun | None:
-        return next((run for run in self.subchains.values() if node in run.nodes), None)
+        return self._run_of_node.get(node)
+
+    @cached_property
+    def _run_of_node(self) -> dict[str, SubchainRun]:  # asked on every completion: built once per plan
+        return {node: run for run in self.subchains.values() for node in run.nodes}
 
     @property
     def clocked(self) -> tuple[SubchainRun, ...]:
@@ -94,6 +108,7 @@ class RuntimeSchedule:
 def runtime_schedule(plan: Plan, problem: Problem, schedule: Schedule) -> RuntimeSchedule:
     """The schedule the enforcer runs for ``plan`` (``problem`` gives each subchain's ``c(S)``)."""
     compute = {sub.name: sub.compute_ms for sub in problem.subchains}
+    speedups = {sub.name: sub.node_speedups for sub in problem.subchains}
     length = {core.core: core.period_ms for core in plan.shared_cores}
     subchains = {}
     for name, sub in plan.subchains.items():
@@ -104,6 +119,7 @@ def runtime_schedule(plan: Plan, problem: Problem, schedule: Schedule) -> Runtim
             n = plan.runs[name]
             cycle = n * length[sub.cores[0]]
             runs = n if abs(sub.period_ms - cycle) <= CLOCK_TOLERANCE * cycle else None
+        threads = tuple(threads_used(s, sub.threads) for s in speedups[name])
         subchains[name] = SubchainRun(
             name=name,
             nodes=sub.nodes,
@@ -113,6 +129,8 @@ def runtime_schedule(plan: Plan, problem: Problem, schedule: Schedule) -> Runtim
             latency_ms=sub.latency_ms,
             runs=runs,
             priority=sub.priority,
+            node_threads=threads,
+            node_speedups=tuple(s[q - 1] for s, q in zip(speedups[name], threads, strict=True)),
         )
     shared = []
     for core in sorted(plan.shared_cores, key=lambda c: c.core):

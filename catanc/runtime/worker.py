@@ -27,6 +27,7 @@ each.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import math
 import os
 import queue
@@ -44,6 +45,7 @@ from types import FrameType
 from catanc.client import ClientError, Node
 from catanc.errors import ExitCode
 from catanc.runtime.protocol import ProtocolError, Welcome
+from catanc.speedup import threads_used
 
 MODULE = "catanc.runtime.worker"
 
@@ -96,10 +98,12 @@ def worker_command(
     scale_after: tuple[float, float] | None = None,
     socket_path: str | os.PathLike[str] | None = None,
     python: str | None = None,
+    speedups: Mapping[str, Sequence[float]] | None = None,
 ) -> list[str]:
     """The argv that starts one worker process serving ``nodes`` (name -> compute ms, or (weight, ms) modes).
 
-    Without ``socket_path`` the worker reads ``$CATANC_SOCKET``.
+    ``speedups`` gives multi-threaded nodes their speedup with 1, 2, ... threads (the spec's
+    ``threads.speedups``).  Without ``socket_path`` the worker reads ``$CATANC_SOCKET``.
     """
     if not nodes:
         raise ValueError("a worker serves at least one node")
@@ -112,6 +116,9 @@ def worker_command(
             argv += ["--compute-ms", repr(modes[0][1])]
         else:
             argv += ["--modes", format_modes(modes)]
+    for name, values in sorted((speedups or {}).items()):
+        if name in nodes and tuple(values) != (1.0,):
+            argv += ["--speedup", f"{name}={_format_speedups(_check_speedups(values))}"]
     if seed is not None:
         argv += ["--seed", str(seed)]
     if scale_after is not None:
@@ -127,6 +134,7 @@ class WorkerOptions:
     """The parsed command line."""
 
     nodes: dict[str, Modes]
+    speedups: dict[str, tuple[float, ...]]  # node -> speedup with 1, 2, ... threads; absent: one thread
     seed: int
     scale_after: tuple[float, float] | None
     socket_path: Path | None
@@ -143,6 +151,15 @@ def parse_args(argv: Sequence[str] | None = None) -> WorkerOptions:
     )
     parser.add_argument(
         "--modes", action="append", dest="profiles", type=_modes_arg, metavar="W:MS,...", help="weighted modes"
+    )
+    parser.add_argument(
+        "--speedup",
+        action="append",
+        dest="speedups",
+        type=_speedup_arg,
+        default=[],
+        metavar="NODE=S1,S2,...",
+        help="a multi-threaded node's speedup with 1, 2, ... threads (it burns on the threads a trigger gives it)",
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of the mode draws (default 0)")
     parser.add_argument(
@@ -166,8 +183,13 @@ def parse_args(argv: Sequence[str] | None = None) -> WorkerOptions:
         profiles = profiles * len(names)
     if len(profiles) != len(names):
         parser.error(f"{len(names)} nodes but {len(profiles)} compute profiles: give one, or one per --node")
+    speedups = dict(args.speedups)
+    unknown = sorted(set(speedups) - set(names))
+    if unknown:
+        parser.error(f"--speedup for node(s) this worker does not serve: {', '.join(unknown)}")
     return WorkerOptions(
         nodes=dict(zip(names, profiles, strict=True)),
+        speedups=speedups,
         seed=args.seed,
         scale_after=args.scale_after,
         socket_path=args.socket,
@@ -179,6 +201,37 @@ def burn(compute_ms: float) -> None:
     end = time.thread_time() + compute_ms / 1000.0
     while time.thread_time() < end:
         pass
+
+
+HASHED_BLOCK = bytes(16 * 1024)
+"""What a parallel burn hashes at a time: hashlib lets go of the interpreter lock for blocks this big."""
+
+
+def burn_released(compute_ms: float) -> None:
+    """:func:`burn`, but in C code that releases the interpreter lock, so threads really burn in parallel."""
+    end = time.thread_time() + compute_ms / 1000.0
+    while time.thread_time() < end:
+        hashlib.sha256(HASHED_BLOCK)
+
+
+def burn_parallel(compute_ms: float, threads: int, speedups: Sequence[float]) -> None:
+    """One run of a node whose single-thread compute is ``compute_ms``, on ``threads`` threads.
+
+    As the planner models it (``c^q = c / speedup(q)``), each of the ``q`` threads the speedup
+    table makes worth using burns ``c / speedup(q)`` of CPU time, so the run takes that long.
+    The calling thread is one of them: it is the one the enforcer pins and measures.
+    """
+    q = threads_used(speedups, threads)
+    each_ms = compute_ms / speedups[q - 1]
+    if q == 1:
+        burn(each_ms)
+        return
+    helpers = [threading.Thread(target=burn_released, args=(each_ms,), daemon=True) for _ in range(q - 1)]
+    for helper in helpers:
+        helper.start()
+    burn_released(each_ms)
+    for helper in helpers:
+        helper.join()
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -208,7 +261,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             rng = random.Random(f"{options.seed}/{node.name}")
             thread = threading.Thread(
                 target=_serve,
-                args=(node, options.nodes[node.name], rng, options.scale_after, finished),
+                args=(node, finished),
+                kwargs={
+                    "modes": options.nodes[node.name],
+                    "speedups": options.speedups.get(node.name, (1.0,)),
+                    "rng": rng,
+                    "scale_after": options.scale_after,
+                },
                 name=f"catanc-{node.name}",
                 daemon=True,
             )
@@ -234,10 +293,12 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _serve(
     node: Node,
+    finished: queue.Queue[tuple[Node, Exception | None]],
+    *,
     modes: Modes,
+    speedups: tuple[float, ...],
     rng: random.Random,
     scale_after: tuple[float, float] | None,
-    finished: queue.Queue[tuple[Node, Exception | None]],
 ) -> None:
     error: Exception | None = None
     try:
@@ -245,12 +306,14 @@ def _serve(
             registered_at = time.monotonic()
             weights = [weight for weight, _ in modes]
             computes = [compute for _, compute in modes]
-            for _trigger in node:
+            for trigger in node:
                 compute_ms = computes[0] if len(modes) == 1 else rng.choices(computes, weights)[0]
                 if scale_after is not None and time.monotonic() - registered_at >= scale_after[0]:
                     compute_ms *= scale_after[1]
-                burn(compute_ms)
-                node.done()
+                started = time.monotonic()
+                burn_parallel(compute_ms, trigger.threads, speedups)
+                # On one thread, its CPU time (the client's default); on more, the run's wall time.
+                node.done(None if trigger.threads == 1 else (time.monotonic() - started) * 1000.0)
     except Exception as exc:
         error = exc
     finally:
@@ -262,6 +325,25 @@ def _check_name(name: str) -> None:
         Welcome(name)
     except ProtocolError as exc:
         raise ValueError(f"bad node name: {exc}") from None
+
+
+def _check_speedups(values: Sequence[float]) -> tuple[float, ...]:
+    speedups = tuple(float(value) for value in values)
+    if not speedups or speedups[0] != 1.0 or not all(math.isfinite(s) and s > 0 for s in speedups):
+        raise ValueError(f"a speedup list starts with 1 and holds positive numbers, got {list(values)!r}")
+    return speedups
+
+
+def _format_speedups(speedups: Sequence[float]) -> str:
+    return ",".join(repr(s) for s in speedups)
+
+
+def _speedup_arg(text: str) -> tuple[str, tuple[float, ...]]:
+    name, _, values = text.partition("=")
+    try:
+        return name, _check_speedups([float(v) for v in values.split(",")])
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected NODE=S1,S2,... ({exc})") from None
 
 
 def _check_scale(after_s: float, factor: float) -> tuple[float, float]:
