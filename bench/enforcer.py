@@ -13,7 +13,12 @@ here, so their CPU time is not counted), ``catanc run`` on the committed
   enforcer's last status line (the paper: 0.12 ms per switch);
 - CPU use of the enforcer with its planner and watchdog processes
   (``wait4`` rusage of the enforcer, which waits for both), in cores
-  (the paper: under 0.05 cores, re-solves included).
+  (the paper: under 0.05 cores, re-solves included);
+- per enforcer thread, over the middle of the run (start-up excluded): its
+  CPU use in cores and its wake-ups per second (``/proc/<pid>/task/<tid>``:
+  ``stat`` utime + stime, ``status`` voluntary_ctxt_switches), which
+  shows where the CPU goes: mostly the wake-ups themselves, see
+  bench/RESULTS.md.
 """
 
 from __future__ import annotations
@@ -57,6 +62,11 @@ def measure(app: str, duration_s: float) -> dict[str, Any]:
             for node, profile in demo_profiles(table.spec).items()
         ]
         began = time.monotonic()
+        time.sleep(duration_s / 3)
+        first = thread_usage(enforcer.pid)
+        time.sleep(duration_s / 3)
+        second = thread_usage(enforcer.pid)
+        window_s = duration_s / 3
         _, status, usage = os.wait4(enforcer.pid, 0)
         wall = time.monotonic() - began
         for worker in workers:
@@ -74,9 +84,33 @@ def measure(app: str, duration_s: float) -> dict[str, Any]:
         "duration_s": round(wall, 2),
         "switch_ms": fields.get("switches", {}),
         "enforcer_cores": round(cpu_s / wall, 4),
+        "threads": {
+            name: {
+                "cores": round((second[name][0] - cpu) / window_s, 4),
+                "wakes_per_s": round((second[name][1] - wakes) / window_s, 1),
+            }
+            for name, (cpu, wakes) in first.items()
+            if name in second
+        },
         "resolves": len(resolves),
         "resolve_ms_median": sorted(e["solve_ms"] for e in resolves)[len(resolves) // 2] if resolves else None,
     }
+
+
+def thread_usage(pid: int) -> dict[str, tuple[float, int]]:
+    """Per thread of ``pid`` (by name; the enforcer names its threads): CPU seconds so far and voluntary switches."""
+    found: dict[str, tuple[float, int]] = {}
+    tick = os.sysconf("SC_CLK_TCK")
+    for task in sorted(Path(f"/proc/{pid}/task").iterdir(), key=lambda p: int(p.name)):
+        try:
+            fields = (task / "stat").read_text().rsplit(")", 1)[1].split()
+            status = (task / "status").read_text()
+            name = (task / "comm").read_text().strip()
+        except OSError:
+            continue
+        wakes = next(int(line.split()[1]) for line in status.splitlines() if line.startswith("voluntary_ctxt_switches"))
+        found[name] = ((int(fields[14 - 3]) + int(fields[15 - 3])) / tick, wakes)
+    return found
 
 
 def main() -> None:
@@ -101,6 +135,8 @@ def main() -> None:
             f"  enforcer CPU (with planner and watchdog): {cores:.4f} cores ({cores / PAPER_CORES:.2f}x the "
             f"paper's {PAPER_CORES}); {result['resolves']} re-solves, median {result['resolve_ms_median']} ms"
         )
+        for name, use in result["threads"].items():
+            print(f"    {name:<20} {use['cores']:.4f} cores, {use['wakes_per_s']:.0f} wake-ups/s (mid-run)")
 
 
 if __name__ == "__main__":

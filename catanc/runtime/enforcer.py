@@ -50,6 +50,7 @@ from catanc.runtime.sched import (
     Restorer,
     ThreadGone,
     allowed_cpus,
+    name_thread,
     read_policy,
     set_affinity,
     set_fifo,
@@ -587,6 +588,8 @@ class Enforcer:
 
     def _raise_self(self, cpus: frozenset[int] | None) -> None:
         """The calling enforcer thread: FIFO 4 (with RT), pinned to ``cpus`` if given."""
+        if threading.current_thread() is not threading.main_thread():  # the main thread's name is the process's
+            name_thread(threading.current_thread().name)
         tid = threading.get_native_id()
         if cpus is not None:
             os.sched_setaffinity(tid, cpus)
@@ -596,6 +599,7 @@ class Enforcer:
     # ------------------------------------------------------------------ re-optimising
 
     def _reoptimiser(self) -> None:
+        name_thread(threading.current_thread().name)
         if self.rt:  # started by the FIFO-4 main thread: back to SCHED_OTHER (catan-model section 6)
             os.sched_setscheduler(threading.get_native_id(), os.SCHED_OTHER, os.sched_param(0))
         runtime = self.spec.runtime

@@ -129,6 +129,12 @@ def apply_policy(tid: int, wanted: ThreadPolicy) -> None:
     _call(tid, f"set {wanted}", lambda: os.sched_setaffinity(tid, wanted.cpus))
 
 
+def name_thread(name: str) -> None:
+    """Show the calling thread as ``name`` (its first 15 bytes) in ``top -H``, ``ps -L`` and ``/proc``; best effort."""
+    with contextlib.suppress(OSError):
+        Path(f"/proc/self/task/{threading.get_native_id()}/comm").write_text(name.encode()[:15].decode(errors="ignore"))
+
+
 def threads_of(pid: int) -> list[int]:
     """Every thread id of process ``pid`` (empty if it is gone)."""
     try:
