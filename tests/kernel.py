@@ -1,4 +1,5 @@
-"""Helpers the real-kernel tests share: probing for SCHED_FIFO, and running a command as ``nobody``.
+"""Helpers the real-kernel tests share: probing for SCHED_FIFO, running a command as ``nobody``,
+reading what a thread runs at from ``/proc``.
 
 Probes use Python and util-linux directly, never catanc's own checks, so a bug
 in those fails a test instead of skipping it.
@@ -13,6 +14,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TypeVar
 
@@ -97,3 +99,48 @@ def poll(check: Callable[[], T | None], what: str, timeout: float = WAIT_S, step
         if time.monotonic() > deadline:
             pytest.fail(f"timed out after {timeout} s waiting for {what}")
         time.sleep(step)
+
+
+@dataclass(frozen=True)
+class Sched:
+    """A thread's policy (``os.SCHED_*``), real-time priority and CPUs, as ``/proc`` shows them."""
+
+    policy: int
+    priority: int
+    cpus: frozenset[int]
+
+    def __str__(self) -> str:
+        names = {os.SCHED_OTHER: "OTHER", os.SCHED_BATCH: "BATCH", os.SCHED_FIFO: "FIFO", os.SCHED_RR: "RR"}
+        return f"{names.get(self.policy, str(self.policy))} {self.priority} on {sorted(self.cpus)}"
+
+
+def sched_of(pid: int, tid: int) -> Sched | None:
+    """Thread ``tid``'s policy (stat field 41), rt_priority (field 40) and CPUs; None once it is gone."""
+    folder = f"/proc/{pid}/task/{tid}"
+    try:
+        fields = stat_fields(f"{folder}/stat")
+        status = Path(f"{folder}/status").read_text()
+    except (FileNotFoundError, ProcessLookupError):
+        return None
+    if fields[0] in ("Z", "X"):
+        return None
+    for line in status.splitlines():
+        if line.startswith("Cpus_allowed_list:"):
+            return Sched(int(fields[41 - 3]), int(fields[40 - 3]), cpu_set(line.split(":", 1)[1].strip()))
+    raise AssertionError(f"no Cpus_allowed_list in {folder}/status")
+
+
+def threads_of(pid: int) -> list[int]:
+    """Process ``pid``'s thread ids (empty once it is gone)."""
+    try:
+        return sorted(int(entry.name) for entry in Path(f"/proc/{pid}/task").iterdir())
+    except FileNotFoundError:
+        return []
+
+
+def alive(pid: int) -> bool:
+    """Whether process ``pid`` exists and is not a zombie."""
+    try:
+        return stat_fields(f"/proc/{pid}/stat")[0] not in ("Z", "X")
+    except (FileNotFoundError, ProcessLookupError):
+        return False
