@@ -415,11 +415,6 @@ def test_a_deploy_command_that_does_not_exist_exits_2_and_leaves_nothing_running
 
 
 @pytest.mark.usefixtures("fifo")
-@pytest.mark.xfail(
-    strict=True,
-    reason="Enforcer._run calls on_start outside the try/finally that stops its threads: when --launch "
-    "fails, the restorer puts the threads back but a core scheduler still running raises them again",
-)
 def test_a_failed_launch_puts_an_attached_process_back(run: Run, broken_table: Path) -> None:
     """`--attach map=PID --launch` where a deploy command does not exist: the attached threads end as they began."""
     as_map = run.plain_app()
@@ -547,11 +542,6 @@ def test_gaining_a_cpu_after_starting_on_one_core_re_plans_for_two(run: Run, lau
 
 
 @pytest.mark.usefixtures("fifo")
-@pytest.mark.xfail(
-    strict=True,
-    reason="Enforcer.__init__ plans for the table's cores (2) whatever CPUs it may use (1), and "
-    "_reoptimiser re-plans only when the CPU count differs from the plan's: gaining CPU 0 changes nothing",
-)
 def test_gaining_a_cpu_re_plans_a_two_core_table_for_two_cores(run: Run, launch_table: Path) -> None:
     """A two-core table, the enforcer on CPU 1 alone, then on CPUs 0 and 1: a re-plan for two cores."""
     needs_taskset()
@@ -571,11 +561,6 @@ def test_gaining_a_cpu_re_plans_a_two_core_table_for_two_cores(run: Run, launch_
 
 
 @pytest.mark.usefixtures("fifo")
-@pytest.mark.xfail(
-    strict=True,
-    reason="_reoptimiser updates cpu_ids when the CPU set changes but re-pins nothing unless the "
-    "CPU count changed: node threads stay on a CPU the enforcer may no longer use",
-)
 def test_moving_to_another_cpu_re_pins_every_node(run: Run, one_core_table: Path) -> None:
     """A one-core plan on CPU 1, then the enforcer moved to CPU 0 (a cpuset change): the nodes follow it."""
     needs_taskset()

@@ -150,8 +150,11 @@ class Enforcer:
         self.restorer = restorer if restorer is not None else Restorer()
         self.measurements = Measurements.for_spec(self.spec)
         bootstrap = self.spec.runtime.bootstrap_ms if start == "bootstrap" else None
+        self.cpu_ids = sorted(allowed_cpus())  # plan core i runs on the i-th CPU this process may use
+        self.events: list[str] = []  # short notes for the live status (node crashed, ...)
+        planned_cores = self._fit_cores(cores or table.cores)
         self.planner = PlannerProcess(
-            table.spec.model_dump(mode="json", by_alias=True), cores or table.cores, bootstrap_ms=bootstrap
+            table.spec.model_dump(mode="json", by_alias=True), planned_cores, bootstrap_ms=bootstrap
         )
         self.answer: Answer = self.planner.initial
         self.lock = threading.RLock()  # guards the schedule, endpoints and subchain states
@@ -161,7 +164,6 @@ class Enforcer:
         self.states = {name: SubchainState() for name in self.schedule.subchains}
         self.raised: dict[int, str | None] = {}  # core -> subchain raised to FIFO 2 now
         self.core_threads: list[threading.Thread] = []
-        self.cpu_ids = sorted(allowed_cpus())  # plan core i runs on the i-th CPU this process may use
         self.switches: dict[int, deque[float]] = {}  # core -> recent switch latencies (ms)
         self.busy: dict[str, int | None] = {}  # node -> the run it was triggered for and has not finished
         self.waiting: dict[str, deque[int]] = {}  # node -> runs that reached it while it was busy
@@ -169,7 +171,6 @@ class Enforcer:
         self.requested_cores: int | None = None
         self.last_resolve_s: float | None = None
         self.started_ms = clock()
-        self.events: list[str] = []  # short notes for the live status (node crashed, ...)
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -213,15 +214,15 @@ class Enforcer:
                 threading.Thread(target=self._clock_loop, name="catanc-clock", daemon=True),
                 threading.Thread(target=self._reoptimiser, name="catanc-reoptimiser", daemon=True),
             ]
-            for thread in threads:
-                thread.start()
-            self._start_core_schedulers()
-            if on_start is not None:
-                on_start(self)
-            gc.freeze()  # start-up's objects never need collecting: later collections stay short
-            deadline = None if duration_s is None else time.monotonic() + duration_s
-            next_status = time.monotonic() + STATUS_EVERY_S
-            try:
+            try:  # whatever fails from here on (a --launch command, say), every thread is stopped first
+                for thread in threads:
+                    thread.start()
+                self._start_core_schedulers()
+                if on_start is not None:
+                    on_start(self)
+                gc.freeze()  # start-up's objects never need collecting: later collections stay short
+                deadline = None if duration_s is None else time.monotonic() + duration_s
+                next_status = time.monotonic() + STATUS_EVERY_S
                 while not self.stopping.is_set():
                     remaining = None if deadline is None else deadline - time.monotonic()
                     if remaining is not None and remaining <= 0:
@@ -238,7 +239,8 @@ class Enforcer:
             finally:
                 self.stopping.set()
                 for thread in [*threads, *self.core_threads]:  # no slot may raise a thread after this
-                    thread.join(timeout=2.0)
+                    if thread.ident is not None:
+                        thread.join(timeout=2.0)
                 self._stop_nodes()
                 self.planner.close()
                 if self.log is not None:
@@ -613,16 +615,24 @@ class Enforcer:
             cores = None
             if self.requested_cores is not None:
                 cores, self.requested_cores = self.requested_cores, None
+            moved = False
             if now >= next_cpu_check:
                 next_cpu_check = now + CPU_WATCH_S
                 cpus = allowed_cpus()
                 if cpus != known_cpus:
-                    known_cpus = cpus
+                    known_cpus, moved = cpus, True
                     self.cpu_ids = sorted(cpus)
                     cores = len(cpus)
+            if cores is not None:
+                cores = self._fit_cores(cores)
             if cores is not None and cores != self.schedule.cores:
                 self._replan(stage1=True, cores=cores, reason="cores")
                 next_stage1 = now + runtime.stage1_every_s
+            elif moved:  # as many CPUs, but others: the same plan, pinned to them
+                with self.lock:
+                    self._repin_locked()
+                self._start_core_schedulers()
+                self._log("repin", cpus=self.cpu_ids)
             elif now >= next_stage1:
                 self._replan(stage1=True, cores=None, reason="stage1")
                 next_stage1 = now + runtime.stage1_every_s
@@ -630,6 +640,27 @@ class Enforcer:
             elif now >= next_stage2:
                 self._replan(stage1=False, cores=None, reason="stage2")
                 next_stage2 = now + runtime.stage2_every_s
+
+    def _fit_cores(self, cores: int) -> int:
+        """``cores``, or fewer if this process may use fewer CPUs: two plan cores never share one CPU."""
+        if cores <= len(self.cpu_ids):
+            return cores
+        self._note(
+            f"planning for {len(self.cpu_ids)} core(s), not {cores}: this process may use only CPUs {self.cpu_ids}"
+        )
+        return len(self.cpu_ids)
+
+    def _repin_locked(self) -> None:
+        """Stop the core schedulers (they restart with :meth:`_start_core_schedulers`) and re-pin every node thread.
+
+        Call with ``self.lock`` held, in the same hold as the schedule change, so no scheduler
+        runs a new schedule under an old generation.
+        """
+        self.generation += 1
+        self.raised.clear()
+        for endpoints in self.endpoints.values():
+            for endpoint in endpoints:
+                self._place(endpoint)
 
     def _replan(self, *, stage1: bool, cores: int | None, reason: str) -> None:
         # Nodes not measured yet keep the planner's current time (bootstrap or the spec's).
@@ -645,11 +676,7 @@ class Enforcer:
             for name in self.schedule.subchains:
                 self.states.setdefault(name, SubchainState())
             if changed:
-                self.generation += 1
-                self.raised.clear()
-                for endpoints in self.endpoints.values():
-                    for endpoint in endpoints:
-                        self._place(endpoint)
+                self._repin_locked()
         if changed:
             self._start_core_schedulers()
         self._log(

@@ -144,8 +144,12 @@ def threads_of(pid: int) -> list[int]:
 
 
 def allowed_cpus() -> frozenset[int]:
-    """The CPUs the calling thread may run on (its affinity, within the cpuset)."""
-    return frozenset(os.sched_getaffinity(0))
+    """The CPUs this process may run on: its main thread's affinity, within the cpuset.
+
+    The main thread's, not the calling thread's: ``taskset -p`` changes only the main thread's
+    mask, and a thread the caller pinned itself says nothing about the process.
+    """
+    return frozenset(os.sched_getaffinity(os.getpid()))
 
 
 T = TypeVar("T")
