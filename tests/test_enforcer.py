@@ -45,7 +45,7 @@ from catanc.priorities import ENFORCER_FIFO, RUNNING_FIFO, SHARED_FIFO, UNSCHEDU
 from catanc.runtime.log import read_log
 from catanc.runtime.watchdog import WATCHDOG_PRIORITY
 from catanc.runtime.worker import Profile, worker_command
-from tests.kernel import cpu_set, missing_tools, nobody_ids, poll, require_fifo, stat_fields
+from tests.kernel import Sched, alive, missing_tools, nobody_ids, poll, require_fifo, sched_of, threads_of
 
 WAIT_S = 10.0  # the longest any single wait in here may take
 KILL_BOUND_S = 1.0  # the issue: after the enforcer's SIGKILL, every app thread is back within this
@@ -140,41 +140,7 @@ runtime: {first_solve_after_s: 100, stage2_every_s: 100, stage1_every_s: 100}
 # --------------------------------------------------------------------------- reading /proc
 
 
-@dataclass(frozen=True)
-class Sched:
-    policy: int
-    priority: int
-    cpus: frozenset[int]
-
-    def __str__(self) -> str:
-        name = {os.SCHED_OTHER: "OTHER", os.SCHED_FIFO: "FIFO", os.SCHED_RR: "RR"}.get(self.policy, str(self.policy))
-        return f"{name} {self.priority} on {sorted(self.cpus)}"
-
-
 OTHER = Sched(os.SCHED_OTHER, 0, MINE)  # every node thread started here, before and after a run
-
-
-def sched_of(pid: int, tid: int) -> Sched | None:
-    """Thread ``tid``'s policy (stat field 41), rt_priority (field 40) and CPUs; None once it is gone."""
-    folder = f"/proc/{pid}/task/{tid}"
-    try:
-        fields = stat_fields(f"{folder}/stat")
-        status = Path(f"{folder}/status").read_text()
-    except (FileNotFoundError, ProcessLookupError):
-        return None
-    if fields[0] in ("Z", "X"):
-        return None
-    for line in status.splitlines():
-        if line.startswith("Cpus_allowed_list:"):
-            return Sched(int(fields[41 - 3]), int(fields[40 - 3]), cpu_set(line.split(":", 1)[1].strip()))
-    raise AssertionError(f"no Cpus_allowed_list in {folder}/status")
-
-
-def threads_of(pid: int) -> list[int]:
-    try:
-        return sorted(int(entry.name) for entry in Path(f"/proc/{pid}/task").iterdir())
-    except FileNotFoundError:
-        return []
 
 
 def children_of(pid: int) -> list[int]:
@@ -190,13 +156,6 @@ def cmdline(pid: int) -> str:
         return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
     except (FileNotFoundError, ProcessLookupError):
         return ""
-
-
-def alive(pid: int) -> bool:
-    try:
-        return stat_fields(f"/proc/{pid}/stat")[0] not in ("Z", "X")
-    except (FileNotFoundError, ProcessLookupError):
-        return False
 
 
 # --------------------------------------------------------------------------- reading the log
