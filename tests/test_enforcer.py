@@ -976,7 +976,11 @@ import sys, threading, time
 from catanc.client import Node
 from catanc.runtime.worker import burn
 
+import os
 name, socket_path = sys.argv[1], sys.argv[2]
+own = threading.Thread(target=time.sleep, args=(60,), daemon=True)  # the app's own real-time thread
+own.start()
+os.sched_setscheduler(own.native_id, os.SCHED_FIFO, os.sched_param(3))
 with Node(name, socket_path=socket_path) as node:
     for seq, _trigger in enumerate(node):
         if seq == 0:
@@ -992,9 +996,17 @@ def test_threads_a_node_starts_while_raised_are_put_back_too(harness: Harness, t
     harness.start(table, "--start", "spec", duration=4.0)
     node = harness.node([sys.executable, "-c", SPAWNING_NODE, "solve", str(harness.socket)])
     ((pid, tid),) = harness.registered(["solve"]).values()
-    helpers = poll(lambda: [t for t in threads_of(pid) if t not in (pid, tid)] or None, "the node's helper thread")
-    during = [sched_of(pid, helper) for helper in helpers]
-    assert all(found is not None and found.policy == os.SCHED_FIFO for found in during), during  # inherited
+
+    def others() -> dict[int, Sched | None] | None:
+        found = {t: sched_of(pid, t) for t in threads_of(pid) if t not in (pid, tid)}
+        return found if len(found) >= 2 else None
+
+    during = poll(others, "the app's own thread and the node's helper")
+    own = [t for t, found in during.items() if found is not None and found.priority == UNSCHEDULED_FIFO]
+    helpers = [t for t in during if t not in own]
+    assert len(own) == 1, during
+    assert all(during[t] == Sched(os.SCHED_FIFO, RUNNING_FIFO, BOTH) for t in helpers), during  # inherited
     assert harness.wait() == 0
     assert node.poll() is None  # still there, as an app's process would be
     assert [sched_of(pid, helper) for helper in [tid, *helpers]] == [OTHER] * (1 + len(helpers))
+    assert [sched_of(pid, t) for t in own] == [Sched(os.SCHED_FIFO, UNSCHEDULED_FIFO, MINE)]  # older: not adopted

@@ -171,6 +171,7 @@ class Enforcer:
         self.requested_cores: int | None = None
         self.last_resolve_s: float | None = None
         self.started_ms = clock()
+        self.preexisting: dict[int, set[int]] = {}  # pid -> its threads when a node of it registered
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -287,7 +288,9 @@ class Enforcer:
             self.sock.send(protocol.Reject(hello.node, f"no node {hello.node!r} in app {self.spec.app}"), address)
             return
         endpoint = Endpoint(hello.node, hello.pid, hello.tid, address)
+        before = threads_of(hello.pid)  # read before the thread is raised: what it starts later inherits
         with self.lock:
+            self.preexisting.setdefault(hello.pid, set()).update(before)
             self.endpoints.setdefault(hello.node, []).append(endpoint)
             self._place(endpoint)
         self.sock.send(protocol.Welcome(hello.node), address)
@@ -314,16 +317,18 @@ class Enforcer:
         """Remember threads that node threads started after being raised, so they are put back too.
 
         A new thread inherits its creator's SCHED_FIFO priority and CPUs (a multi-threaded node's
-        helpers, say).  Their own original is unknowable; they get their creator's.  Looked for
+        helpers, say).  Their own original is unknowable; they get their creator's.  Threads that
+        the app raised itself are left alone (see below).  Looked for
         once a second: one started less than a second before the enforcer is SIGKILLed stays as
-        it is.
+        it is.  Threads the process had when its node registered are its own business.
         """
         known = self.restorer.remembered
         with self.lock:
             creators = {e.pid: e.tid for endpoints in self.endpoints.values() for e in endpoints if e.tid in known}
+            preexisting = {pid: set(tids) for pid, tids in self.preexisting.items()}
         for pid, creator in creators.items():
             for tid in threads_of(pid):
-                if tid in known:
+                if tid in known or tid in preexisting.get(pid, ()):
                     continue
                 try:
                     now = read_policy(tid)
