@@ -38,27 +38,18 @@ from typing import Any
 
 import pytest
 
-from catanc.compiler import compile_spec
 from catanc.errors import ExitCode
-from catanc.output import write
 from catanc.priorities import ENFORCER_FIFO, RUNNING_FIFO, SHARED_FIFO, UNSCHEDULED_FIFO
 from catanc.runtime.log import read_log
 from catanc.runtime.watchdog import WATCHDOG_PRIORITY
 from catanc.runtime.worker import Profile, worker_command
-from tests.kernel import Sched, alive, missing_tools, nobody_ids, poll, require_fifo, sched_of, threads_of
+from tests.enforcer_runs import ENFORCER_MAIN, EnforcerRun, Event, cmdline, compile_table, kill_groups, of_kind
+from tests.kernel import WAIT_S, Sched, alive, missing_tools, nobody_ids, poll, require_fifo, sched_of, threads_of
 
-WAIT_S = 10.0  # the longest any single wait in here may take
 KILL_BOUND_S = 1.0  # the issue: after the enforcer's SIGKILL, every app thread is back within this
 RATE_TOLERANCE = 0.10  # the issue: measured rates within 10% of planned
 BOTH = frozenset({0, 1})
 MINE = frozenset(os.sched_getaffinity(0))  # what the node processes started here may run on
-
-# The enforcer as `python -m catanc run`, but with Python's own SIGINT handler installed even if
-# SIGINT was ignored where the tests run (a CI job in the background): it is what a terminal gives.
-ENFORCER_MAIN = (
-    "import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
-    "sys.argv[0] = 'catanc'; from catanc.cli import main; main()"
-)
 
 # A node whose thread lives on after its run ends (the enforcer stopped it, or went away), as an
 # app's would: the test reads the policy and affinity it was left with.
@@ -151,21 +142,7 @@ def children_of(pid: int) -> list[int]:
     return found
 
 
-def cmdline(pid: int) -> str:
-    try:
-        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
-    except (FileNotFoundError, ProcessLookupError):
-        return ""
-
-
 # --------------------------------------------------------------------------- reading the log
-
-
-Event = dict[str, Any]
-
-
-def of_kind(events: Sequence[Event], kind: str) -> list[Event]:
-    return [event for event in events if event["event"] == kind]
 
 
 def plans(events: Sequence[Event]) -> list[tuple[float, dict[str, Any]]]:
@@ -201,47 +178,18 @@ def planned_hz(plan_list: Sequence[dict[str, Any]], subchain: str) -> float:
 # --------------------------------------------------------------------------- the processes
 
 
-def compile_table(spec_text: str, folder: Path, cores: int) -> Path:
-    """``catanc compile`` the spec into ``folder``; the runtime table's path."""
-    folder.mkdir(parents=True, exist_ok=True)
-    spec = folder / "spec.yaml"
-    spec.write_text(spec_text)
-    target = compile_spec(spec, cores, out=folder / f"cores-{cores}")
-    write(target.folder, target.files)
-    return target.folder / "runtime.json"
-
-
 def table_subchains(table: Path) -> dict[str, dict[str, Any]]:
     subchains: dict[str, dict[str, Any]] = json.loads(table.read_text())["plan"]["subchains"]
     return subchains
 
 
 @dataclass
-class Harness:
+class Harness(EnforcerRun):
     """One test's enforcer and node processes; :meth:`close` kills what is left of them."""
 
-    folder: Path
-    short: Path  # for the socket: a Unix socket's path must stay under 108 bytes
-    enforcer: subprocess.Popen[bytes] | None = None
     workers: list[subprocess.Popen[bytes]] = field(default_factory=list)
     helpers: list[int] = field(default_factory=list)  # the enforcer's watchdog and planner
     began: float = 0.0
-
-    @property
-    def socket(self) -> Path:
-        return self.short / "s.sock"
-
-    @property
-    def log(self) -> Path:
-        return self.folder / "log.jsonl"
-
-    @property
-    def pid(self) -> int:
-        assert self.enforcer is not None
-        return self.enforcer.pid
-
-    def events(self) -> list[Event]:
-        return read_log(self.log) if self.log.exists() else []
 
     def start(
         self, table: Path, *options: str, duration: float, stdout: int | None = None, prefix: Sequence[str] = ()
@@ -258,9 +206,6 @@ class Harness:
         self.began = time.monotonic()
         self.helpers = children_of(self.pid)  # the planner and the watchdog start before the socket is bound
 
-    def stderr(self) -> str:
-        return (self.folder / "enforcer.err").read_text(errors="replace")
-
     def node(self, argv: Sequence[str]) -> subprocess.Popen[bytes]:
         index = len(self.workers)
         with (self.folder / f"node-{index}.err").open("wb") as err:
@@ -276,29 +221,8 @@ class Harness:
         """A :data:`LINGERING_NODE` process."""
         return self.node([sys.executable, "-c", LINGERING_NODE, name, repr(compute_ms), str(self.socket)])
 
-    def registered(self, nodes: Sequence[str]) -> dict[str, tuple[int, int]]:
-        """Wait until every node in ``nodes`` registered; ``{node: (pid, tid)}``."""
-
-        def check() -> dict[str, tuple[int, int]] | None:
-            found = {e["node"]: (e["pid"], e["tid"]) for e in of_kind(self.events(), "register")}
-            return found if set(nodes) <= set(found) else None
-
-        return poll(check, f"nodes {sorted(nodes)} to register")
-
-    def wait(self, timeout: float = WAIT_S) -> int:
-        assert self.enforcer is not None
-        try:
-            return self.enforcer.wait(timeout=timeout)
-        except subprocess.TimeoutExpired:
-            pytest.fail(f"the enforcer still runs {timeout} s later")
-
     def close(self) -> None:
-        for proc in [*self.workers, *([self.enforcer] if self.enforcer else [])]:  # nodes first
-            if proc.poll() is None:
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(proc.pid, signal.SIGKILL)
-            with contextlib.suppress(subprocess.TimeoutExpired):
-                proc.wait(timeout=WAIT_S)
+        kill_groups([*self.workers, *([self.enforcer] if self.enforcer else [])])  # nodes first
         registered = [e["pid"] for e in of_kind(self.events(), "register")]  # --demo's workers have their sessions
         for pid in {*self.helpers, *registered}:  # and so has the watchdog
             if "catanc" in cmdline(pid) or "watchdog" in cmdline(pid):

@@ -42,28 +42,29 @@ from typing import Any
 
 import pytest
 
-from catanc.compiler import compile_spec
 from catanc.errors import ExitCode
-from catanc.output import write
 from catanc.priorities import RUNNING_FIFO, SHARED_FIFO, UNSCHEDULED_FIFO
-from catanc.runtime.log import read_log
 from catanc.runtime.protocol import SOCKET_ENV
 from catanc.runtime.watchdog import WATCHDOG_PRIORITY
 from catanc.runtime.worker import worker_command
-from tests.kernel import BOTH_CPUS, Sched, alive, missing_tools, poll, require_fifo, sched_of, stat_fields, threads_of
+from tests.enforcer_runs import ENFORCER_MAIN, EnforcerRun, Event, cmdline, compile_table, kill_groups, of_kind
+from tests.kernel import (
+    BOTH_CPUS,
+    WAIT_S,
+    Sched,
+    alive,
+    missing_tools,
+    poll,
+    require_fifo,
+    sched_of,
+    stat_fields,
+    threads_of,
+)
 
-WAIT_S = 10.0  # the longest any single wait in here may take
 WATCH_S = 0.6  # how long a test samples the app's threads mid-run
 MINE = frozenset(os.sched_getaffinity(0))
 MARK_ENV = "CATANC_TEST_RUN"  # set in the enforcer's environment: every process it starts inherits it
 SPEC_PATH = Path(__file__).resolve().parent.parent / "specs" / "nav2d.yaml"
-
-# The enforcer as `python -m catanc run`, but with Python's own SIGINT handler installed even if
-# SIGINT was ignored where the tests run (a CI job in the background): it is what a terminal gives.
-ENFORCER_MAIN = (
-    "import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
-    "sys.argv[0] = 'catanc'; from catanc.cli import main; main()"
-)
 
 # Two cores: `front` (cam + track, 18 ms, capped at 25 Hz) alone on core 0 at FIFO 2; `map` and
 # `plan` sharing core 1 (FIFO 1, raised to 2 for their slices); `imu` unscheduled (FIFO 3, every
@@ -128,16 +129,6 @@ def with_deploy(deploy: Mapping[str, Mapping[str, str]]) -> str:
     return SPEC + "deploy: " + json.dumps(deploy) + "\n"  # a JSON object is YAML flow style
 
 
-def compile_table(spec_text: str, folder: Path, cores: int) -> Path:
-    """``catanc compile`` the spec into ``folder``; the runtime table's path."""
-    folder.mkdir(parents=True, exist_ok=True)
-    spec = folder / "spec.yaml"
-    spec.write_text(spec_text)
-    target = compile_spec(spec, cores, out=folder / f"cores-{cores}")
-    write(target.folder, target.files)
-    return target.folder / "runtime.json"
-
-
 @pytest.fixture(scope="module")
 def launch_table(tmp_path_factory: pytest.TempPathFactory) -> Path:
     table = compile_table(with_deploy(DEPLOY), tmp_path_factory.mktemp("launch"), 2)
@@ -173,12 +164,6 @@ def fifo() -> None:
 
 # --------------------------------------------------------------------------- reading /proc and the log
 
-Event = dict[str, Any]
-
-
-def of_kind(events: Sequence[Event], kind: str) -> list[Event]:
-    return [event for event in events if event["event"] == kind]
-
 
 def parent_and_group(pid: int) -> tuple[int, int]:
     fields = stat_fields(f"/proc/{pid}/stat")  # from field 3 on: ppid is field 4, pgrp field 5
@@ -188,13 +173,6 @@ def parent_and_group(pid: int) -> tuple[int, int]:
 def environment(pid: int) -> dict[str, str]:
     words = Path(f"/proc/{pid}/environ").read_bytes().decode(errors="replace").split("\0")
     return dict(word.partition("=")[::2] for word in words if word)
-
-
-def cmdline(pid: int) -> str:
-    try:
-        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
-    except OSError:
-        return ""
 
 
 def placement(node: str, plan: Mapping[str, Any], cpus: Sequence[int]) -> tuple[set[int], frozenset[int]]:
@@ -234,27 +212,11 @@ def watch(threads: Mapping[str, Sequence[tuple[int, int]]], plan: Mapping[str, A
 
 
 @dataclass
-class Run:
+class Run(EnforcerRun):
     """One test's enforcer and the processes it started; :meth:`close` kills what is left of them."""
 
-    folder: Path
-    short: Path  # for the socket: a Unix socket's path must stay under 108 bytes
     mark: str = field(default_factory=lambda: uuid.uuid4().hex)
-    enforcer: subprocess.Popen[bytes] | None = None
     plain: list[subprocess.Popen[bytes]] = field(default_factory=list)
-
-    @property
-    def socket(self) -> Path:
-        return self.short / "s.sock"
-
-    @property
-    def log(self) -> Path:
-        return self.folder / "log.jsonl"
-
-    @property
-    def pid(self) -> int:
-        assert self.enforcer is not None
-        return self.enforcer.pid
 
     def start(self, table: Path, *options: str, duration: float, prefix: Sequence[str] = ()) -> None:
         """Start ``catanc run`` (``prefix`` before it, e.g. taskset) with the run's marker in its environment."""
@@ -264,34 +226,9 @@ class Run:
         with (self.folder / "enforcer.out").open("wb") as out, (self.folder / "enforcer.err").open("wb") as err:
             self.enforcer = subprocess.Popen(argv, stdout=out, stderr=err, env=env, start_new_session=True)
 
-    def stderr(self) -> str:
-        return (self.folder / "enforcer.err").read_text(errors="replace")
-
-    def events(self) -> list[Event]:
-        return read_log(self.log) if self.log.exists() else []
-
     def first(self, kind: str) -> Event:
         """The first ``kind`` event, once the log has it (the log is flushed once a second)."""
         return poll(lambda: next(iter(of_kind(self.events(), kind)), None), f"a {kind!r} event in the log")
-
-    def registered(self, nodes: Sequence[str]) -> dict[str, tuple[int, int]]:
-        """Wait until every node in ``nodes`` registered; ``{node: (pid, tid)}``."""
-
-        def check() -> dict[str, tuple[int, int]] | None:
-            assert self.enforcer is not None
-            if self.enforcer.poll() is not None:
-                pytest.fail(f"the enforcer exited ({self.enforcer.returncode}): {self.stderr()}")
-            found = {e["node"]: (e["pid"], e["tid"]) for e in of_kind(self.events(), "register")}
-            return found if set(nodes) <= set(found) else None
-
-        return poll(check, f"nodes {sorted(nodes)} to register")
-
-    def wait(self, timeout: float = WAIT_S) -> int:
-        assert self.enforcer is not None
-        try:
-            return self.enforcer.wait(timeout=timeout)
-        except subprocess.TimeoutExpired:
-            pytest.fail(f"the enforcer still runs {timeout} s later")
 
     def plain_app(self) -> int:
         """Start :data:`PLAIN_APP` (not marked: the enforcer did not start it); its pid once both threads run."""
@@ -322,12 +259,7 @@ class Run:
         for pid in apps:  # the app first: none may be left at SCHED_FIFO without its enforcer
             with contextlib.suppress(ProcessLookupError):
                 os.kill(pid, signal.SIGKILL)
-        for proc in [*self.plain, *([self.enforcer] if self.enforcer is not None else [])]:
-            if proc.poll() is None:
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(proc.pid, signal.SIGKILL)
-            with contextlib.suppress(subprocess.TimeoutExpired):
-                proc.wait(timeout=WAIT_S)
+        kill_groups([*self.plain, *([self.enforcer] if self.enforcer is not None else [])])
         for pid in self.marked():  # the watchdog and the planner
             with contextlib.suppress(ProcessLookupError):
                 os.kill(pid, signal.SIGKILL)
