@@ -262,6 +262,16 @@ def sample(threads: dict[str, tuple[int, int]]) -> dict[str, Sched | None]:
     return {node: sched_of(pid, tid) for node, (pid, tid) in threads.items()}
 
 
+def wait_all_pinned_to(threads: dict[str, tuple[int, int]], cpu: int) -> None:
+    """Wait (3 s at most) until every one of ``threads`` may run on ``cpu`` alone."""
+
+    def pinned() -> bool | None:
+        now = [sched_of(pid, tid) for pid, tid in threads.values()]
+        return all(sched is not None and sched.cpus == frozenset({cpu}) for sched in now) or None
+
+    poll(pinned, f"every node thread pinned to CPU {cpu}", timeout=3.0)
+
+
 def restored(threads: dict[str, tuple[int, int]]) -> bool:
     return all(found == OTHER for found in sample(threads).values())
 
@@ -788,11 +798,7 @@ def test_a_core_count_change_re_plans_and_re_pins(harness: Harness, tmp_path: Pa
     assert event["plan"]["cores"] == 1
     assert all(sub["cores"] == [0] for sub in event["plan"]["subchains"].values())
 
-    def on_cpu_0() -> bool | None:
-        now = [sched_of(pid, tid) for pid, tid in threads.values()]
-        return all(sched is not None and sched.cpus == frozenset({0}) for sched in now) or None
-
-    poll(on_cpu_0, "every node thread pinned to CPU 0", timeout=3.0)
+    wait_all_pinned_to(threads, 0)
     assert harness.wait(6.0 + WAIT_S) == 0
 
 
@@ -807,11 +813,7 @@ def test_plan_cores_are_the_cpus_the_enforcer_may_use(harness: Harness, tmp_path
         harness.worker({node: MIXED_COMPUTE[node]})
     threads = harness.registered(scheduled)
 
-    def on_cpu_1() -> bool | None:
-        now = [sched_of(pid, tid) for pid, tid in threads.values()]
-        return all(sched is not None and sched.cpus == frozenset({1}) for sched in now) or None
-
-    poll(on_cpu_1, "every node thread pinned to CPU 1", timeout=3.0)
+    wait_all_pinned_to(threads, 1)
     assert harness.wait(3.0 + WAIT_S) == 0
 
 
@@ -834,11 +836,7 @@ def test_losing_a_cpu_re_plans_for_the_cores_left(harness: Harness, tmp_path: Pa
     event = poll(re_planned, "a re-plan for the cores left", timeout=5.0)
     assert event["plan"]["cores"] == 1
 
-    def on_cpu_0() -> bool | None:
-        now = [sched_of(pid, tid) for pid, tid in threads.values()]
-        return all(sched is not None and sched.cpus == frozenset({0}) for sched in now) or None
-
-    poll(on_cpu_0, "every node thread pinned to CPU 0", timeout=3.0)
+    wait_all_pinned_to(threads, 0)
     assert harness.wait(6.0 + WAIT_S) == 0
 
 
