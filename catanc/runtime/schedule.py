@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING
 from catanc.priorities import resting_fifo
 from catanc.problem import Problem
 from catanc.spec import Schedule
-from catanc.speedup import threads_used
+from catanc.speedup import threads_and_speedup
 
 if TYPE_CHECKING:
     from catanc.planner import Plan
@@ -50,14 +50,11 @@ class SubchainRun:
     latency_ms: float  # planned: a run is late once it takes longer
     runs: int | None  # n: triggered at its slice every n periods; None: on its own clock
     priority: int  # stealing priority: higher steals from lower
-    node_threads: tuple[int, ...] = ()  # per node, the threads it runs with (Eq. 1's q); empty: one each
-    node_speedups: tuple[float, ...] = ()  # per node, its speedup with those threads; empty: 1 each
+    node_threads: tuple[tuple[int, float], ...] = ()  # per node, its threads (Eq. 1's q) and their speedup
 
     def threads_of(self, index: int) -> tuple[int, float]:
         """Node ``index``'s threads and the speedup they give (a measured run times it is one thread's time)."""
-        if not self.node_threads:
-            return 1, 1.0
-        return self.node_threads[index], self.node_speedups[index]
+        return self.node_threads[index] if self.node_threads else (1, 1.0)
 
     @property
     def on_clock(self) -> bool:
@@ -119,7 +116,6 @@ def runtime_schedule(plan: Plan, problem: Problem, schedule: Schedule) -> Runtim
             n = plan.runs[name]
             cycle = n * length[sub.cores[0]]
             runs = n if abs(sub.period_ms - cycle) <= CLOCK_TOLERANCE * cycle else None
-        threads = tuple(threads_used(s, sub.threads) for s in speedups[name])
         subchains[name] = SubchainRun(
             name=name,
             nodes=sub.nodes,
@@ -129,8 +125,7 @@ def runtime_schedule(plan: Plan, problem: Problem, schedule: Schedule) -> Runtim
             latency_ms=sub.latency_ms,
             runs=runs,
             priority=sub.priority,
-            node_threads=threads,
-            node_speedups=tuple(s[q - 1] for s, q in zip(speedups[name], threads, strict=True)),
+            node_threads=tuple(threads_and_speedup(s, sub.threads) for s in speedups[name]),
         )
     shared = []
     for core in sorted(plan.shared_cores, key=lambda c: c.core):

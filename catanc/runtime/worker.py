@@ -45,7 +45,7 @@ from types import FrameType
 from catanc.client import ClientError, Node
 from catanc.errors import ExitCode
 from catanc.runtime.protocol import ProtocolError, Welcome
-from catanc.speedup import threads_used
+from catanc.speedup import threads_and_speedup
 
 MODULE = "catanc.runtime.worker"
 
@@ -221,8 +221,8 @@ def burn_parallel(compute_ms: float, threads: int, speedups: Sequence[float]) ->
     table makes worth using burns ``c / speedup(q)`` of CPU time, so the run takes that long.
     The calling thread is one of them: it is the one the enforcer pins and measures.
     """
-    q = threads_used(speedups, threads)
-    each_ms = compute_ms / speedups[q - 1]
+    q, speedup = threads_and_speedup(speedups, threads)
+    each_ms = compute_ms / speedup
     if q == 1:
         burn(each_ms)
         return
