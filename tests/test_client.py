@@ -43,6 +43,7 @@ from catanc.runtime.protocol import (
     Trigger,
     Welcome,
     decode,
+    trigger_datagram,
 )
 from catanc.runtime.worker import (
     burn_parallel,
@@ -352,6 +353,13 @@ def test_decode_inverts_encode(message: Message) -> None:
     assert len(data) <= MAX_DATAGRAM
     assert json.loads(data)["v"] == 1
     assert decode(data) == message
+
+
+@given(names | st.sampled_from(['"seq":0,', 'a","seq":0,"b']), counts, positive)
+def test_a_trigger_datagram_is_the_trigger_message_encoded(node: str, seq: int, threads: int) -> None:
+    data = trigger_datagram(node, seq, threads)
+    assert data == Trigger(node, seq, threads).encode()
+    assert decode(data) == Trigger(node, seq, threads)
 
 
 def _raises_only_protocol_errors(data: bytes) -> None:

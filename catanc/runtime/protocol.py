@@ -41,6 +41,7 @@ nodes import, builds on this module.
 from __future__ import annotations
 
 import errno
+import functools
 import json
 import logging
 import math
@@ -206,6 +207,28 @@ class Trigger(_Message):
         _check_int(self.TYPE, "threads", self.threads, 1)
 
 
+@functools.lru_cache(maxsize=1024)  # an app has tens of nodes
+def _trigger_parts(node: str, threads: int) -> tuple[bytes, bytes]:
+    """A trigger's bytes before and after its ``seq``, made once per node and thread count."""
+    probe = json.dumps(
+        {"v": VERSION, "type": Trigger.TYPE, "node": node, "seq": 0, "threads": threads},
+        ensure_ascii=False,
+        separators=(",", ":"),
+    ).encode("utf-8")
+    before, after = probe.rsplit(b'"seq":0,', 1)
+    return before + b'"seq":', b"," + after
+
+
+def trigger_datagram(node: str, seq: int, threads: int = 1) -> bytes:
+    """``Trigger(node, seq, threads).encode()`` without building a message or JSON per call.
+
+    The enforcer sends hundreds of triggers a second, and encoding each through ``json``
+    was a tenth of its CPU; the bytes are the same (a property test holds them to it).
+    """
+    before, after = _trigger_parts(node, threads)
+    return before + str(seq).encode("ascii") + after
+
+
 @dataclass(frozen=True)
 class Reject(_Message):
     """Enforcer -> node: the registration of ``node`` is refused, and why.
@@ -353,12 +376,16 @@ class EnforcerSocket:
 
     def send(self, message: Message, address: Address) -> bool:
         """Send without blocking; False if the receiver is gone, unbound, or not taking datagrams."""
+        return self.send_bytes(message.encode(), address)
+
+    def send_bytes(self, datagram: bytes, address: Address) -> bool:
+        """:meth:`send` for an already encoded message (see :func:`trigger_datagram`)."""
         if address is None:
             return False
         try:
-            self._sock.sendto(message.encode(), socket.MSG_DONTWAIT, address)
+            self._sock.sendto(datagram, socket.MSG_DONTWAIT, address)
         except OSError as exc:
-            log.debug("could not send %s to %r: %s", message.TYPE, address, exc)
+            log.debug("could not send %r to %r: %s", datagram[:60], address, exc)
             return False
         return True
 
