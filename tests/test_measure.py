@@ -28,6 +28,7 @@ from catanc.runtime.measure import (
     CpuClock,
     Measurements,
     ModeStat,
+    OpenCpuClocks,
     assign_mode,
     cpu_ms,
     estimate,
@@ -464,6 +465,36 @@ def test_cpu_clock_reads_the_first_field(tmp_path: Path) -> None:
     assert clock.read_ns() == 2_500_000
     with pytest.raises(FileNotFoundError):
         CpuClock(pid=12, tid=35, proc=tmp_path).read_ns()
+
+
+def test_open_cpu_clocks_read_again_on_each_call_and_fail_once_the_thread_is_gone(tmp_path: Path) -> None:
+    clocks = OpenCpuClocks(proc=tmp_path)
+    path = schedstat_path(12, 34, tmp_path)
+    path.parent.mkdir(parents=True)
+    path.write_text("2500000 999 3\n", encoding="ascii")
+    assert clocks.read_ns(12, 34) == 2_500_000
+    with path.open("r+", encoding="ascii") as same_file:  # same inode: the kept descriptor sees it
+        same_file.write("7500000 999 4\n")
+    assert clocks.read_ns(12, 34) == 7_500_000
+    with pytest.raises(FileNotFoundError):
+        clocks.read_ns(12, 35)
+
+    finished = threading.Event()
+    worker = threading.Thread(target=finished.wait)
+    worker.start()
+    tid = worker.native_id
+    assert tid is not None
+    live = OpenCpuClocks()
+    try:
+        first = live.read_ns(os.getpid(), tid)
+        assert first <= CpuClock(os.getpid(), tid).read_ns()
+    finally:
+        finished.set()
+        worker.join()
+    with pytest.raises(ProcessLookupError):  # the descriptor still names the exited thread: never another one's count
+        live.read_ns(os.getpid(), tid)
+    live.close()
+    clocks.close()
 
 
 def test_cpu_ms() -> None:

@@ -43,7 +43,7 @@ from typing import Any, Literal
 from catanc.priorities import APP_FIFO_LEVELS, ENFORCER_FIFO, RUNNING_FIFO
 from catanc.runtime import protocol
 from catanc.runtime.log import RunLog
-from catanc.runtime.measure import CpuClock, Measurements, cpu_ms, percentile, reconcile
+from catanc.runtime.measure import Measurements, OpenCpuClocks, cpu_ms, percentile, reconcile
 from catanc.runtime.planning import Answer, PlannerProcess, Request
 from catanc.runtime.sched import (
     SCHED_RESET_ON_FORK,
@@ -149,6 +149,7 @@ class Enforcer:
         self.socket_path = socket_path
         self.restorer = restorer if restorer is not None else Restorer()
         self.measurements = Measurements.for_spec(self.spec)
+        self.cpu_clocks = OpenCpuClocks()  # node threads' kernel CPU counts (read under self.lock)
         bootstrap = self.spec.runtime.bootstrap_ms if start == "bootstrap" else None
         self.cpu_ids = sorted(allowed_cpus())  # plan core i runs on the i-th CPU this process may use
         self.events: list[str] = []  # short notes for the live status (node crashed, ...)
@@ -243,6 +244,8 @@ class Enforcer:
                     if thread.ident is not None:
                         thread.join(timeout=2.0)
                 self._stop_nodes()
+                with self.lock:
+                    self.cpu_clocks.close()
                 self.planner.close()
                 if self.log is not None:
                     self.log.flush()  # the last second's samples before the stop line
@@ -299,6 +302,7 @@ class Enforcer:
     def _unregister(self, node: str, tid: int) -> None:
         with self.lock:
             self.endpoints[node] = [e for e in self.endpoints.get(node, []) if e.tid != tid]
+            self.cpu_clocks.forget(tid)
 
     def _place(self, endpoint: Endpoint) -> None:
         """Pin a node thread to its subchain's cores at its resting priority (rates only without RT)."""
@@ -386,7 +390,7 @@ class Enforcer:
         if endpoint is None:
             return None
         try:
-            return CpuClock(endpoint.pid, endpoint.tid).read_ns()
+            return self.cpu_clocks.read_ns(endpoint.pid, endpoint.tid)
         except (OSError, ValueError):
             return None
 
@@ -395,7 +399,7 @@ class Enforcer:
         if flight is None or flight.cpu_ns is None or endpoint is None:
             return None
         try:
-            return cpu_ms(flight.cpu_ns, CpuClock(endpoint.pid, endpoint.tid).read_ns())
+            return cpu_ms(flight.cpu_ns, self.cpu_clocks.read_ns(endpoint.pid, endpoint.tid))
         except (OSError, ValueError):
             return None
 
@@ -457,7 +461,7 @@ class Enforcer:
                 threads, flight.speedup = run.threads_of(flight.index)
                 if seq % KERNEL_CHECK_EVERY == 0:
                     flight.cpu_ns = self._cpu_ns(node)
-            if self.sock.send(protocol.Trigger(node, seq, threads), endpoint.address):
+            if self.sock.send_bytes(protocol.trigger_datagram(node, seq, threads), endpoint.address):
                 self.busy[node] = seq
             else:
                 self._gone(endpoint)

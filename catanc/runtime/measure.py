@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import os
 import threading
 from collections import deque
 from collections.abc import Iterable, Mapping, Sequence
@@ -367,6 +368,42 @@ class CpuClock:
 
     def read_ns(self) -> int:
         return parse_schedstat(self.path.read_text(encoding="ascii"))
+
+
+class OpenCpuClocks:
+    """Threads' :class:`CpuClock` readings through descriptors kept open, one per thread.
+
+    Opening and closing ``schedstat`` per reading cost ~30 us on the test VM, a ``pread``
+    on an open descriptor ~2 us.  A descriptor stays bound to its thread: once the thread
+    exits, reading it raises ``OSError`` (and the descriptor is closed), even if the
+    thread's id is reused.  Not thread-safe: the caller serialises readings.
+    """
+
+    def __init__(self, proc: Path = Path("/proc")) -> None:
+        self.proc = proc
+        self._fds: dict[int, int] = {}
+
+    def read_ns(self, pid: int, tid: int) -> int:
+        """Like ``CpuClock(pid, tid).read_ns()``: ``OSError`` once the thread has exited, or ``ValueError``."""
+        fd = self._fds.get(tid)
+        if fd is None:
+            fd = os.open(schedstat_path(pid, tid, self.proc), os.O_RDONLY | os.O_CLOEXEC)
+            self._fds[tid] = fd
+        try:
+            return parse_schedstat(os.pread(fd, 128, 0).decode("ascii"))
+        except (OSError, ValueError):
+            self.forget(tid)
+            raise
+
+    def forget(self, tid: int) -> None:
+        """Close ``tid``'s descriptor, if open (its thread is gone or no longer a node's)."""
+        fd = self._fds.pop(tid, None)
+        if fd is not None:
+            os.close(fd)
+
+    def close(self) -> None:
+        for tid in list(self._fds):
+            self.forget(tid)
 
 
 def cpu_ms(before_ns: int, after_ns: int) -> float:
