@@ -420,6 +420,36 @@ def report(
 
 @app.command()
 @_reporting
+def simulate(
+    spec_path: SpecArg,
+    cores: CoresOpt,
+    policy: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="catan, baseline, fifo-static, static-fullrun or static-20s (repeat for several; default: all)."
+        ),
+    ] = None,
+    duration: Annotated[float, typer.Option(min=0.1, help="Simulated seconds.")] = 60.0,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of the workload's random draws.")] = 0,
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of tables.")] = False,
+) -> None:
+    """Simulate the app on K cores under catanc's plan and the baselines; compare response times and rates."""
+    from catanc.simulate.report import comparison_payload, comparison_tables
+    from catanc.simulate.run import POLICIES, Setup, check_policies, simulate_policies
+
+    spec, _ = _load_problem(spec_path)
+    chosen = check_policies(policy or list(POLICIES))
+    results = simulate_policies(Setup(spec, cores, duration, seed), chosen)
+    if as_json:
+        sys.stdout.write(json.dumps(comparison_payload(results), indent=2, sort_keys=True) + "\n")
+        return
+    out = _stdout()
+    for table in comparison_tables(results):
+        out.print(table)
+
+
+@app.command()
+@_reporting
 def schema() -> None:
     """Print the JSON Schema of the spec language (for editors)."""
     from catanc.spec import json_schema_text

@@ -1,0 +1,98 @@
+"""What a simulated (or measured) run shows: chain response times, node rates and staleness, core use.
+
+A chain's response time is measured the way the model bounds it
+(catan-model.md section 2: an event waits for the head to sample it, then
+flows through): for each output of the chain's last node that carries a
+*newer* origin than the one before it, the time from the previous origin to
+this output.  An event just after the previous head run is first reflected
+in this output, so that is the worst case for the events of that window.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from catanc.runtime.measure import percentile
+
+
+def window_responses(arrivals: Sequence[tuple[float, float]]) -> list[float]:
+    """Response times (ms) from a chain's ``(origin, done)`` arrivals at its last node, in completion order."""
+    responses: list[float] = []
+    previous: float | None = None
+    for origin, done in arrivals:
+        if previous is None:
+            previous = origin
+        elif origin > previous:
+            responses.append(done - previous)
+            previous = origin
+    return responses
+
+
+@dataclass(frozen=True)
+class Summary:
+    count: int
+    mean: float
+    p95: float
+    max: float
+
+    @classmethod
+    def of(cls, values: Sequence[float]) -> Summary | None:
+        if not values:
+            return None
+        return cls(len(values), math.fsum(values) / len(values), percentile(values, 95), max(values))
+
+    def as_dict(self) -> dict[str, float]:
+        return {"mean": round(self.mean, 3), "p95": round(self.p95, 3), "max": round(self.max, 3)}
+
+
+@dataclass(frozen=True)
+class ChainResult:
+    nodes: tuple[str, ...]
+    named: bool  # the objective or a constraint names it (else: another source-to-sink path)
+    response: Summary | None  # None: no output reached the end of the chain
+    model_ms: float | None  # the plan's analytic response time R (catan policies, named chains)
+
+    def as_dict(self) -> dict[str, Any]:
+        body: dict[str, Any] = {"nodes": list(self.nodes), "named": self.named}
+        body["response_ms"] = self.response.as_dict() if self.response else None
+        body["outputs"] = self.response.count if self.response else 0
+        if self.model_ms is not None:
+            body["model_ms"] = round(self.model_ms, 3)
+        return body
+
+
+@dataclass(frozen=True)
+class NodeResult:
+    rate_hz: float
+    staleness_ms_p95: float | None
+
+    def as_dict(self) -> dict[str, Any]:
+        stale = None if self.staleness_ms_p95 is None else round(self.staleness_ms_p95, 3)
+        return {"rate_hz": round(self.rate_hz, 3), "staleness_ms_p95": stale}
+
+
+@dataclass(frozen=True)
+class PolicyResult:
+    policy: str
+    duration_s: float
+    chains: tuple[ChainResult, ...]
+    nodes: dict[str, NodeResult]
+    utilisation: tuple[float, ...]  # per core, 0..1
+    replans: int
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "duration_s": self.duration_s,
+            "chains": [chain.as_dict() for chain in self.chains],
+            "nodes": {name: node.as_dict() for name, node in sorted(self.nodes.items())},
+            "cores": [{"core": i, "utilisation": round(u, 4)} for i, u in enumerate(self.utilisation)],
+            "replans": self.replans,
+        }
+
+
+def node_result(done_ms: Sequence[float], staleness_ms: Sequence[float], duration_ms: float) -> NodeResult:
+    stale = percentile(staleness_ms, 95) if staleness_ms else None
+    return NodeResult(len(done_ms) * 1000.0 / duration_ms, stale)
