@@ -68,6 +68,40 @@ def test_a_job_on_more_threads_than_cores_runs_at_the_share_it_gets() -> None:
     assert finish_times(Pool("p", (0, 1), "fifo"), [(0, 10, 2, 1)]) == pytest.approx({0: 10})
 
 
+jobs_and_ticks = st.tuples(
+    st.lists(
+        st.tuples(st.integers(0, 40), st.integers(1, 30), st.integers(1, 3), st.integers(0, 2)), min_size=1, max_size=12
+    ),
+    st.lists(st.integers(0, 200), max_size=20),
+    st.sampled_from(["fifo", "fair"]),
+    st.integers(1, 3),
+)
+
+
+@given(jobs_and_ticks)
+def test_every_job_finishes_once_and_the_cores_do_exactly_its_work(case: Any) -> None:
+    """Conservation: whatever the coincidences of arrivals, completions and other events (times in
+    whole tenths of a ms, so they coincide often), each job completes exactly once, and the pool's
+    busy core time is the work submitted (work x threads)."""
+    jobs, ticks, discipline, cores = case
+    pool = Pool("p", tuple(range(cores)), discipline)
+    engine = Engine([pool])
+    finished: list[int] = []
+    for index, (arrival, work, threads, priority) in enumerate(jobs):
+
+        def submit(index: int = index, work: int = work, threads: int = threads, priority: int = priority) -> None:
+            job = Job(f"n{index}", work / 10, threads, priority, 0, lambda _job: finished.append(index))
+            engine.submit(pool, job)
+
+        engine.at(arrival / 10, submit)
+    for tick in ticks:  # other events (slot switches, say) that change nothing
+        engine.at(tick / 10, lambda: engine.changed(pool))
+    engine.run_until(10_000.0)
+    assert sorted(finished) == list(range(len(jobs)))
+    assert pool.busy_core_ms == pytest.approx(sum(work / 10 * threads for _, work, threads, _ in jobs))
+    assert not pool.jobs
+
+
 def test_window_responses_hand_worked() -> None:
     # Origins 0, 10, 10 (a repeat), 30; each new one measured from the origin before it.
     arrivals = [(0.0, 5.0), (10.0, 16.0), (10.0, 18.0), (30.0, 37.0)]

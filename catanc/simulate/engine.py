@@ -61,7 +61,11 @@ class Engine:
                 for job in self._advance_to(self.now + done_in):
                     job.on_done(job)
                 continue
-            self._advance_to(next_event)
+            finished = self._advance_to(next_event)  # a job may end on the way, within rounding
+            if finished:
+                for job in finished:
+                    job.on_done(job)
+                continue  # its completion may schedule work due before the callback: look again
             _, _, callback = heapq.heappop(self._events)
             callback()
 
