@@ -176,6 +176,76 @@ BatchFlag = Annotated[
 ]
 
 
+# --------------------------------------------------------------------------- workload
+
+JitterDist = Literal["lognormal", "uniform", "normal"]
+
+JITTER_MAX_CV = 2.0
+"""Above this, run times are more noise than signal (lognormal: a median under half the mean)."""
+
+SYMMETRIC_JITTER_MAX_CV = {"uniform": 0.5, "normal": 0.3}
+"""Largest cv per symmetric distribution: a uniform stays in [0.13, 1.87] x compute; a normal
+falls below 0 (and is redrawn) in under 0.05% of runs, so its mean stays 1 within 0.05%."""
+
+
+class Growth(_Model):
+    """Compute time that changes linearly over a run, then holds (e.g. a map that grows, paper section 4.5)."""
+
+    start: float = Field(default=1.0, gt=0, description="Multiplier of compute_ms at t = 0 s.")
+    end: float = Field(gt=0, description="Multiplier of compute_ms at t = over_s and after.")
+    over_s: float = Field(gt=0, description="Seconds from the run's start until the multiplier reaches end.")
+
+
+class Jitter(_Model):
+    """Run-to-run noise: each run's time is multiplied by a draw with mean 1."""
+
+    cv: float = Field(
+        ge=0,
+        le=JITTER_MAX_CV,
+        description="Coefficient of variation (standard deviation / mean) of the multiplier, 0..2.",
+    )
+    dist: JitterDist = Field(
+        default="lognormal",
+        description=(
+            "lognormal (default); uniform (cv <= 0.5); normal (cv <= 0.3, redrawn when not positive, "
+            "which moves its mean by under 0.05%)."
+        ),
+    )
+
+    @model_validator(mode="after")
+    def _cv_fits_dist(self) -> Jitter:
+        limit = SYMMETRIC_JITTER_MAX_CV.get(self.dist)
+        if limit is not None and self.cv > limit:
+            message = (
+                f"a {self.dist} jitter takes cv <= {limit:g} (wider, it would reach 0 ms), got {self.cv:g}: "
+                "use dist: lognormal for larger variation"
+            )
+            raise field_error("Jitter", ("cv",), message, self.cv)
+        return self
+
+
+class Spikes(_Model):
+    """Rare expensive runs (e.g. GL's loop closures, paper section 4.5)."""
+
+    every_s: float = Field(gt=0, description="Mean interval (s) between spike arrivals, a Poisson process.")
+    ms: float = Field(
+        gt=0,
+        description="Time (ms) of the first run starting at or after an arrival, instead of its normal draw.",
+    )
+
+
+class Workload(_Model):
+    """How a node's run times behave over a run, for simulation and synthetic workers; planning ignores it.
+
+    A run draws a mode of compute_ms by share, multiplies it by growth at its
+    start time, then by jitter; a pending spike replaces the whole draw.
+    """
+
+    growth: Growth | None = Field(default=None, description="Linear change of compute_ms over the run.")
+    jitter: Jitter | None = Field(default=None, description="Multiplicative run-to-run noise with mean 1.")
+    spikes: Spikes | None = Field(default=None, description="Rare runs that take a fixed, long time.")
+
+
 class Node(_Model):
     """One task of the app DAG."""
 
@@ -188,6 +258,13 @@ class Node(_Model):
         default=None, description="Fixed rate of an unscheduled node (omit for a pure sink)."
     )
     batch: BatchFlag = Field(default=False, description="true or {output_rate_hz}: batch-processes inputs.")
+    workload: Workload | None = Field(
+        default=None,
+        description=(
+            "How run times vary over a run (growth, jitter, spikes), for simulation; "
+            "compute_ms stays the figure planning uses."
+        ),
+    )
 
     @model_validator(mode="after")
     def _fields_fit_scheduling(self) -> Node:
@@ -203,6 +280,9 @@ class Node(_Model):
         elif self.is_batch:
             message = "an unscheduled node cannot be batch: batch applies to nodes the scheduler triggers"
             raise field_error("Node", ("batch",), message, self.batch)
+        elif self.workload is not None:
+            message = "an unscheduled node has no compute time for a workload to vary: remove workload"
+            raise field_error("Node", ("workload",), message, self.workload)
         return self
 
     @property

@@ -65,6 +65,13 @@ REQUIRED_CATEGORIES = [
     "mode_shares",
     "scheduled_without_compute",
     "rate_hz_on_scheduled",
+    "workload_negative_cv",
+    "workload_normal_cv_too_large",
+    "workload_unknown_dist",
+    "workload_growth_nonpositive",
+    "workload_spikes_nonpositive",
+    "workload_unscheduled",
+    "workload_unknown_key",
     # meaning
     "unknown_node_edge",
     "unknown_node_subchain",
