@@ -491,8 +491,17 @@ def test_open_cpu_clocks_read_again_on_each_call_and_fail_once_the_thread_is_gon
     finally:
         finished.set()
         worker.join()
-    with pytest.raises(ProcessLookupError):  # the descriptor still names the exited thread: never another one's count
-        live.read_ns(os.getpid(), tid)
+    # join() returns just before the kernel ends the thread: allow it a moment. Then the descriptor,
+    # which still names the exited thread, fails instead of reading another thread's count.
+    deadline = time.monotonic() + 3.0
+    failed: OSError | None = None
+    while failed is None and time.monotonic() < deadline:
+        try:
+            live.read_ns(os.getpid(), tid)
+        except OSError as exc:
+            failed = exc
+        time.sleep(0.01)
+    assert isinstance(failed, ProcessLookupError), failed
     live.close()
     clocks.close()
 
