@@ -20,8 +20,8 @@ from dataclasses import dataclass
 
 from catanc.errors import UsageError
 from catanc.graph import all_chains
-from catanc.planner import Plan, priorities
-from catanc.problem import spec_dag
+from catanc.planner import Plan, plan_problem, priorities
+from catanc.problem import Problem, build_problem, spec_dag
 from catanc.replan import Replanner
 from catanc.runtime.measure import estimate, mode_times
 from catanc.runtime.schedule import runtime_schedule
@@ -52,10 +52,10 @@ class Setup:
     seed: int
 
 
-def reported_chains(spec: Spec, replanner: Replanner) -> list[tuple[tuple[str, ...], bool]]:
+def reported_chains(spec: Spec, problem: Problem) -> list[tuple[tuple[str, ...], bool]]:
     """The chains the objective and constraints name (as the spec expands them), then every other path."""
     seen: dict[tuple[str, ...], bool] = {}
-    for chain in replanner.problem.chains:
+    for chain in problem.chains:
         seen.setdefault(tuple(chain.nodes), True)
     others, _ = all_chains(spec_dag(spec), MAX_OTHER_CHAINS)
     for path in others:
@@ -99,30 +99,30 @@ def simulate(setup: Setup, policy: str, sampler_for: SamplerFactory = workload_s
     """Run ``policy`` on ``setup`` for its duration; the same arguments give the same result."""
     check_policies([policy])
     spec, cores = setup.spec, setup.cores
-    replanner = Replanner(spec, cores)
-    chains = reported_chains(spec, replanner)
+    problem = build_problem(spec)
+    chains = reported_chains(spec, problem)
     engine = Engine()
     flow = Dataflow(spec, [nodes for nodes, _ in chains])
     sample = sampler_for(spec, setup.seed)
     plan: Plan | None = None
     runner: CatanPolicy | TimerPolicy
-    if policy in ("baseline", "fifo-static"):
-        problem = replanner.problem
+    if policy in ("baseline", "fifo-static"):  # no plan: the hand-tuned rates
         by_subchain = priorities(problem, spec.schedule, problem.importance())
         by_node = {node: by_subchain[sub.name] for sub in problem.subchains for node in sub.nodes}
         discipline: Discipline = "fair" if policy == "baseline" else "fifo"
         runner = TimerPolicy(
             engine, flow, spec=spec, cores=cores, sample=sample, discipline=discipline, priorities=by_node
         )
-    else:
-        live: Replanner | None = replanner
-        if policy != "catan":
-            end = setup.duration_s if policy == "static-fullrun" else min(STATIC_20S, setup.duration_s)
-            replanner.reallocate(tail_compute(spec, sampler_for(spec, setup.seed), 0.0, end))
-            live = None
-        plan = replanner.plan
-        schedule = runtime_schedule(plan, replanner.problem, spec.schedule)
-        runner = CatanPolicy(engine, flow, spec=spec, schedule=schedule, sample=sample, replanner=live)
+    elif policy == "catan":
+        replanner = Replanner(spec, cores)
+        schedule = runtime_schedule(replanner.plan, replanner.problem, spec.schedule)
+        runner = CatanPolicy(engine, flow, spec=spec, schedule=schedule, sample=sample, replanner=replanner)
+    else:  # one plan, as the Replanner's Stage I would make it, from the tail compute times
+        end = setup.duration_s if policy == "static-fullrun" else min(STATIC_20S, setup.duration_s)
+        profiled = problem.with_compute(tail_compute(spec, sampler_for(spec, setup.seed), 0.0, end))
+        plan = plan_problem(profiled, spec.schedule, cores, backend="conic")
+        schedule = runtime_schedule(plan, profiled, spec.schedule)
+        runner = CatanPolicy(engine, flow, spec=spec, schedule=schedule, sample=sample)
     start_sensors(engine, flow, spec)
     runner.start()
     duration_ms = setup.duration_s * 1000.0
