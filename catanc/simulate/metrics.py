@@ -12,21 +12,27 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from catanc.runtime.measure import percentile
+from catanc.runtime.schedule import RuntimeSchedule
 
 
 def window_responses(arrivals: Sequence[tuple[float, float]]) -> list[float]:
     """Response times (ms) from a chain's ``(origin, done)`` arrivals at its last node, in completion order."""
-    responses: list[float] = []
+    return [response for _, response in timed_responses(arrivals)]
+
+
+def timed_responses(arrivals: Sequence[tuple[float, float]]) -> list[tuple[float, float]]:
+    """``(done, response)`` pairs (ms) from a chain's ``(origin, done)`` arrivals, in completion order."""
+    responses: list[tuple[float, float]] = []
     previous: float | None = None
     for origin, done in arrivals:
         if previous is None:
             previous = origin
         elif origin > previous:
-            responses.append(done - previous)
+            responses.append((done, done - previous))
             previous = origin
     return responses
 
@@ -54,6 +60,8 @@ class ChainResult:
     named: bool  # the objective or a constraint names it (else: another source-to-sink path)
     response: Summary | None  # None: no output reached the end of the chain
     model_ms: float | None  # the plan's analytic response time R (catan policies, named chains)
+    samples: tuple[tuple[float, float], ...] = field(default=(), compare=False, repr=False)
+    """Every ``(done_ms, response_ms)`` behind ``response``, in completion order (for plots; not in the JSON)."""
 
     def as_dict(self) -> dict[str, Any]:
         body: dict[str, Any] = {"nodes": list(self.nodes), "named": self.named}
@@ -82,6 +90,10 @@ class PolicyResult:
     nodes: dict[str, NodeResult]
     utilisation: tuple[float, ...]  # per core, 0..1
     replans: int
+    node_done_ms: dict[str, tuple[float, ...]] = field(default_factory=dict, compare=False, repr=False)
+    """Per node, when each run (or tick) finished, for rates over time (plots; not in the JSON)."""
+    schedule: RuntimeSchedule | None = field(default=None, compare=False, repr=False)
+    """The schedule in force at the end (catan and static policies), for a timeline of one period per core."""
 
     def as_dict(self) -> dict[str, Any]:
         return {

@@ -28,7 +28,7 @@ from catanc.runtime.schedule import runtime_schedule
 from catanc.simulate.cpu import Discipline
 from catanc.simulate.dataflow import Dataflow
 from catanc.simulate.engine import Engine
-from catanc.simulate.metrics import ChainResult, PolicyResult, Summary, node_result, window_responses
+from catanc.simulate.metrics import ChainResult, PolicyResult, Summary, node_result, timed_responses
 from catanc.simulate.policies import CatanPolicy, Sampler, TimerPolicy, start_sensors
 from catanc.spec import Spec
 from catanc.workload import ComputeSampler
@@ -131,11 +131,14 @@ def simulate(setup: Setup, policy: str, sampler_for: SamplerFactory = workload_s
         plan = runner.replanner.plan if runner.replanner is not None else plan
     model = {chain.nodes: chain.response_ms for chain in plan.chains} if plan is not None else {}
     busy = runner.busy_by_core()
+    timed = [timed_responses(arrivals) for arrivals in flow.arrivals]
     return PolicyResult(
         policy=policy,
         duration_s=setup.duration_s,
         chains=tuple(
-            ChainResult(nodes, named, Summary.of(window_responses(flow.arrivals[i])), model.get(nodes))
+            ChainResult(
+                nodes, named, Summary.of([r for _, r in timed[i]]), model.get(nodes), samples=tuple(timed[i])
+            )
             for i, (nodes, named) in enumerate(chains)
         ),
         nodes={
@@ -143,4 +146,6 @@ def simulate(setup: Setup, policy: str, sampler_for: SamplerFactory = workload_s
         },
         utilisation=tuple(busy.get(core, 0.0) / duration_ms for core in range(cores)),
         replans=len(runner.replans) if isinstance(runner, CatanPolicy) else 0,
+        node_done_ms={name: tuple(record.done_ms) for name, record in flow.records.items()},
+        schedule=runner.schedule if isinstance(runner, CatanPolicy) else None,
     )
