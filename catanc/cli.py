@@ -432,6 +432,13 @@ def simulate(
     duration: Annotated[float, typer.Option(min=0.1, help="Simulated seconds.")] = 60.0,
     seed: Annotated[int, typer.Option(min=0, help="Seed of the workload's random draws.")] = 0,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of tables.")] = False,
+    plot: Annotated[
+        Path | None,
+        typer.Option(
+            metavar="DIR",
+            help="Also write PNG plots into DIR (created if missing): responses-cdf.png, timeline.png, rates.png.",
+        ),
+    ] = None,
 ) -> None:
     """Simulate the app on K cores under catanc's plan and the baselines; compare response times and rates."""
     from catanc.simulate.report import comparison_payload, comparison_tables
@@ -440,12 +447,21 @@ def simulate(
     spec, _ = _load_problem(spec_path)
     chosen = check_policies(policy or list(POLICIES))
     results = simulate_policies(Setup(spec, cores, duration, seed), chosen)
+    written: list[Path] = []
+    if plot is not None:
+        from catanc.simulate.plots import write_plots
+
+        title = f"{spec.app}, {cores} core{'s' if cores > 1 else ''}, {duration:g} s simulated, seed {seed}"
+        scheduled = [name for name, node in spec.nodes.items() if node.scheduled]
+        written = write_plots(results, plot, title=title, nodes=scheduled)
     if as_json:
         sys.stdout.write(json.dumps(comparison_payload(results), indent=2, sort_keys=True) + "\n")
-        return
-    out = _stdout()
-    for table in comparison_tables(results):
-        out.print(table)
+    else:
+        out = _stdout()
+        for table in comparison_tables(results):
+            out.print(table)
+    for path in written:
+        (_stderr() if as_json else _stdout()).print(f"plot: {path}", markup=False)
 
 
 @app.command()
