@@ -24,6 +24,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from catanc.client import ClientError, Node
+from catanc.load import load_spec
 from catanc.runtime.protocol import (
     MAX_DATAGRAM,
     MAX_NAME,
@@ -46,13 +47,18 @@ from catanc.runtime.protocol import (
     trigger_datagram,
 )
 from catanc.runtime.worker import (
+    RunRecord,
     burn_parallel,
     check_profile,
     format_modes,
     parse_args,
     parse_modes,
+    read_records,
     worker_command,
+    workload_worker_command,
+    write_records,
 )
+from catanc.workload import ComputeSampler
 
 TIMEOUT_S = 30.0
 """The bound on every wait: generous, since nothing here is timed."""
@@ -691,6 +697,110 @@ def test_worker_without_an_enforcer_fails_with_a_hint(tmp_path: Path) -> None:
     assert finished.returncode == 1
     assert "no catanc enforcer at" in finished.stderr
     assert "is `catanc run` running?" in finished.stderr
+
+
+# -- the worker's workload option: the spec's model, a shared clock, run records ----------------
+
+WORKLOAD_SPEC = """\
+catan: 1
+app: drawn
+nodes:
+  M: {compute_ms: {modes: [{share: 0.5, ms: 2}, {share: 0.5, ms: 30}]}}
+  G: {compute_ms: 4, workload: {growth: {start: 1, end: 3, over_s: 100}}}
+  S: {scheduled: false, rate_hz: 10}
+edges: [[S, M], [M, G]]
+subchains: {m: [M], g: [G]}
+objective: [{chain: [S, M, G], weight: 1}]
+"""
+
+
+def test_workload_worker_command_round_trips(tmp_path: Path) -> None:
+    argv = workload_worker_command(
+        ["M", "G"],
+        tmp_path / "spec.yaml",
+        seed=4,
+        clock_start_ns=123,
+        record=tmp_path / "runs",
+        socket_path=tmp_path / "s.sock",
+        speedups={"G": (1.0, 1.5), "X": (1.0, 2.0)},
+    )
+    options = parse_args(argv[3:])
+    assert options.nodes == {"M": (), "G": ()}  # the spec's model draws
+    assert (options.workload, options.record) == (tmp_path / "spec.yaml", tmp_path / "runs")
+    assert options.clock_start_ns == 123
+    assert (options.seed, options.speedups, options.socket_path) == (4, {"G": (1.0, 1.5)}, tmp_path / "s.sock")
+    with pytest.raises(ValueError, match="clock-start-ns"):
+        workload_worker_command(["M"], "spec.yaml", clock_start_ns=-1)
+
+
+@pytest.mark.parametrize(
+    ("argv", "error"),
+    [
+        (["--node", "A", "--workload", "s.yaml", "--compute-ms", "1"], "give no --compute-ms or --modes with it"),
+        (["--node", "A", "--compute-ms", "1", "--clock-start-ns", "5"], "--clock-start-ns goes with --workload"),
+        (["--node", "A", "--workload", "s.yaml", "--clock-start-ns", "soon"], "'soon' is not a CLOCK_MONOTONIC time"),
+    ],
+)
+def test_workload_usage_errors(argv: list[str], error: str, capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exited:
+        parse_args(argv)
+    assert exited.value.code == 2
+    assert error in capsys.readouterr().err
+
+
+def test_run_records_round_trip(tmp_path: Path) -> None:
+    records = [RunRecord("LM", 10, 20, 9), RunRecord("a node", 30, 45, 15)]
+    write_records(tmp_path / "runs", records)
+    assert read_records(tmp_path / "runs") == records
+    assert [p.name for p in tmp_path.iterdir()] == ["runs"]  # no temporary file left
+    (tmp_path / "bad").write_text('{"node": "LM", "start_ns": 1}\n')
+    with pytest.raises(ValueError, match="bad:1: not a run record"):
+        read_records(tmp_path / "bad")
+
+
+def test_worker_draws_from_the_specs_workload_and_records_every_run(
+    enforcer: EnforcerSocket, spawn: Spawn, tmp_path: Path
+) -> None:
+    spec_path = tmp_path / "spec.yaml"
+    spec_path.write_text(WORKLOAD_SPEC)
+    record = tmp_path / "runs.jsonl"
+    # The model's time counts from 100 s ago: G's growth has reached its end, 3x its 4 ms.
+    clock_start = time.monotonic_ns() - 100 * 10**9
+    began = time.monotonic_ns()
+    argv = workload_worker_command(
+        ["M", "G"], spec_path, seed=7, clock_start_ns=clock_start, record=record, socket_path=enforcer.path
+    )
+    process = spawn(argv)
+    hellos = welcome(enforcer, {"M", "G"})
+    measured = [run_once(enforcer, "M", seq, hellos["M"][1]) for seq in range(12)]
+    grown = [run_once(enforcer, "G", seq, hellos["G"][1]) for seq in range(3)]
+    for _, sender in hellos.values():
+        assert enforcer.send(Stop(), sender)
+    assert finish(process) == (0, "")
+    ended = time.monotonic_ns()
+    sampler = ComputeSampler(load_spec(spec_path), 7)
+    drawn = [sampler.compute_ms("M", 100.0) for _ in range(12)]  # M's draws do not depend on the time
+    assert {2.0, 30.0} == set(drawn)
+    for got, want in zip(measured, drawn, strict=True):
+        assert want <= got <= want * 1.5 + 1.0
+    assert all(12.0 <= got <= 20.0 for got in grown)
+    runs = read_records(record)
+    assert [r.node for r in runs].count("M") == 12
+    assert [r.node for r in runs].count("G") == 3
+    for r in runs:
+        assert began <= r.start_ns < r.end_ns <= ended
+        assert r.cpu_ns <= r.end_ns - r.start_ns + 1_000_000  # CPU time never exceeds the run by much
+    m_cpu = [r.cpu_ns / 1e6 for r in sorted(runs) if r.node == "M"]
+    assert m_cpu == pytest.approx(drawn, rel=0.5, abs=1.0)
+
+
+def test_worker_refuses_a_node_its_workload_spec_does_not_schedule(tmp_path: Path) -> None:
+    spec_path = tmp_path / "spec.yaml"
+    spec_path.write_text(WORKLOAD_SPEC)
+    argv = workload_worker_command(["S"], spec_path, socket_path=tmp_path / "none.sock")
+    finished = subprocess.run(argv, capture_output=True, text=True, timeout=TIMEOUT_S, check=False)
+    assert finished.returncode == 2
+    assert "does not schedule node 'S'" in finished.stderr
 
 
 # -- importing the client is light -------------------------------------------------------------

@@ -2,8 +2,9 @@
 
 ::
 
-    python -m catanc.runtime.worker --node NAME [--node NAME2 ...] (--compute-ms MS | --modes W:MS,...)
-        [--seed N] [--scale-after S:FACTOR] [--socket PATH]
+    python -m catanc.runtime.worker --node NAME [--node NAME2 ...]
+        (--compute-ms MS | --modes W:MS,... | --workload SPEC [--clock-start-ns NS])
+        [--seed N] [--scale-after S:FACTOR] [--record FILE] [--socket PATH]
 
 One thread per node, each a :class:`catanc.client.Node` loop.  On each
 trigger a node burns its compute time, measured in thread CPU time (so being
@@ -16,6 +17,16 @@ writes them next to their node).  ``--scale-after 5:3`` multiplies the
 compute time by 3 for every run that starts 5 s (wall time) or more after
 its node registered.  The socket defaults to ``$CATANC_SOCKET``.
 
+``--workload SPEC`` draws every run's compute time from the spec's workload
+model instead (:class:`catanc.workload.ComputeSampler`, seeded with
+``--seed``: jitter, growth over time, spikes; each node must be a scheduled
+node of SPEC), at ``at_s`` = seconds since ``--clock-start-ns``, an instant
+on ``CLOCK_MONOTONIC`` (``time.monotonic_ns()``), which every process of a
+run can share (default: when the worker started).  ``--record FILE`` writes
+every run, as :class:`RunRecord` JSON lines, to FILE when the worker exits
+(:func:`read_records` reads them back): ``catanc bench`` measures chains from
+these timestamps.
+
 The worker exits 0 when the enforcer says stop and on SIGINT or SIGTERM
 (each node says bye), 1 if a node cannot register or loses the enforcer.
 
@@ -27,7 +38,9 @@ each.
 from __future__ import annotations
 
 import argparse
+import functools
 import hashlib
+import json
 import math
 import os
 import queue
@@ -37,13 +50,14 @@ import sys
 import threading
 import time
 import traceback
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType
+from typing import NamedTuple
 
 from catanc.client import ClientError, Node
-from catanc.errors import ExitCode
+from catanc.errors import CatancError, ExitCode
 from catanc.runtime.protocol import ProtocolError, Welcome
 from catanc.speedup import threads_and_speedup
 
@@ -116,14 +130,62 @@ def worker_command(
             argv += ["--compute-ms", repr(modes[0][1])]
         else:
             argv += ["--modes", format_modes(modes)]
+    return argv + _common_options(
+        nodes, seed=seed, scale_after=scale_after, socket_path=socket_path, speedups=speedups, record=None
+    )
+
+
+def workload_worker_command(
+    nodes: Sequence[str],
+    spec_path: str | os.PathLike[str],
+    *,
+    seed: int | None = None,
+    clock_start_ns: int | None = None,
+    record: str | os.PathLike[str] | None = None,
+    socket_path: str | os.PathLike[str] | None = None,
+    python: str | None = None,
+    speedups: Mapping[str, Sequence[float]] | None = None,
+) -> list[str]:
+    """The argv of a worker serving ``nodes`` whose compute times follow the workload model of ``spec_path``.
+
+    ``clock_start_ns`` is the ``time.monotonic_ns()`` instant the model's time counts from;
+    ``record`` the file every run is written to when the worker exits.
+    """
+    if not nodes:
+        raise ValueError("a worker serves at least one node")
+    argv = [python or sys.executable, "-m", MODULE]
+    for name in nodes:
+        _check_name(name)
+        argv += ["--node", name]
+    argv += ["--workload", os.fspath(spec_path)]
+    if clock_start_ns is not None:
+        argv += ["--clock-start-ns", str(_check_clock(clock_start_ns))]
+    return argv + _common_options(
+        nodes, seed=seed, scale_after=None, socket_path=socket_path, speedups=speedups, record=record
+    )
+
+
+def _common_options(
+    nodes: Iterable[str],
+    *,
+    seed: int | None,
+    scale_after: tuple[float, float] | None,
+    socket_path: str | os.PathLike[str] | None,
+    speedups: Mapping[str, Sequence[float]] | None,
+    record: str | os.PathLike[str] | None,
+) -> list[str]:
+    served = set(nodes)
+    argv: list[str] = []
     for name, values in sorted((speedups or {}).items()):
-        if name in nodes and tuple(values) != (1.0,):
+        if name in served and tuple(values) != (1.0,):
             argv += ["--speedup", f"{name}={_format_speedups(_check_speedups(values))}"]
     if seed is not None:
         argv += ["--seed", str(seed)]
     if scale_after is not None:
         after_s, factor = _check_scale(*scale_after)
         argv += ["--scale-after", f"{after_s!r}:{factor!r}"]
+    if record is not None:
+        argv += ["--record", os.fspath(record)]
     if socket_path is not None:
         argv += ["--socket", os.fspath(socket_path)]
     return argv
@@ -133,11 +195,46 @@ def worker_command(
 class WorkerOptions:
     """The parsed command line."""
 
-    nodes: dict[str, Modes]
+    nodes: dict[str, Modes]  # with --workload, every node's modes are () (the spec's model draws)
     speedups: dict[str, tuple[float, ...]]  # node -> speedup with 1, 2, ... threads; absent: one thread
     seed: int
     scale_after: tuple[float, float] | None
     socket_path: Path | None
+    workload: Path | None = None
+    clock_start_ns: int | None = None
+    record: Path | None = None
+
+
+class RunRecord(NamedTuple):
+    """One run of a node, as ``--record`` writes it: CLOCK_MONOTONIC times, shared by every process."""
+
+    node: str
+    start_ns: int  # the trigger arrived: the run reads its inputs
+    end_ns: int  # the work is done (just before the node reports done)
+    cpu_ns: int  # CPU time the run used, over all the threads it burned on
+
+
+def write_records(path: str | os.PathLike[str], records: Iterable[RunRecord]) -> None:
+    """Write ``records`` as JSON lines, atomically (a temporary file renamed over ``path``)."""
+    target = Path(path)
+    partial = target.with_name(f".{target.name}.{os.getpid()}.tmp")
+    with partial.open("w", encoding="utf-8") as out:
+        for record in records:
+            out.write(json.dumps(record._asdict(), separators=(",", ":")) + "\n")
+    partial.replace(target)
+
+
+def read_records(path: str | os.PathLike[str]) -> list[RunRecord]:
+    """The runs :func:`write_records` wrote; ValueError naming the line if one is not a run."""
+    records = []
+    for number, line in enumerate(Path(path).read_text(encoding="utf-8").splitlines(), start=1):
+        try:
+            data = json.loads(line)
+            record = RunRecord(str(data["node"]), int(data["start_ns"]), int(data["end_ns"]), int(data["cpu_ns"]))
+        except (ValueError, KeyError, TypeError) as exc:
+            raise ValueError(f"{path}:{number}: not a run record ({exc})") from None
+        records.append(record)
+    return records
 
 
 def parse_args(argv: Sequence[str] | None = None) -> WorkerOptions:
@@ -161,7 +258,17 @@ def parse_args(argv: Sequence[str] | None = None) -> WorkerOptions:
         metavar="NODE=S1,S2,...",
         help="a multi-threaded node's speedup with 1, 2, ... threads (it burns on the threads a trigger gives it)",
     )
-    parser.add_argument("--seed", type=int, default=0, help="seed of the mode draws (default 0)")
+    parser.add_argument(
+        "--workload", type=Path, metavar="SPEC", help="draw compute times from this spec's workload model"
+    )
+    parser.add_argument(
+        "--clock-start-ns",
+        type=_clock_arg,
+        metavar="NS",
+        help="the CLOCK_MONOTONIC instant (ns) the workload model's time counts from (default: the worker's start)",
+    )
+    parser.add_argument("--record", type=Path, metavar="FILE", help="write every run's timestamps to FILE on exit")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the mode or workload draws (default 0)")
     parser.add_argument(
         "--scale-after", type=_scale_arg, metavar="S:FACTOR", help="multiply compute by FACTOR S s after registering"
     )
@@ -177,8 +284,14 @@ def parse_args(argv: Sequence[str] | None = None) -> WorkerOptions:
     duplicates = sorted({name for name in names if names.count(name) > 1})
     if duplicates:
         parser.error(f"node(s) given twice: {', '.join(duplicates)}")
+    if args.workload is not None:
+        if profiles:
+            parser.error("--workload draws every compute time: give no --compute-ms or --modes with it")
+        profiles = [()]
+    elif args.clock_start_ns is not None:
+        parser.error("--clock-start-ns goes with --workload (the workload model's time)")
     if not profiles:
-        parser.error("give each node a compute time: --compute-ms MS or --modes W:MS,...")
+        parser.error("give each node a compute time: --compute-ms MS, --modes W:MS,... or --workload SPEC")
     if len(profiles) == 1:
         profiles = profiles * len(names)
     if len(profiles) != len(names):
@@ -193,6 +306,9 @@ def parse_args(argv: Sequence[str] | None = None) -> WorkerOptions:
         seed=args.seed,
         scale_after=args.scale_after,
         socket_path=args.socket,
+        workload=args.workload,
+        clock_start_ns=args.clock_start_ns,
+        record=args.record,
     )
 
 
@@ -214,8 +330,8 @@ def burn_released(compute_ms: float) -> None:
         hashlib.sha256(HASHED_BLOCK)
 
 
-def burn_parallel(compute_ms: float, threads: int, speedups: Sequence[float]) -> None:
-    """One run of a node whose single-thread compute is ``compute_ms``, on ``threads`` threads.
+def burn_parallel(compute_ms: float, threads: int, speedups: Sequence[float]) -> int:
+    """One run of a node whose single-thread compute is ``compute_ms``, on ``threads`` threads; the threads used.
 
     As the planner models it (``c^q = c / speedup(q)``), each of the ``q`` threads the speedup
     table makes worth using burns ``c / speedup(q)`` of CPU time, so the run takes that long.
@@ -225,18 +341,62 @@ def burn_parallel(compute_ms: float, threads: int, speedups: Sequence[float]) ->
     each_ms = compute_ms / speedup
     if q == 1:
         burn(each_ms)
-        return
+        return 1
     helpers = [threading.Thread(target=burn_released, args=(each_ms,), daemon=True) for _ in range(q - 1)]
     for helper in helpers:
         helper.start()
     burn_released(each_ms)
     for helper in helpers:
         helper.join()
+    return q
+
+
+Draw = Callable[[float], float]
+"""One node's compute time (ms, on one thread) for a run starting ``at_s`` seconds into the run."""
+
+
+def mode_draw(modes: Modes, rng: random.Random) -> Draw:
+    """Draws from weighted modes, ignoring the time."""
+    weights = [weight for weight, _ in modes]
+    computes = [compute for _, compute in modes]
+    if len(modes) == 1:
+        return lambda _at_s: computes[0]
+    return lambda _at_s: rng.choices(computes, weights)[0]
+
+
+def workload_draws(spec_path: Path, nodes: Iterable[str], seed: int) -> dict[str, Draw]:
+    """Each node's draws from the workload model of the spec at ``spec_path``.
+
+    Raises :class:`~catanc.errors.CatancError` (a bad spec) or ValueError (a node the spec does
+    not schedule).
+    """
+    from catanc.load import load_spec  # noqa: PLC0415 - only --workload needs the spec language
+    from catanc.workload import ComputeSampler  # noqa: PLC0415
+
+    spec = load_spec(spec_path)
+    for name in nodes:
+        node = spec.nodes.get(name)
+        if node is None or not node.scheduled:
+            what = "has no node" if node is None else "does not schedule node"
+            raise ValueError(f"{spec_path} {what} {name!r}: a worker burns scheduled nodes only")
+    sampler = ComputeSampler(spec, seed)  # one stream per node: threads never share one
+    return {name: functools.partial(sampler.compute_ms, name) for name in nodes}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the worker until the enforcer stops it or a signal arrives; return the exit code."""
     options = parse_args(argv)
+    clock_start_ns = options.clock_start_ns if options.clock_start_ns is not None else time.monotonic_ns()
+    if options.workload is not None:
+        try:
+            draws = workload_draws(options.workload, options.nodes, options.seed)
+        except (CatancError, ValueError) as exc:
+            print(f"catanc worker: --workload: {exc}", file=sys.stderr)
+            return int(ExitCode.BAD_INPUT)
+    else:
+        draws = {
+            name: mode_draw(modes, random.Random(f"{options.seed}/{name}")) for name, modes in options.nodes.items()
+        }
     try:
         nodes = [Node(name, socket_path=options.socket_path) for name in options.nodes]
     except ClientError as exc:
@@ -256,17 +416,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     in_main = threading.current_thread() is threading.main_thread()
     previous = {signum: signal.signal(signum, on_signal) for signum in handled} if in_main else {}
     finished: queue.Queue[tuple[Node, Exception | None]] = queue.Queue()
+    records: dict[str, list[RunRecord]] = {node.name: [] for node in nodes}
     try:
         for node in nodes:
-            rng = random.Random(f"{options.seed}/{node.name}")
             thread = threading.Thread(
                 target=_serve,
                 args=(node, finished),
                 kwargs={
-                    "modes": options.nodes[node.name],
+                    "draw": draws[node.name],
                     "speedups": options.speedups.get(node.name, (1.0,)),
-                    "rng": rng,
                     "scale_after": options.scale_after,
+                    "clock_start_ns": clock_start_ns,
+                    "records": records[node.name] if options.record is not None else None,
                 },
                 name=f"catanc-{node.name}",
                 daemon=True,
@@ -289,31 +450,37 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:
         for signum, handler in previous.items():
             signal.signal(signum, handler)
+        if options.record is not None:  # every node thread has finished (or this is an interrupt: keep what ran)
+            write_records(options.record, sorted(r for runs in records.values() for r in list(runs)))
 
 
 def _serve(
     node: Node,
     finished: queue.Queue[tuple[Node, Exception | None]],
     *,
-    modes: Modes,
+    draw: Draw,
     speedups: tuple[float, ...],
-    rng: random.Random,
     scale_after: tuple[float, float] | None,
+    clock_start_ns: int,
+    records: list[RunRecord] | None,
 ) -> None:
     error: Exception | None = None
     try:
         with node:
             registered_at = time.monotonic()
-            weights = [weight for weight, _ in modes]
-            computes = [compute for _, compute in modes]
             for trigger in node:
-                compute_ms = computes[0] if len(modes) == 1 else rng.choices(computes, weights)[0]
+                started_ns = time.monotonic_ns()
+                cpu_before = time.thread_time_ns()
+                compute_ms = draw((started_ns - clock_start_ns) / 1e9)
                 if scale_after is not None and time.monotonic() - registered_at >= scale_after[0]:
                     compute_ms *= scale_after[1]
-                started = time.monotonic()
-                burn_parallel(compute_ms, trigger.threads, speedups)
+                threads = burn_parallel(compute_ms, trigger.threads, speedups)
+                ended_ns = time.monotonic_ns()
+                if records is not None:  # each helper thread burned as long as this one
+                    cpu_ns = (time.thread_time_ns() - cpu_before) * threads
+                    records.append(RunRecord(node.name, started_ns, ended_ns, cpu_ns))
                 # On one thread, its CPU time (the client's default); on more, the run's wall time.
-                node.done(None if trigger.threads == 1 else (time.monotonic() - started) * 1000.0)
+                node.done(None if trigger.threads == 1 else (ended_ns - started_ns) / 1e6)
     except Exception as exc:
         error = exc
     finally:
@@ -353,6 +520,19 @@ def _check_scale(after_s: float, factor: float) -> tuple[float, float]:
     if not (math.isfinite(factor) and factor >= 0):
         raise ValueError(f"--scale-after: the factor must be a number >= 0, got {factor!r}")
     return after_s, factor
+
+
+def _check_clock(value: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise ValueError(f"--clock-start-ns: a CLOCK_MONOTONIC time in ns (an integer >= 0), got {value!r}")
+    return value
+
+
+def _clock_arg(text: str) -> int:
+    try:
+        return _check_clock(int(text))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a CLOCK_MONOTONIC time in ns (an integer >= 0)") from None
 
 
 def _compute_arg(text: str) -> Modes:
