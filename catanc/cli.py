@@ -466,6 +466,55 @@ def simulate(
 
 @app.command()
 @_reporting
+def bench(
+    spec_path: SpecArg,
+    cores: CoresOpt,
+    policy: Annotated[
+        list[str] | None,
+        typer.Option(help="catan, baseline or fifo-static (repeat for several; default: all three)."),
+    ] = None,
+    duration: Annotated[float, typer.Option(min=0.5, help="Measured seconds per policy.")] = 20.0,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of the workload's random draws.")] = 0,
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of tables.")] = False,
+    plot: Annotated[
+        Path | None,
+        typer.Option(
+            metavar="DIR",
+            help="Also write PNG plots into DIR (created if missing): responses-cdf.png, timeline.png, rates.png.",
+        ),
+    ] = None,
+) -> None:
+    """Run the app's synthetic workers on this machine under catanc's plan and the baselines; compare them."""
+    from catanc.bench.run import POLICIES, BenchSetup, bench_policies
+    from catanc.simulate.report import comparison_payload, comparison_tables
+
+    spec, _ = _load_problem(spec_path)
+    setup = BenchSetup(spec_path, spec, cores, duration, seed)
+    err = _stderr()
+    try:
+        results = bench_policies(setup, policy or list(POLICIES), progress=lambda text: err.print(text, markup=False))
+    except KeyboardInterrupt:
+        err.print("catanc: interrupted; every worker stopped", markup=False)
+        raise typer.Exit(130) from None
+    written: list[Path] = []
+    if plot is not None:
+        from catanc.simulate.plots import write_plots
+
+        title = f"{spec.app}, {cores} core{'s' if cores > 1 else ''}, {duration:g} s measured, seed {seed}"
+        scheduled = [name for name, node in spec.nodes.items() if node.scheduled]
+        written = write_plots(results, plot, title=title, nodes=scheduled)
+    if as_json:
+        sys.stdout.write(json.dumps(comparison_payload(results), indent=2, sort_keys=True) + "\n")
+    else:
+        out = _stdout()
+        for table in comparison_tables(results):
+            out.print(table)
+    for path in written:
+        (_stderr() if as_json else _stdout()).print(f"plot: {path}", markup=False)
+
+
+@app.command()
+@_reporting
 def schema() -> None:
     """Print the JSON Schema of the spec language (for editors)."""
     from catanc.spec import json_schema_text
