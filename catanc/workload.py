@@ -29,7 +29,7 @@ import random
 
 from catanc.spec import ModalCompute, Node, Spec, Workload
 
-__all__ = ["ComputeSampler", "growth_factor"]
+__all__ = ["ComputeSampler", "NodeStream", "growth_factor"]
 
 _SQRT3 = math.sqrt(3.0)
 
@@ -59,8 +59,13 @@ def _stream(seed: int, node: str, purpose: str) -> random.Random:
     return random.Random(int.from_bytes(digest, "big"))
 
 
-class _NodeSampler:
-    """One node's draws; everything a run needs is precomputed into plain floats."""
+class NodeStream:
+    """One node's draws; everything a run needs is precomputed into plain floats.
+
+    :meth:`draw` is one run.  A compiled simulation takes the same values in
+    parts: :meth:`base` for each normal run and :meth:`spikes_until` for the
+    spike arrivals, applying :func:`growth_factor`'s line itself.
+    """
 
     __slots__ = (
         "_arrivals",
@@ -114,24 +119,56 @@ class _NodeSampler:
             while self._next_spike_s <= at_s:  # every arrival up to now is this one run's spike
                 self._next_spike_s += self._arrivals.expovariate(self._spike_rate)
             return self._spike_ms
+        mode_ms, factor = self.base()
+        if self._growth is not None:
+            mode_ms *= _linear(*self._growth, at_s)
+        return mode_ms * factor
+
+    @property
+    def growth(self) -> tuple[float, float, float] | None:
+        """``(start, end, over_s)`` of the growth factor, or None."""
+        return self._growth
+
+    @property
+    def spike_ms(self) -> float:
+        """A spike run's compute time (NaN without spikes)."""
+        return self._spike_ms
+
+    def base(self) -> tuple[float, float]:
+        """The next normal run's mode (ms) and jitter multiplier (1.0 without jitter), growth not applied."""
         runs = self._runs
         if self._mode_thresholds:
             ms = self._mode_ms[bisect.bisect_right(self._mode_thresholds, runs.random())]
         else:
             ms = self._mode_ms[0]
-        if self._growth is not None:
-            ms *= _linear(*self._growth, at_s)
         kind = self._jitter
         if kind == "lognormal":
-            ms *= math.exp(self._jitter_a + self._jitter_b * runs.gauss())
-        elif kind == "uniform":
-            ms *= self._jitter_a + self._jitter_b * runs.random()
-        elif kind == "normal":
+            return ms, math.exp(self._jitter_a + self._jitter_b * runs.gauss())
+        if kind == "uniform":
+            return ms, self._jitter_a + self._jitter_b * runs.random()
+        if kind == "normal":
             factor = runs.gauss(self._jitter_a, self._jitter_b)
             while factor <= 0.0:  # rare: the spec allows a normal only with cv <= 0.3
                 factor = runs.gauss(self._jitter_a, self._jitter_b)
-            ms *= factor
-        return ms
+            return ms, factor
+        return ms, 1.0
+
+    def bases(self, count: int) -> tuple[list[float], list[float]]:
+        """The next ``count`` :meth:`base` draws: their modes and their jitter multipliers."""
+        modes, factors = [], []
+        for _ in range(count):
+            mode_ms, factor = self.base()
+            modes.append(mode_ms)
+            factors.append(factor)
+        return modes, factors
+
+    def spikes_until(self, end_s: float) -> list[float]:
+        """The spike arrivals still to come, up to the first one after ``end_s`` (consumes them)."""
+        arrivals = [self._next_spike_s]
+        while self._next_spike_s <= end_s:
+            self._next_spike_s += self._arrivals.expovariate(self._spike_rate)
+            arrivals.append(self._next_spike_s)
+        return arrivals
 
 
 class ComputeSampler:
@@ -140,8 +177,12 @@ class ComputeSampler:
     __slots__ = ("_nodes", "_unscheduled")
 
     def __init__(self, spec: Spec, seed: int) -> None:
-        self._nodes = {name: _NodeSampler(name, node, seed) for name, node in spec.nodes.items() if node.scheduled}
+        self._nodes = {name: NodeStream(name, node, seed) for name, node in spec.nodes.items() if node.scheduled}
         self._unscheduled = frozenset(name for name, node in spec.nodes.items() if not node.scheduled)
+
+    def stream(self, node: str) -> NodeStream:
+        """``node``'s own stream (KeyError for an unscheduled or unknown node)."""
+        return self._nodes[node]
 
     def compute_ms(self, node: str, at_s: float) -> float:
         """One run of ``node`` starting at ``at_s`` seconds into the run.

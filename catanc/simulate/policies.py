@@ -102,7 +102,8 @@ class CatanPolicy:
         self.engine, self.flow, self.spec, self.sample = engine, flow, spec, sample
         self.schedule = schedule
         self.replanner = replanner
-        self.measurements = Measurements.for_spec(spec) if replanner is not None else None
+        self.reoptimiser = Reoptimiser(spec, replanner) if replanner is not None else None
+        self.measurements = self.reoptimiser.measurements if self.reoptimiser is not None else None
         self.states = {name: SubchainState() for name in schedule.subchains}
         self.busy: dict[str, int | None] = {}
         self.waiting: dict[str, deque[int]] = {}
@@ -110,17 +111,13 @@ class CatanPolicy:
         self.pools: dict[str, Pool] = {}  # subchain -> the pool its nodes run on
         self.core_busy_ms: dict[int, float] = {}  # from pools of earlier allocations
         self.generation = 0
-        self.replans: list[Replan] = []
 
     # -------------------------------------------------------------- set-up
 
     def start(self) -> None:
         self._install(self.schedule)
-        if self.replanner is not None:
-            runtime = self.spec.runtime
-            self._next_stage2 = runtime.first_solve_after_s * 1000.0
-            self._next_stage1 = (runtime.first_solve_after_s + runtime.stage1_every_s) * 1000.0
-            self.engine.at(self._next_stage2, self._reoptimise)
+        if self.reoptimiser is not None:
+            self.engine.at(self.reoptimiser.first_ms, self._reoptimise)
 
     def _install(self, schedule: RuntimeSchedule) -> None:
         """New pools for ``schedule``'s allocation (running jobs move with their subchain), clocks restarted."""
@@ -312,29 +309,83 @@ class CatanPolicy:
     # -------------------------------------------------------------- re-solving
 
     def _reoptimise(self) -> None:
-        assert self.replanner is not None
-        assert self.measurements is not None
-        now = self.engine.now
+        assert self.reoptimiser is not None
+        after, reinstall, next_ms = self.reoptimiser.step(self.engine.now, self.schedule)
+        if reinstall:
+            self._install(after)  # new cores, or a subchain now clock- instead of slot-triggered
+        else:
+            self.schedule = after  # slots and periods take effect from the next period or trigger
+        self.engine.at(next_ms, self._reoptimise)
+
+    @property
+    def replans(self) -> list[Replan]:
+        return [] if self.reoptimiser is None else self.reoptimiser.replans
+
+
+class Reoptimiser:
+    """The periodic re-solve of ``catanc run``: Stage II every ``stage2_every_s``, Stage I every ``stage1_every_s``,
+    from the p95s of the compute times recorded since the start."""
+
+    def __init__(self, spec: Spec, replanner: Replanner) -> None:
+        self.spec, self.replanner = spec, replanner
+        self.measurements = Measurements.for_spec(spec)
+        runtime = spec.runtime
+        self.first_ms = runtime.first_solve_after_s * 1000.0
+        self._next_stage1 = (runtime.first_solve_after_s + runtime.stage1_every_s) * 1000.0
+        self.replans: list[Replan] = []
+
+    def step(self, now: float, before: RuntimeSchedule) -> tuple[RuntimeSchedule, bool, float]:
+        """Re-solve now: the new schedule, whether it must be installed afresh, and when to re-solve next."""
         runtime = self.spec.runtime
         stage1 = now >= self._next_stage1
         if stage1:
             self._next_stage1 = now + runtime.stage1_every_s * 1000.0
-        self._next_stage2 = now + runtime.stage2_every_s * 1000.0
+        next_stage2 = now + runtime.stage2_every_s * 1000.0
         estimates = self.measurements.estimates(measured_only=True)
-        before = self.schedule
         plan = self.replanner.reallocate(estimates or None) if stage1 else self.replanner.resolve(estimates)
         after = runtime_schedule(plan, self.replanner.problem, self.spec.schedule)
         moved = _layout(before) != _layout(after)
-        if moved or {r.name for r in before.clocked} != {r.name for r in after.clocked}:
-            self._install(after)  # new cores, or a subchain now clock- instead of slot-triggered
-        else:
-            self.schedule = after  # slots and periods take effect from the next period or trigger
+        reinstall = moved or {r.name for r in before.clocked} != {r.name for r in after.clocked}
         self.replans.append(Replan(now / 1000.0, "stage1" if stage1 else "stage2", moved, plan.objective))
-        self.engine.at(min(self._next_stage1, self._next_stage2), self._reoptimise)
+        return after, reinstall, min(self._next_stage1, next_stage2)
 
 
 def _layout(schedule: RuntimeSchedule) -> tuple[tuple[str, tuple[int, ...], bool], ...]:
     return tuple((name, run.cores, run.shared) for name, run in sorted(schedule.subchains.items()))
+
+
+def baseline_wiring(spec: Spec) -> tuple[dict[str, float], dict[str, list[str]]]:
+    """The hand-tuned baseline's triggers: timer rates (Hz) of the listed scheduled nodes, and per node
+    the input-triggered nodes its outputs trigger (a UsageError if a node would never run)."""
+    rates_hz = spec.baseline.rates_hz
+    if not rates_hz:
+        raise UsageError(f"{spec.app}: the spec has no baseline (baseline.rates_hz) to simulate")
+    rates = {name: rate for name, rate in rates_hz.items() if spec.nodes[name].scheduled}
+    predecessors: dict[str, list[str]] = {name: [] for name in spec.nodes}
+    for source, target in spec.edge_pairs:
+        predecessors[target].append(source)
+    fed_by: dict[str, set[str]] = {}  # input-triggered node -> the nodes whose outputs trigger it
+    gaps = []
+    for name, node in spec.nodes.items():
+        if not node.scheduled or name in rates:
+            continue
+        inputs = predecessors[name]
+        scheduled = {p for p in inputs if spec.nodes[p].scheduled}
+        clocked = {p for p in inputs if not spec.nodes[p].scheduled and spec.nodes[p].rate_hz is not None}
+        if scheduled or clocked:
+            fed_by[name] = scheduled or clocked
+        else:
+            gaps.append(name)
+    if gaps:
+        raise UsageError(
+            f"{spec.app}: the baseline gives {', '.join(sorted(gaps))} no rate in baseline.rates_hz "
+            "and no input with one"
+        )
+    triggers: dict[str, list[str]] = {}
+    for name, feeders in sorted(fed_by.items()):
+        for feeder in sorted(feeders):
+            triggers.setdefault(feeder, []).append(name)
+    return rates, triggers
 
 
 class TimerPolicy:
@@ -355,33 +406,9 @@ class TimerPolicy:
         self.priorities = priorities
         self.pool = Pool("all", tuple(range(cores)), discipline)
         engine.pools = [self.pool]
-        rates = spec.baseline.rates_hz
-        if not rates:
-            raise UsageError(f"{spec.app}: the spec has no baseline (baseline.rates_hz) to simulate")
-        self.rates = {name: rate for name, rate in rates.items() if spec.nodes[name].scheduled}
-        self.fed_by: dict[str, set[str]] = {}  # input-triggered node -> the nodes whose outputs trigger it
-        gaps = []
-        for name, node in spec.nodes.items():
-            if not node.scheduled or name in self.rates:
-                continue
-            inputs = flow.predecessors[name]
-            scheduled = {p for p in inputs if spec.nodes[p].scheduled}
-            clocked = {p for p in inputs if not spec.nodes[p].scheduled and spec.nodes[p].rate_hz is not None}
-            if scheduled or clocked:
-                self.fed_by[name] = scheduled or clocked
-            else:
-                gaps.append(name)
-        if gaps:
-            raise UsageError(
-                f"{spec.app}: the baseline gives {', '.join(sorted(gaps))} no rate in baseline.rates_hz "
-                "and no input with one"
-            )
+        self.rates, self.triggers = baseline_wiring(spec)
         self.busy: dict[str, bool] = {}
         self.pending: dict[str, bool] = {}
-        self.triggers: dict[str, list[str]] = {}  # node -> input-triggered nodes its outputs trigger
-        for name, feeders in sorted(self.fed_by.items()):
-            for feeder in sorted(feeders):
-                self.triggers.setdefault(feeder, []).append(name)
         flow.listeners.append(self._on_output)
 
     def start(self) -> None:

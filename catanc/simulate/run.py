@@ -15,8 +15,10 @@ Policies (issue 7; the paper's section 7 baselines):
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Literal
 
 from catanc.errors import UsageError
 from catanc.graph import all_chains
@@ -24,12 +26,13 @@ from catanc.planner import Plan, plan_problem, priorities
 from catanc.problem import Problem, build_problem, spec_dag
 from catanc.replan import Replanner
 from catanc.runtime.measure import estimate, mode_times
-from catanc.runtime.schedule import runtime_schedule
+from catanc.runtime.schedule import RuntimeSchedule, runtime_schedule
 from catanc.simulate.cpu import Discipline
 from catanc.simulate.dataflow import Dataflow
 from catanc.simulate.engine import Engine
 from catanc.simulate.metrics import ChainResult, PolicyResult, Summary, node_result, timed_responses
-from catanc.simulate.policies import CatanPolicy, Sampler, TimerPolicy, start_sensors
+from catanc.simulate.policies import CatanPolicy, Reoptimiser, Sampler, TimerPolicy, start_sensors
+from catanc.simulate.records import Records
 from catanc.spec import Spec
 from catanc.workload import ComputeSampler
 
@@ -42,6 +45,7 @@ PROFILE_SAMPLES = 2000
 STATIC_20S = 20.0
 
 SamplerFactory = Callable[[Spec, int], Sampler]
+EngineChoice = Literal["auto", "compiled", "python"]
 
 
 @dataclass(frozen=True)
@@ -95,43 +99,135 @@ def simulate_policies(
     return [simulate(setup, policy, sampler_for) for policy in check_policies(policies)]
 
 
-def simulate(setup: Setup, policy: str, sampler_for: SamplerFactory = workload_sampler) -> PolicyResult:
-    """Run ``policy`` on ``setup`` for its duration; the same arguments give the same result."""
+@dataclass(frozen=True)
+class Prepared:
+    """A policy ready to run: the chains to report and what the policy enforces."""
+
+    chains: list[tuple[tuple[str, ...], bool]]
+    schedule: RuntimeSchedule | None  # catan and static plans
+    replanner: Replanner | None  # catan
+    plan: Plan | None  # static plans (catan's is the replanner's)
+    priorities: dict[str, int] | None  # baselines: each node's static priority
+    discipline: Discipline
+
+
+def prepare(setup: Setup, policy: str, sampler_for: SamplerFactory) -> Prepared:
+    """Plan what ``policy`` needs (nothing for the baselines, one plan for a static policy)."""
     check_policies([policy])
     spec, cores = setup.spec, setup.cores
     problem = build_problem(spec)
     chains = reported_chains(spec, problem)
-    engine = Engine()
-    flow = Dataflow(spec, [nodes for nodes, _ in chains])
-    sample = sampler_for(spec, setup.seed)
-    plan: Plan | None = None
-    runner: CatanPolicy | TimerPolicy
     if policy in ("baseline", "fifo-static"):  # no plan: the hand-tuned rates
         by_subchain = priorities(problem, spec.schedule, problem.importance())
         by_node = {node: by_subchain[sub.name] for sub in problem.subchains for node in sub.nodes}
-        discipline: Discipline = "fair" if policy == "baseline" else "fifo"
-        runner = TimerPolicy(
-            engine, flow, spec=spec, cores=cores, sample=sample, discipline=discipline, priorities=by_node
-        )
-    elif policy == "catan":
+        return Prepared(chains, None, None, None, by_node, "fair" if policy == "baseline" else "fifo")
+    if policy == "catan":
         replanner = Replanner(spec, cores)
         schedule = runtime_schedule(replanner.plan, replanner.problem, spec.schedule)
-        runner = CatanPolicy(engine, flow, spec=spec, schedule=schedule, sample=sample, replanner=replanner)
-    else:  # one plan, as the Replanner's Stage I would make it, from the tail compute times
-        end = setup.duration_s if policy == "static-fullrun" else min(STATIC_20S, setup.duration_s)
-        profiled = problem.with_compute(tail_compute(spec, sampler_for(spec, setup.seed), 0.0, end))
-        plan = plan_problem(profiled, spec.schedule, cores, backend="conic")
-        schedule = runtime_schedule(plan, profiled, spec.schedule)
-        runner = CatanPolicy(engine, flow, spec=spec, schedule=schedule, sample=sample)
+        return Prepared(chains, schedule, replanner, None, None, "fifo")
+    # One plan, as the Replanner's Stage I would make it, from the tail compute times.
+    end = setup.duration_s if policy == "static-fullrun" else min(STATIC_20S, setup.duration_s)
+    profiled = problem.with_compute(tail_compute(spec, sampler_for(spec, setup.seed), 0.0, end))
+    plan = plan_problem(profiled, spec.schedule, cores, backend="conic")
+    return Prepared(chains, runtime_schedule(plan, profiled, spec.schedule), None, plan, None, "fifo")
+
+
+def simulate(
+    setup: Setup, policy: str, sampler_for: SamplerFactory = workload_sampler, *, engine: EngineChoice = "auto"
+) -> PolicyResult:
+    """Run ``policy`` on ``setup`` for its duration; the same arguments give the same result.
+
+    ``engine``: ``compiled`` (:mod:`catanc.simulate.kernel`, the spec's workload only), ``python``
+    (the readable engine, any sampler), or ``auto``: compiled for the spec's workload.
+    """
+    prepared = prepare(setup, policy, sampler_for)
+    compiled = engine == "compiled" or (engine == "auto" and sampler_for is workload_sampler)
+    if compiled and sampler_for is not workload_sampler:
+        raise UsageError("the compiled simulation draws from the spec's workload model only")
+    records = _run_compiled(setup, prepared) if compiled else _run_python(setup, prepared, sampler_for)
+    plan = prepared.replanner.plan if prepared.replanner is not None else prepared.plan
+    return policy_result(setup, policy, prepared.chains, records, plan)
+
+
+def _run_python(setup: Setup, prepared: Prepared, sampler_for: SamplerFactory) -> Records:
+    spec = setup.spec
+    engine = Engine()
+    flow = Dataflow(spec, [nodes for nodes, _ in prepared.chains])
+    sample = sampler_for(spec, setup.seed)
+    runner: CatanPolicy | TimerPolicy
+    if prepared.schedule is None:
+        assert prepared.priorities is not None
+        runner = TimerPolicy(
+            engine,
+            flow,
+            spec=spec,
+            cores=setup.cores,
+            sample=sample,
+            discipline=prepared.discipline,
+            priorities=prepared.priorities,
+        )
+    else:
+        runner = CatanPolicy(
+            engine, flow, spec=spec, schedule=prepared.schedule, sample=sample, replanner=prepared.replanner
+        )
     start_sensors(engine, flow, spec)
     runner.start()
+    engine.run_until(setup.duration_s * 1000.0)
+    return Records(
+        done_ms={name: record.done_ms for name, record in flow.records.items()},
+        staleness_ms={name: record.staleness_ms for name, record in flow.records.items()},
+        arrivals=flow.arrivals,
+        busy_by_core=runner.busy_by_core(),
+        replans=runner.replans if isinstance(runner, CatanPolicy) else [],
+        schedule=runner.schedule if isinstance(runner, CatanPolicy) else None,
+    )
+
+
+def _run_compiled(setup: Setup, prepared: Prepared) -> Records:
+    from catanc.simulate import fast, kernel  # noqa: PLC0415 (numba loads only when a compiled run is asked for)
+
+    spec, cores = setup.spec, setup.cores
+    chains = [nodes for nodes, _ in prepared.chains]
+    graph = fast.topology(spec, chains, prepared.schedule, cores, prepared.priorities)
+    draws = fast.DrawTable(spec, ComputeSampler(spec, setup.seed), setup.duration_s)
+    end_ms = setup.duration_s * 1000.0
+    if prepared.schedule is None:  # the baselines: one pool of every core, timers
+        kind = kernel.TIMER_FAIR if prepared.discipline == "fair" else kernel.TIMER_FIFO
+        state = fast.run_fields(graph, len(chains), 0, kind)
+        sim = fast.new_sim(graph, fast.no_schedules(), draws.arrays, state)
+        kernel.start_sensors(sim)
+        kernel.start_timers(sim, prepared.discipline == "fair")
+        fast.run_compiled(sim, None, draws, end_ms, None)
+        records = fast.records_of(sim, spec, len(chains), [], None)
+        records.busy_by_core = dict.fromkeys(range(cores), float(state["pool_busy"][0]) / cores)
+        return records
+    reoptimiser = Reoptimiser(spec, prepared.replanner) if prepared.replanner is not None else None
+    runtime = spec.runtime
+    duration = setup.duration_s
+    resolves = math.ceil(duration / runtime.stage2_every_s) + math.ceil(duration / runtime.stage1_every_s)
+    table = fast.ScheduleTable(spec, prepared.schedule, cores, 2 + (resolves if reoptimiser else 0))
+    kind = kernel.CATAN_MEASURED if reoptimiser is not None else kernel.CATAN
+    state = fast.run_fields(graph, len(chains), len(table.names), kind)
+    sim = fast.new_sim(graph, table.arrays, draws.arrays, state)
+    kernel.start_sensors(sim)
+    kernel.install(sim, 0)
+    if reoptimiser is not None:
+        kernel.schedule_reoptimise(sim, reoptimiser.first_ms)
+    fast.run_compiled(sim, table, draws, end_ms, reoptimiser)
+    kernel.fold_busy(sim)
+    records = fast.records_of(sim, spec, len(chains), reoptimiser.replans if reoptimiser else [], None)
+    records.busy_by_core = {core: float(state["core_busy"][core]) for core in range(cores)}
+    records.schedule = table.versions[kernel.clock_of(sim)[1]]
+    return records
+
+
+def policy_result(
+    setup: Setup, policy: str, chains: list[tuple[tuple[str, ...], bool]], records: Records, plan: Plan | None
+) -> PolicyResult:
+    """What a run of ``policy`` shows, from its records (shared by both engines and by ``catanc bench``)."""
     duration_ms = setup.duration_s * 1000.0
-    engine.run_until(duration_ms)
-    if isinstance(runner, CatanPolicy):
-        plan = runner.replanner.plan if runner.replanner is not None else plan
     model = {chain.nodes: chain.response_ms for chain in plan.chains} if plan is not None else {}
-    busy = runner.busy_by_core()
-    timed = [timed_responses(arrivals) for arrivals in flow.arrivals]
+    timed = [timed_responses(arrivals) for arrivals in records.arrivals]
     return PolicyResult(
         policy=policy,
         duration_s=setup.duration_s,
@@ -142,10 +238,11 @@ def simulate(setup: Setup, policy: str, sampler_for: SamplerFactory = workload_s
             for i, (nodes, named) in enumerate(chains)
         ),
         nodes={
-            name: node_result(record.done_ms, record.staleness_ms, duration_ms) for name, record in flow.records.items()
+            name: node_result(records.done_ms[name], records.staleness_ms[name], duration_ms)
+            for name in records.done_ms
         },
-        utilisation=tuple(busy.get(core, 0.0) / duration_ms for core in range(cores)),
-        replans=len(runner.replans) if isinstance(runner, CatanPolicy) else 0,
-        node_done_ms={name: tuple(record.done_ms) for name, record in flow.records.items()},
-        schedule=runner.schedule if isinstance(runner, CatanPolicy) else None,
+        utilisation=tuple(records.busy_by_core.get(core, 0.0) / duration_ms for core in range(setup.cores)),
+        replans=len(records.replans),
+        node_done_ms={name: tuple(done) for name, done in records.done_ms.items()},
+        schedule=records.schedule,
     )

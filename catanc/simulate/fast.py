@@ -1,0 +1,407 @@
+"""The compiled simulation (:mod:`catanc.simulate.kernel`) driven from Python: arrays in, records out.
+
+:func:`run_compiled` does what :func:`catanc.simulate.run.simulate` does with
+the Python engine, policy objects and dataflow, and hands back the same
+records, so both build their :class:`~catanc.simulate.metrics.PolicyResult`
+the same way.  Python keeps what is rare and needs the solvers: planning,
+re-solving (:class:`~catanc.simulate.policies.Reoptimiser`) and growing the
+kernel's arrays when it asks.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from types import SimpleNamespace
+from typing import Any
+
+import numba
+import numpy as np
+
+from catanc.runtime.schedule import RuntimeSchedule
+from catanc.simulate import kernel as k
+from catanc.simulate.policies import Reoptimiser, Replan, baseline_wiring
+from catanc.simulate.records import Records
+from catanc.spec import Spec
+from catanc.workload import ComputeSampler, NodeStream
+
+Fields = dict[str, Any]
+"""Kernel fields by name (:data:`kernel.FIELDS`)."""
+
+FIRST_DRAWS = 256
+"""Compute times drawn per node before the run; more as it asks (doubling)."""
+FIRST_RECORDS = 4096
+FIRST_RING = 16
+"""Queued runs per node and runs in flight per subchain before their rings grow."""
+
+
+def _csr(rows: Sequence[Sequence[int]]) -> tuple[k.IntArray, k.IntArray]:
+    pointers = np.zeros(len(rows) + 1, np.int64)
+    for i, row in enumerate(rows):
+        pointers[i + 1] = pointers[i] + len(row)
+    flat = np.array([x for row in rows for x in row], np.int64)
+    return pointers, flat
+
+
+def _sub_names(schedule: RuntimeSchedule) -> list[str]:
+    return sorted(schedule.subchains)
+
+
+def topology(
+    spec: Spec,
+    chains: Sequence[tuple[str, ...]],
+    schedule: RuntimeSchedule | None,
+    cores: int,
+    priorities: dict[str, int] | None = None,
+) -> Fields:
+    """The graph, the measured chains and (for the baselines) the timer wiring, as arrays."""
+    names = list(spec.nodes)
+    index = {name: i for i, name in enumerate(names)}
+    preds: list[list[int]] = [[] for _ in names]
+    succs: list[list[int]] = [[] for _ in names]
+    for source, target in spec.edge_pairs:
+        preds[index[target]].append(index[source])
+        succs[index[source]].append(index[target])
+    positions: list[list[int]] = [[] for _ in names]
+    befores: list[list[int]] = [[] for _ in names]
+    sinks: list[list[int]] = [[] for _ in names]
+    for c, chain in enumerate(chains):
+        for at, node in enumerate(chain):
+            positions[index[node]].append(c)
+            befores[index[node]].append(index[chain[at - 1]] if at else -1)
+        sinks[index[chain[-1]]].append(c)
+    sub_of = np.full(len(names), -1, np.int64)
+    index_in_sub = np.full(len(names), -1, np.int64)
+    sub_rows: list[list[int]] = []
+    if schedule is not None:
+        for s, name in enumerate(_sub_names(schedule)):
+            run = schedule.subchains[name]
+            sub_rows.append([index[node] for node in run.nodes])
+            for i, node in enumerate(run.nodes):
+                sub_of[index[node]] = s
+                index_in_sub[index[node]] = i
+    sensor_period = np.full(len(names), math.nan)
+    sensors = []
+    for name, spec_node in spec.nodes.items():
+        if not spec_node.scheduled and spec_node.rate_hz is not None:
+            sensor_period[index[name]] = 1000.0 / spec_node.rate_hz
+            sensors.append(index[name])
+    timer_period = np.full(len(names), math.nan)
+    timers: list[int] = []
+    triggers: list[list[int]] = [[] for _ in names]
+    if priorities is not None:
+        rates, wiring = baseline_wiring(spec)
+        for name, rate in sorted(rates.items()):
+            timer_period[index[name]] = 1000.0 / rate
+            timers.append(index[name])
+        for feeder, targets in wiring.items():
+            triggers[index[feeder]] = [index[t] for t in targets]
+    priority = np.array([(priorities or {}).get(name, 0) for name in names], np.int64)
+    pred_ptr, pred = _csr(preds)
+    succ_ptr, succ = _csr(succs)
+    pos_ptr, pos_chain = _csr(positions)
+    _, pos_before = _csr(befores)
+    sink_ptr, sink_chain = _csr(sinks)
+    sub_ptr, sub_nodes = _csr(sub_rows)
+    trig_ptr, trig = _csr(triggers)
+    return {
+        "scheduled": np.array([node.scheduled for node in spec.nodes.values()], np.bool_),
+        "pass_through": np.array([not n.scheduled and n.rate_hz is None for n in spec.nodes.values()], np.bool_),
+        "pred_ptr": pred_ptr,
+        "pred": pred,
+        "succ_ptr": succ_ptr,
+        "succ": succ,
+        "pos_ptr": pos_ptr,
+        "pos_chain": pos_chain,
+        "pos_before": pos_before,
+        "sink_ptr": sink_ptr,
+        "sink_chain": sink_chain,
+        "sub_of": sub_of,
+        "index_in_sub": index_in_sub,
+        "sub_ptr": sub_ptr,
+        "sub_nodes": sub_nodes,
+        "sensor_period": sensor_period,
+        "sensor_order": np.array(sensors, np.int64),
+        "timer_period": timer_period,
+        "timer_order": np.array(timers, np.int64),
+        "trig_ptr": trig_ptr,
+        "trig": trig,
+        "priority": priority,
+        "cores": cores,
+    }
+
+
+class ScheduleTable:
+    """The schedules a run has used, as the kernel's arrays, with room for ``capacity`` versions.
+
+    The kernel shares the arrays: a version added here is there at once.
+    """
+
+    def __init__(self, spec: Spec, first: RuntimeSchedule, cores: int, capacity: int) -> None:
+        self.names = _sub_names(first)
+        self.nodes = list(spec.nodes)
+        self.cores = cores
+        self.versions: list[RuntimeSchedule] = []
+        subs, nodes = len(self.names), len(self.nodes)
+        v = capacity
+        self.arrays: Fields = {
+            "sub_ncores": np.zeros((v, subs), np.int64),
+            "sub_cores": np.zeros((v, subs, cores), np.int64),
+            "sub_shared": np.zeros((v, subs), np.bool_),
+            "sub_period": np.zeros((v, subs)),
+            "sub_latency": np.zeros((v, subs)),
+            "sub_runs": np.full((v, subs), -1, np.int64),
+            "sub_priority": np.zeros((v, subs), np.int64),
+            "node_threads": np.ones((v, nodes), np.int64),
+            "node_speedup": np.ones((v, nodes)),
+            "clocked": np.full((v, subs), -1, np.int64),
+            "n_shared": np.zeros(v, np.int64),
+            "core_id": np.zeros((v, cores), np.int64),
+            "core_period": np.zeros((v, cores)),
+            "core_switch": np.zeros((v, cores)),
+            "core_nslots": np.zeros((v, cores), np.int64),
+            "slot_sub": np.zeros((v, cores, max(subs, 1)), np.int64),
+            "slot_start": np.zeros((v, cores, max(subs, 1))),
+            "slot_length": np.zeros((v, cores, max(subs, 1))),
+        }
+        self.add(first)
+
+    def add(self, schedule: RuntimeSchedule) -> int:
+        """Store ``schedule`` as the next version; its number."""
+        v = len(self.versions)
+        if v >= self.arrays["n_shared"].shape[0]:  # pragma: no cover - capacity counts every re-solve
+            raise AssertionError("more re-plans than the schedule table has room for")
+        if _sub_names(schedule) != self.names:  # pragma: no cover - subchains come from the spec
+            raise AssertionError("a re-plan changed the set of subchains")
+        self.versions.append(schedule)
+        a = SimpleNamespace(**self.arrays)
+        sub_id = {name: s for s, name in enumerate(self.names)}
+        node_id = {name: i for i, name in enumerate(self.nodes)}
+        for s, name in enumerate(self.names):
+            run = schedule.subchains[name]
+            a.sub_ncores[v, s] = len(run.cores)
+            a.sub_cores[v, s, : len(run.cores)] = run.cores
+            a.sub_shared[v, s] = run.shared
+            a.sub_period[v, s] = run.period_ms
+            a.sub_latency[v, s] = run.latency_ms
+            a.sub_runs[v, s] = -1 if run.runs is None else run.runs
+            a.sub_priority[v, s] = run.priority
+            for i, node in enumerate(run.nodes):
+                threads, speedup = run.threads_of(i)
+                a.node_threads[v, node_id[node]] = threads
+                a.node_speedup[v, node_id[node]] = speedup
+        for i, run in enumerate(schedule.clocked):
+            a.clocked[v, i] = sub_id[run.name]
+        a.n_shared[v] = len(schedule.shared)
+        for c, core in enumerate(schedule.shared):
+            a.core_id[v, c] = core.core
+            a.core_period[v, c] = core.period_ms
+            a.core_switch[v, c] = core.switch_ms
+            a.core_nslots[v, c] = len(core.slots)
+            for i, slot in enumerate(core.slots):
+                a.slot_sub[v, c, i] = sub_id[slot.subchain]
+                a.slot_start[v, c, i] = slot.start_ms
+                a.slot_length[v, c, i] = slot.length_ms
+        return v
+
+
+class DrawTable:
+    """Each scheduled node's compute times, drawn ahead from its :class:`NodeStream`, grown on demand."""
+
+    def __init__(self, spec: Spec, sampler: ComputeSampler, end_s: float) -> None:
+        names = list(spec.nodes)
+        n = len(names)
+        self.streams: dict[int, NodeStream] = {
+            i: sampler.stream(name) for i, name in enumerate(names) if spec.nodes[name].scheduled
+        }
+        spikes = {i: stream.spikes_until(end_s + 1.0) for i, stream in self.streams.items()}
+        width = max((len(s) for s in spikes.values()), default=1)
+        spike_at = np.full((n, width), math.inf)
+        spike_ms = np.full(n, math.nan)
+        has_growth = np.zeros(n, np.bool_)
+        growth = np.zeros((n, 3))
+        for i, stream in self.streams.items():
+            spike_at[i, : len(spikes[i])] = spikes[i]
+            spike_ms[i] = stream.spike_ms
+            if stream.growth is not None:
+                has_growth[i] = True
+                growth[i] = stream.growth
+        self.arrays: Fields = {
+            "mode": np.zeros((n, FIRST_DRAWS)),
+            "factor": np.zeros((n, FIRST_DRAWS)),
+            "used": np.zeros(n, np.int64),
+            "filled": np.zeros(n, np.int64),
+            "spike_at": spike_at,
+            "spike_next": np.zeros(n, np.int64),
+            "spike_ms": spike_ms,
+            "has_growth": has_growth,
+            "growth": growth,
+        }
+        self.grow()
+
+    def grow(self, sim: k.Sim | None = None) -> None:
+        """Draw more for every node that is short: twice as many as it has (each stream in its own order)."""
+        a = self.arrays
+        used, filled = a["used"], a["filled"]
+        short = [i for i in self.streams if used[i] + 4 > filled[i]] if sim is not None else list(self.streams)
+        want = {i: max(2 * int(filled[i]), FIRST_DRAWS) for i in short}
+        width = max([a["mode"].shape[1], *want.values()])
+        if width > a["mode"].shape[1]:
+            for name in ("mode", "factor"):
+                wider = np.zeros((a[name].shape[0], width))
+                wider[:, : a[name].shape[1]] = a[name]
+                a[name] = wider
+        for i, count in want.items():
+            modes, factors = self.streams[i].bases(count - int(filled[i]))
+            a["mode"][i, filled[i] : count] = modes
+            a["factor"][i, filled[i] : count] = factors
+            filled[i] = count
+        if sim is not None:
+            k.set_draws(sim, a["mode"], a["factor"])
+
+
+def run_fields(graph: Fields, chains: int, subchains: int, policy: int) -> Fields:
+    """The run's state at time 0: nothing running, nothing produced, empty records."""
+    n, cores = graph["scheduled"].shape[0], graph["cores"]
+    pools = max(subchains, 1)
+    return {
+        "now": 0.0,
+        "order": 0,
+        "arrival": 0,
+        "generation": 0,
+        "version": 0,
+        "policy": policy,
+        "pools": 0,
+        "events": numba.typed.List.empty_list(k.EVENT_TYPE),
+        "job_pool": np.full(n, -1, np.int64),
+        "job_remaining": np.zeros(n),
+        "job_threads": np.ones(n, np.int64),
+        "job_priority": np.zeros(n, np.int64),
+        "job_since": np.zeros(n, np.int64),
+        "job_speed": np.zeros(n),
+        "job_seq": np.zeros(n, np.int64),
+        "job_compute": np.zeros(n),
+        "job_origins": np.full((n, max(chains, 1)), math.nan),
+        "pool_ncores": np.zeros(pools, np.int64),
+        "pool_cores": np.zeros((pools, cores), np.int64),
+        "pool_fair": np.zeros(pools, np.bool_),
+        "pool_jobs": np.zeros((pools, n), np.int64),
+        "pool_njobs": np.zeros(pools, np.int64),
+        "pool_busy": np.zeros(pools),
+        "pool_dirty": np.zeros(pools, np.bool_),
+        "sub_pool": np.zeros(max(subchains, 1), np.int64),
+        "core_busy": np.zeros(cores),
+        "finished": np.zeros(n, np.int64),
+        "sort_buf": np.zeros(n, np.int64),
+        "stack": np.zeros(n + int(graph["succ"].shape[0]) + 1, np.int64),
+        "has_latest": np.zeros(n, np.bool_),
+        "latest_at": np.zeros(n),
+        "latest_origins": np.full((n, max(chains, 1)), math.nan),
+        "busy_seq": np.full(n, k.NO_SEQ, np.int64),
+        "wait": np.zeros((n, FIRST_RING), np.int64),
+        "wait_head": np.zeros(n, np.int64),
+        "wait_tail": np.zeros(n, np.int64),
+        "sub_seq": np.zeros(subchains, np.int64),
+        "sub_pending": np.zeros(subchains, np.bool_),
+        "sub_late": np.zeros(subchains, np.int64),
+        "sub_steals": np.zeros(subchains, np.int64),
+        "sub_skipped": np.zeros(subchains, np.int64),
+        "heads_in_flight": np.zeros(subchains, np.int64),
+        "flight_index": np.zeros((subchains, FIRST_RING), np.int64),
+        "flight_at": np.zeros((subchains, FIRST_RING)),
+        "flight_live": np.zeros((subchains, FIRST_RING), np.bool_),
+        "flight_low": np.ones(subchains, np.int64),
+        "raised": np.full(cores, -1, np.int64),
+        "timer_busy": np.zeros(n, np.bool_),
+        "timer_pending": np.zeros(n, np.bool_),
+        "done_n": 0,
+        "done_node": np.zeros(FIRST_RECORDS, np.int64),
+        "done_at": np.zeros(FIRST_RECORDS),
+        "stale_n": 0,
+        "stale_node": np.zeros(FIRST_RECORDS, np.int64),
+        "stale_ms": np.zeros(FIRST_RECORDS),
+        "arrivals_n": 0,
+        "arrival_chain": np.zeros(FIRST_RECORDS, np.int64),
+        "arrival_origin": np.zeros(FIRST_RECORDS),
+        "arrival_done": np.zeros(FIRST_RECORDS),
+        "measured_n": 0,
+        "measured_node": np.zeros(FIRST_RECORDS, np.int64),
+        "measured_ms": np.zeros(FIRST_RECORDS),
+    }
+
+
+def new_sim(*parts: Fields) -> k.Sim:
+    """A :class:`kernel.Sim` from the fields of ``parts`` (each field given once)."""
+    fields: Fields = {}
+    for part in parts:
+        fields.update(part)
+    missing = set(k.FIELDS) - set(fields)
+    if missing:  # pragma: no cover - a programming error
+        raise AssertionError(f"kernel fields not given: {sorted(missing)}")
+    return k.SimProxy(*(fields[name] for name in k.FIELDS))
+
+
+def run_compiled(sim: k.Sim, table: ScheduleTable | None, draws: DrawTable, end_ms: float,
+                 reoptimiser: Reoptimiser | None) -> None:  # fmt: skip
+    """Run the kernel to ``end_ms``: re-solving when it says so and drawing more compute times when it asks."""
+    while True:
+        status = k.run(sim, end_ms)
+        if status == k.FINISHED:
+            return
+        if status == k.NEED_DRAWS:
+            draws.grow(sim)
+            continue
+        assert table is not None
+        assert reoptimiser is not None
+        nodes, times = k.take_measured(sim)
+        for node, ms in zip(nodes.tolist(), times.tolist(), strict=True):
+            reoptimiser.measurements.record(table.nodes[node], ms)
+        now, current = k.clock_of(sim)
+        after, reinstall, next_ms = reoptimiser.step(now, table.versions[current])
+        version = table.add(after)
+        if reinstall:
+            k.install(sim, version)
+        else:
+            k.set_version(sim, version)
+        k.schedule_reoptimise(sim, next_ms)
+
+
+def records_of(sim: k.Sim, spec: Spec, chains: int, replans: list[Replan], schedule: RuntimeSchedule | None) -> Records:
+    """The run's records, grouped as the Python engine keeps them."""
+    done_node, done_at, stale_node, stale_ms, arrival_chain, arrival_origin, arrival_done = k.records(sim)
+    names = list(spec.nodes)
+    done: dict[str, list[float]] = {name: [] for name in names}
+    for node, at in zip(done_node.tolist(), done_at.tolist(), strict=True):
+        done[names[node]].append(at)
+    stale: dict[str, list[float]] = {name: [] for name in names}
+    for node, ms in zip(stale_node.tolist(), stale_ms.tolist(), strict=True):
+        stale[names[node]].append(ms)
+    arrivals: list[list[tuple[float, float]]] = [[] for _ in range(chains)]
+    for chain, origin, at in zip(arrival_chain.tolist(), arrival_origin.tolist(), arrival_done.tolist(), strict=True):
+        arrivals[chain].append((origin, at))
+    return Records(done, stale, arrivals, {}, replans, schedule)
+
+
+def no_schedules() -> Fields:
+    """Placeholders of the right shapes: the baselines never read a schedule."""
+    ints2, floats2, bools2 = np.zeros((1, 1), np.int64), np.zeros((1, 1)), np.zeros((1, 1), np.bool_)
+    return {
+        "sub_ncores": ints2,
+        "sub_cores": np.zeros((1, 1, 1), np.int64),
+        "sub_shared": bools2,
+        "sub_period": floats2,
+        "sub_latency": floats2,
+        "sub_runs": ints2,
+        "sub_priority": ints2,
+        "node_threads": ints2,
+        "node_speedup": floats2,
+        "clocked": ints2,
+        "n_shared": np.zeros(1, np.int64),
+        "core_id": ints2,
+        "core_period": floats2,
+        "core_switch": floats2,
+        "core_nslots": ints2,
+        "slot_sub": np.zeros((1, 1, 1), np.int64),
+        "slot_start": np.zeros((1, 1, 1)),
+        "slot_length": np.zeros((1, 1, 1)),
+    }

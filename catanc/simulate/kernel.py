@@ -1,0 +1,843 @@
+"""The simulation loop compiled with numba: the same model as the Python engine, over flat arrays.
+
+:mod:`catanc.simulate.engine`, :mod:`~catanc.simulate.dataflow` and
+:mod:`~catanc.simulate.policies` say what is simulated; this module does
+exactly that, step for step, so fast that nav2d runs thousands of times
+faster than real time (issue 7).  The Python objects stay as the readable
+statement and as this kernel's oracle: tests hold the two to the same
+results on the example specs and on random apps (tests/test_simulate_kernel.py).
+Keep them in step: a change to one is a change to both.
+
+Every function here mirrors one Python method, named alike.  The same
+operations in the same order give the same floating-point results, and
+events at one time run in the order they were scheduled, as in
+:class:`~catanc.simulate.engine.Engine`.
+
+The kernel runs until the end time, or returns early when the policy must
+re-solve (``REOPTIMISE_NOW``: Python plans, then resumes it) or a node is
+about to run out of compute times drawn in advance (``NEED_DRAWS``).
+Everything it knows is in one :class:`Sim` (built by
+:mod:`catanc.simulate.fast`): stopping and resuming between two loop turns
+changes nothing.  numba does not check indices: the arrays grow before an
+event could overrun them (:func:`make_room`).
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from collections.abc import Callable
+from typing import Any, TypeAlias, TypeVar, cast
+
+import numba
+import numpy as np
+import numpy.typing as npt
+from numba.experimental import structref
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+BoolArray = npt.NDArray[np.bool_]
+
+
+def compiled(function: F) -> F:
+    """An entry point: numba's no-Python mode, cached on disk beside the module."""
+    return cast(F, numba.njit(cache=True, nogil=True)(function))
+
+
+# Event kinds (an event is (time, order, kind, a, b, c, d, e, f)).
+SENSOR, TIMER, CLOCK, BEGIN, SWITCH, LOWER, REOPTIMISE = 0, 1, 2, 3, 4, 5, 6
+EVENT_TYPE = numba.types.Tuple(
+    (
+        numba.types.float64,
+        numba.types.int64,
+        numba.types.int64,
+        numba.types.int64,
+        numba.types.int64,
+        numba.types.int64,
+        numba.types.int64,
+        numba.types.int64,
+        numba.types.float64,
+    )
+)
+
+# What run() returns.
+FINISHED, REOPTIMISE_NOW, NEED_DRAWS = 0, 1, 2
+
+# Policies.
+CATAN, CATAN_MEASURED, TIMER_FAIR, TIMER_FIFO = 0, 1, 2, 3
+
+RAISED, RESTING_SHARED, DEDICATED = 2, 1, 2  # as in catanc.simulate.policies
+DONE_EPS_MS = 1e-9  # as in catanc.simulate.cpu
+NO_SEQ = -1
+
+
+@structref.register
+class SimType(numba.types.StructRef):  # type: ignore[misc]
+    """numba's type of :class:`Sim`."""
+
+    def preprocess_fields(self, fields: Any) -> Any:
+        return tuple((name, numba.types.unliteral(typ)) for name, typ in fields)
+
+
+class SimProxy(structref.StructRefProxy):  # type: ignore[misc]
+    """One simulation's arrays and counters, passed to every kernel function by reference.
+
+    One mutable struct instead of tuples of arrays: numba passes a tuple by
+    value, flattened into every call's arguments, which cost microseconds per
+    call (measured: 3 us for a loop over 12 nodes).  Fields, by group (CSR
+    means ``x_ptr[i]:x_ptr[i+1]`` indexes ``x``; nodes are numbered in spec
+    order, subchains in sorted name order, chains as reported):
+
+    The graph (fixed): ``scheduled``, ``pass_through`` (unscheduled without a
+    rate), ``pred_ptr/pred``, ``succ_ptr/succ``, ``pos_ptr/pos_chain/pos_before``
+    (a node's places on the measured chains; the node before it, -1 at the
+    head), ``sink_ptr/sink_chain``, ``sub_of`` and ``index_in_sub`` per node,
+    ``sub_ptr/sub_nodes``, ``sensor_period`` (NaN if not a sensor) and
+    ``sensor_order`` (spec order), ``timer_period``/``timer_order``/``trig_ptr``/
+    ``trig``/``priority`` (the baselines' wiring), ``cores``.
+
+    The schedules, by version ``[V, ...]`` (a switch keeps the version it was
+    scheduled in): ``sub_ncores``, ``sub_cores``, ``sub_shared``,
+    ``sub_period``, ``sub_latency``, ``sub_runs`` (-1: own clock),
+    ``sub_priority``, ``node_threads``, ``node_speedup``, ``clocked`` (in the
+    schedule's order, then -1), ``n_shared``, ``core_id``, ``core_period``,
+    ``core_switch``, ``core_nslots``, ``slot_sub``, ``slot_start``, ``slot_length``.
+
+    The draws (:class:`catanc.workload.NodeStream` values, drawn ahead):
+    ``mode``/``factor`` ``[N, cap]``, ``used``, ``filled``, ``spike_at``
+    (padded with inf), ``spike_next``, ``spike_ms``, ``has_growth``, ``growth``.
+
+    The run: the counters ``now``, ``order``, ``arrival``, ``generation``,
+    ``version``, ``policy``, ``pools``; the event heap ``events``; one job per
+    node at most (``job_*``); pools of cores (``pool_*``, ``sub_pool``,
+    ``core_busy``); the data (``has_latest``, ``latest_at``, ``latest_origins``
+    with NaN for no origin on a chain); catanc's runs (``busy_seq``, the
+    ``wait`` rings, ``sub_*`` counters, ``heads_in_flight``, the ``flight_*``
+    rings by seq, ``raised`` per core); the baselines' ``timer_busy`` and
+    ``timer_pending``; scratch (``finished``, ``sort_buf``, ``stack``); and the
+    records with their counts (``done_*``, ``stale_*``, ``arrival_*``,
+    ``measured_*``), grown here as they fill.
+    """
+
+
+FIELDS = (
+    # the graph
+    "scheduled", "pass_through", "pred_ptr", "pred", "succ_ptr", "succ", "pos_ptr", "pos_chain", "pos_before",
+    "sink_ptr", "sink_chain", "sub_of", "index_in_sub", "sub_ptr", "sub_nodes", "sensor_period", "sensor_order",
+    "timer_period", "timer_order", "trig_ptr", "trig", "priority", "cores",
+    # the schedules
+    "sub_ncores", "sub_cores", "sub_shared", "sub_period", "sub_latency", "sub_runs", "sub_priority",
+    "node_threads", "node_speedup", "clocked", "n_shared", "core_id", "core_period", "core_switch", "core_nslots",
+    "slot_sub", "slot_start", "slot_length",
+    # the draws
+    "mode", "factor", "used", "filled", "spike_at", "spike_next", "spike_ms", "has_growth", "growth",
+    # the run
+    "now", "order", "arrival", "generation", "version", "policy", "pools", "events",
+    "job_pool", "job_remaining", "job_threads", "job_priority", "job_since", "job_speed", "job_seq", "job_compute",
+    "job_origins", "pool_ncores", "pool_cores", "pool_fair", "pool_jobs", "pool_njobs", "pool_busy", "pool_dirty",
+    "sub_pool", "core_busy", "finished", "sort_buf", "stack", "has_latest", "latest_at", "latest_origins",
+    "busy_seq", "wait", "wait_head", "wait_tail", "sub_seq", "sub_pending", "sub_late", "sub_steals", "sub_skipped",
+    "heads_in_flight", "flight_index", "flight_at", "flight_live", "flight_low", "raised", "timer_busy",
+    "timer_pending", "done_n", "done_node", "done_at", "stale_n", "stale_node", "stale_ms", "arrivals_n",
+    "arrival_chain", "arrival_origin", "arrival_done", "measured_n", "measured_node", "measured_ms",
+)  # fmt: skip
+structref.define_constructor(SimProxy, SimType, FIELDS)
+structref.define_boxing(SimType, SimProxy)
+
+Sim: TypeAlias = Any
+"""A :class:`SimProxy` in annotations: numba types its fields; to mypy the struct is opaque."""
+
+
+# --------------------------------------------------------------------------- the engine
+
+
+@compiled
+def at(sim: Sim, when_ms: float, kind: int, a: int, b: int, c: int, d: int, e: int, f: float) -> None:
+    order = sim.order
+    sim.order = order + 1
+    heapq.heappush(sim.events, (max(when_ms, sim.now), order, kind, a, b, c, d, e, f))
+
+
+@compiled
+def arrival(sim: Sim) -> int:
+    ticket: int = sim.arrival
+    sim.arrival = ticket + 1
+    return ticket
+
+
+@compiled
+def submit(sim: Sim, pool: int, node: int, remaining: float, threads: int, priority: int) -> None:
+    sim.job_pool[node] = pool
+    sim.job_remaining[node] = remaining
+    sim.job_threads[node] = threads
+    sim.job_priority[node] = priority
+    sim.job_since[node] = arrival(sim)
+    sim.job_speed[node] = 0.0
+    sim.pool_jobs[pool, sim.pool_njobs[pool]] = node
+    sim.pool_njobs[pool] += 1
+    sim.pool_dirty[pool] = True
+
+
+@compiled
+def allocate(sim: Sim, pool: int) -> None:
+    free = float(sim.pool_ncores[pool])
+    count = sim.pool_njobs[pool]
+    jobs = sim.pool_jobs[pool]
+    if not sim.pool_fair[pool]:
+        order = sim.sort_buf  # by (priority high first, then arrival): insertion sort, few jobs
+        for i in range(count):
+            node = jobs[i]
+            j = i
+            while j > 0:
+                other = order[j - 1]
+                if sim.job_priority[other] > sim.job_priority[node] or (
+                    sim.job_priority[other] == sim.job_priority[node] and sim.job_since[other] <= sim.job_since[node]
+                ):
+                    break
+                order[j] = other
+                j -= 1
+            order[j] = node
+        for i in range(count):
+            node = order[i]
+            threads = float(sim.job_threads[node])
+            given = min(threads, free)
+            sim.job_speed[node] = given / threads
+            free -= given
+        return
+    demand = 0
+    for i in range(count):
+        demand += sim.job_threads[jobs[i]]
+    if demand <= free:
+        for i in range(count):
+            sim.job_speed[jobs[i]] = 1.0
+        return
+    share = free / demand
+    for i in range(count):
+        sim.job_speed[jobs[i]] = min(1.0, share)
+
+
+@compiled
+def next_done(sim: Sim) -> tuple[float, int]:
+    best, which = math.inf, -1
+    for pool in range(sim.pools):
+        done_in = math.inf
+        for i in range(sim.pool_njobs[pool]):
+            node = sim.pool_jobs[pool, i]
+            if sim.job_speed[node] > 0.0:
+                done_in = min(done_in, sim.job_remaining[node] / sim.job_speed[node])
+        if done_in < best:
+            best, which = done_in, pool
+    return best, which
+
+
+@compiled
+def advance_to(sim: Sim, when_ms: float) -> int:
+    """Move time on; the jobs that finished are ``sim.finished[:count]``, in the Python engine's order."""
+    dt = max(when_ms - sim.now, 0.0)
+    count = 0
+    for pool in range(sim.pools):
+        jobs = sim.pool_jobs[pool]
+        n = sim.pool_njobs[pool]
+        ended = False
+        for i in range(n):
+            node = jobs[i]
+            speed = sim.job_speed[node]
+            if speed > 0.0:
+                sim.job_remaining[node] -= dt * speed
+                sim.pool_busy[pool] += dt * speed * sim.job_threads[node]
+                if sim.job_remaining[node] <= DONE_EPS_MS:
+                    sim.finished[count] = node
+                    count += 1
+                    ended = True
+        if ended:
+            kept = 0
+            for i in range(n):
+                node = jobs[i]
+                if sim.job_remaining[node] > DONE_EPS_MS:
+                    jobs[kept] = node
+                    kept += 1
+                else:
+                    sim.job_pool[node] = -1
+            sim.pool_njobs[pool] = kept
+            sim.pool_dirty[pool] = True
+    sim.now = max(sim.now, when_ms)
+    return count
+
+
+@compiled
+def draws_short(sim: Sim) -> bool:
+    """Whether a node may run out of drawn compute times in the next event (Python draws more)."""
+    for node in range(sim.scheduled.shape[0]):
+        if sim.scheduled[node] and sim.used[node] + 4 > sim.filled[node]:
+            return True
+    return False
+
+
+@compiled
+def make_room(sim: Sim) -> None:
+    """Room in every record and ring for one more event (an event adds at most ``margin`` of each)."""
+    n = sim.scheduled.shape[0]
+    produced = n * (sim.succ.shape[0] + n + 1)  # every node finishing, each passing data on to every node
+    if sim.done_n + produced > sim.done_at.shape[0]:
+        sim.done_node = longer_ints(sim.done_node, sim.done_n + produced)
+        sim.done_at = longer_floats(sim.done_at, sim.done_n + produced)
+    if sim.stale_n + 2 * produced > sim.stale_ms.shape[0]:
+        sim.stale_node = longer_ints(sim.stale_node, sim.stale_n + 2 * produced)
+        sim.stale_ms = longer_floats(sim.stale_ms, sim.stale_n + 2 * produced)
+    arrivals = produced * sim.latest_origins.shape[1]
+    if sim.arrivals_n + arrivals > sim.arrival_done.shape[0]:
+        sim.arrival_chain = longer_ints(sim.arrival_chain, sim.arrivals_n + arrivals)
+        sim.arrival_origin = longer_floats(sim.arrival_origin, sim.arrivals_n + arrivals)
+        sim.arrival_done = longer_floats(sim.arrival_done, sim.arrivals_n + arrivals)
+    if sim.measured_n + n > sim.measured_ms.shape[0]:
+        sim.measured_node = longer_ints(sim.measured_node, sim.measured_n + n)
+        sim.measured_ms = longer_floats(sim.measured_ms, sim.measured_n + n)
+    width = sim.wait.shape[1]
+    for node in range(n):
+        if sim.wait_tail[node] - sim.wait_head[node] + 4 > width:
+            sim.wait = wider_ring(sim.wait, sim.wait_head, sim.wait_tail - 1)
+            break
+    width = sim.flight_index.shape[1]
+    for sub in range(sim.sub_seq.shape[0]):
+        oldest_in_flight(sim, sub)  # moves flight_low past finished runs
+        if sim.sub_seq[sub] - sim.flight_low[sub] + 4 > width:
+            high = sim.sub_seq.copy()
+            sim.flight_index = wider_ring(sim.flight_index, sim.flight_low, high)
+            sim.flight_at = wider_ring(sim.flight_at, sim.flight_low, high)
+            sim.flight_live = wider_ring(sim.flight_live, sim.flight_low, high)
+            break
+
+
+@compiled
+def longer_ints(array: IntArray, at_least: int) -> IntArray:
+    grown = np.zeros(max(2 * array.shape[0], at_least), np.int64)
+    grown[: array.shape[0]] = array
+    return grown
+
+
+@compiled
+def longer_floats(array: FloatArray, at_least: int) -> FloatArray:
+    grown = np.zeros(max(2 * array.shape[0], at_least), np.float64)
+    grown[: array.shape[0]] = array
+    return grown
+
+
+@compiled
+def wider_ring(ring: Any, low: IntArray, high: IntArray) -> Any:
+    """A ring indexed by a counter modulo its width, twice as wide, each counter in ``low..high`` in its place."""
+    width = ring.shape[1]
+    grown = np.zeros((ring.shape[0], 2 * width), ring.dtype)
+    for row in range(ring.shape[0]):
+        for counter in range(low[row], high[row] + 1):
+            grown[row, counter % (2 * width)] = ring[row, counter % width]
+    return grown
+
+
+@compiled
+def run(sim: Sim, end_ms: float) -> int:
+    """:meth:`Engine.run_until`: to ``end_ms``, or until a re-solve is due or Python must draw more."""
+    events = sim.events
+    while True:
+        if draws_short(sim):
+            return NEED_DRAWS
+        make_room(sim)
+        for pool in range(sim.pools):
+            if sim.pool_dirty[pool]:
+                allocate(sim, pool)
+                sim.pool_dirty[pool] = False
+        done_in, pool = next_done(sim)
+        next_event = events[0][0] if len(events) > 0 else math.inf
+        now = sim.now
+        if min(now + done_in, next_event) > end_ms:
+            advance_to(sim, end_ms)
+            return FINISHED
+        if now + done_in <= next_event and pool >= 0:
+            count = advance_to(sim, now + done_in)
+            finish_all(sim, count)
+            continue
+        count = advance_to(sim, next_event)
+        if count:
+            finish_all(sim, count)
+            continue
+        event = heapq.heappop(events)
+        if event[2] == REOPTIMISE:
+            return REOPTIMISE_NOW
+        dispatch(sim, event)
+
+
+@compiled
+def finish_all(sim: Sim, count: int) -> None:
+    for i in range(count):  # completions start jobs but never move time: sim.finished stays as it is
+        node = sim.finished[i]
+        if sim.policy <= CATAN_MEASURED:
+            catan_done(sim, node)
+        else:
+            timer_done(sim, node)
+
+
+@compiled
+def dispatch(sim: Sim, event: Any) -> None:
+    kind = event[2]
+    if kind == SENSOR:
+        node = event[3]
+        due = event[8]
+        tick(sim, node)
+        at(sim, due + sim.sensor_period[node], SENSOR, node, 0, 0, 0, 0, due + sim.sensor_period[node])
+    elif kind == TIMER:
+        node = event[3]
+        due = event[8]
+        timer_trigger(sim, node)
+        at(sim, due + sim.timer_period[node], TIMER, node, 0, 0, 0, 0, due + sim.timer_period[node])
+    elif kind == CLOCK:
+        clock_fire(sim, event[3], event[4], event[8])
+    elif kind == BEGIN:
+        period_begin(sim, event[3], event[4], event[5], event[8])
+    elif kind == SWITCH:
+        switch(sim, event[3], event[4], event[5], event[6], event[7])
+    elif kind == LOWER:
+        if event[4] == sim.generation:
+            raise_owner(sim, event[3], -1)
+
+
+# --------------------------------------------------------------------------- the data
+
+
+@compiled
+def read_inputs(sim: Sim, node: int, now: float, into: FloatArray) -> None:
+    """:meth:`Dataflow.read_inputs`: the origins of what ``node`` reads now go to ``into``."""
+    into[:] = math.nan
+    for k in range(sim.pos_ptr[node], sim.pos_ptr[node + 1]):
+        chain = sim.pos_chain[k]
+        before = sim.pos_before[k]
+        if before < 0:
+            into[chain] = now
+        elif sim.has_latest[before]:
+            into[chain] = sim.latest_origins[before, chain]  # NaN when it had none on this chain
+    age = -math.inf
+    for k in range(sim.pred_ptr[node], sim.pred_ptr[node + 1]):
+        before = sim.pred[k]
+        if sim.has_latest[before]:
+            age = max(age, now - sim.latest_at[before])
+    if age > -math.inf:
+        n = sim.stale_n
+        sim.stale_node[n] = node
+        sim.stale_ms[n] = age
+        sim.stale_n = n + 1
+
+
+@compiled
+def produce(sim: Sim, node: int) -> None:
+    """:meth:`Dataflow.produce`, ``node``'s origins already in ``latest_origins``; depth first, as recursion."""
+    now = sim.now
+    stack = sim.stack
+    stack[0] = node
+    top = 1
+    first = True
+    while top > 0:
+        top -= 1
+        current = stack[top]
+        if not first:  # a pass-through node reads its inputs as it is reached
+            read_inputs(sim, current, now, sim.latest_origins[current])
+        first = False
+        sim.has_latest[current] = True
+        sim.latest_at[current] = now
+        n = sim.done_n
+        sim.done_node[n] = current
+        sim.done_at[n] = now
+        sim.done_n = n + 1
+        for k in range(sim.sink_ptr[current], sim.sink_ptr[current + 1]):
+            chain = sim.sink_chain[k]
+            origin = sim.latest_origins[current, chain]
+            if not math.isnan(origin):
+                m = sim.arrivals_n
+                sim.arrival_chain[m] = chain
+                sim.arrival_origin[m] = origin
+                sim.arrival_done[m] = now
+                sim.arrivals_n = m + 1
+        if sim.policy >= TIMER_FAIR:  # the baselines listen to every output
+            for k in range(sim.trig_ptr[current], sim.trig_ptr[current + 1]):
+                timer_trigger(sim, sim.trig[k])
+        for k in range(sim.succ_ptr[current + 1] - 1, sim.succ_ptr[current] - 1, -1):
+            after = sim.succ[k]
+            if sim.pass_through[after]:
+                stack[top] = after
+                top += 1
+
+
+@compiled
+def tick(sim: Sim, node: int) -> None:
+    read_inputs(sim, node, sim.now, sim.latest_origins[node])
+    produce(sim, node)
+
+
+@compiled
+def sample(sim: Sim, node: int, at_s: float) -> float:
+    """:meth:`catanc.workload.NodeStream.draw` from the values drawn in advance."""
+    i = sim.spike_next[node]
+    if at_s >= sim.spike_at[node, i]:
+        while sim.spike_at[node, i] <= at_s:
+            i += 1
+        sim.spike_next[node] = i
+        spike: float = sim.spike_ms[node]
+        return spike
+    k = sim.used[node]
+    sim.used[node] = k + 1
+    ms: float = sim.mode[node, k]
+    if sim.has_growth[node]:
+        start, end, over_s = sim.growth[node, 0], sim.growth[node, 1], sim.growth[node, 2]
+        if at_s >= over_s:
+            factor = end
+        elif at_s <= 0.0:
+            factor = start
+        else:
+            factor = start + (end - start) * (at_s / over_s)
+        ms *= factor
+    jitter: float = sim.factor[node, k]
+    return ms * jitter
+
+
+# --------------------------------------------------------------------------- catanc's schedule
+
+
+@compiled
+def install(sim: Sim, version: int) -> None:
+    """:meth:`CatanPolicy._install`: pools for ``version``'s allocation, running jobs moved, clocks restarted."""
+    sim.generation += 1
+    sim.version = version
+    old = np.empty(sim.scheduled.shape[0], np.int64)
+    n_old = 0
+    for pool in range(sim.pools):
+        for i in range(sim.pool_njobs[pool]):
+            old[n_old] = sim.pool_jobs[pool, i]
+            n_old += 1
+    fold_busy(sim)
+    pools = 0
+    core_pool = np.full(sim.cores, -1, np.int64)
+    for sub in range(sim.sub_shared.shape[1]):  # subchains by sorted name, as the Python policy makes pools
+        if sim.sub_shared[version, sub]:
+            core = sim.sub_cores[version, sub, 0]
+            if core_pool[core] < 0:
+                core_pool[core] = pools
+                new_pool(sim, pools, sim.sub_cores[version, sub], 1)
+                pools += 1
+            sim.sub_pool[sub] = core_pool[core]
+        else:
+            new_pool(sim, pools, sim.sub_cores[version, sub], sim.sub_ncores[version, sub])
+            sim.sub_pool[sub] = pools
+            pools += 1
+    sim.pools = pools
+    sim.raised[:] = -1
+    for i in range(n_old):
+        node = old[i]
+        sub = sim.sub_of[node]
+        if sub >= 0:
+            priority = RESTING_SHARED if sim.sub_shared[version, sub] else DEDICATED
+            resubmit(sim, sim.sub_pool[sub], node, priority)
+    for pool in range(pools):
+        sim.pool_dirty[pool] = True
+    generation = sim.generation
+    now = sim.now
+    for i in range(sim.clocked.shape[1]):
+        sub = sim.clocked[version, i]
+        if sub < 0:
+            break
+        at(sim, now, CLOCK, sub, generation, 0, 0, 0, now)
+    for c in range(sim.n_shared[version]):
+        at(sim, now, BEGIN, sim.core_id[version, c], generation, 0, 0, 0, now)
+
+
+@compiled
+def new_pool(sim: Sim, pool: int, cores: IntArray, ncores: int) -> None:
+    sim.pool_ncores[pool] = ncores
+    sim.pool_cores[pool, :ncores] = cores[:ncores]
+    sim.pool_fair[pool] = False
+    sim.pool_njobs[pool] = 0
+    sim.pool_busy[pool] = 0.0
+    sim.pool_dirty[pool] = True
+
+
+@compiled
+def resubmit(sim: Sim, pool: int, node: int, priority: int) -> None:
+    sim.job_pool[node] = pool
+    sim.job_priority[node] = priority
+    sim.job_since[node] = arrival(sim)
+    sim.pool_jobs[pool, sim.pool_njobs[pool]] = node
+    sim.pool_njobs[pool] += 1
+    sim.pool_dirty[pool] = True
+
+
+@compiled
+def fold_busy(sim: Sim) -> None:
+    for pool in range(sim.pools):
+        n = sim.pool_ncores[pool]
+        for i in range(n):
+            sim.core_busy[sim.pool_cores[pool, i]] += sim.pool_busy[pool] / n
+        sim.pool_busy[pool] = 0.0
+
+
+@compiled
+def clock_fire(sim: Sim, sub: int, generation: int, due: float) -> None:
+    if generation != sim.generation:
+        return
+    version = sim.version
+    if sim.sub_runs[version, sub] >= 0:  # no longer on its own clock
+        return
+    trigger_head(sim, sub)
+    when = max(due + sim.sub_period[version, sub], sim.now)
+    at(sim, when, CLOCK, sub, generation, 0, 0, 0, when)
+
+
+@compiled
+def period_begin(sim: Sim, core_id: int, generation: int, index: int, start: float) -> None:
+    if generation != sim.generation:
+        return
+    version = sim.version
+    c = -1
+    for i in range(sim.n_shared[version]):
+        if sim.core_id[version, i] == core_id:
+            c = i
+            break
+    if c < 0 or sim.core_nslots[version, c] == 0:
+        return
+    n = sim.core_nslots[version, c]
+    for s in range(n):
+        when = start + sim.slot_start[version, c, s] - sim.core_switch[version, c]
+        at(sim, when, SWITCH, version, c, s, generation, index, 0.0)
+    last_end = start + sim.slot_start[version, c, n - 1] + sim.slot_length[version, c, n - 1]
+    at(sim, last_end, LOWER, core_id, generation, 0, 0, 0, 0.0)
+    next_start = start + sim.core_period[version, c]
+    at(sim, next_start, BEGIN, core_id, generation, index + 1, 0, 0, next_start)
+
+
+@compiled
+def oldest_in_flight(sim: Sim, sub: int) -> float:
+    """When the oldest unfinished run of ``sub`` was triggered (NaN: none); seqs are triggered in time order."""
+    cap = sim.flight_index.shape[1]
+    seq = sim.flight_low[sub]
+    while seq <= sim.sub_seq[sub] and not sim.flight_live[sub, seq % cap]:
+        seq += 1
+    sim.flight_low[sub] = seq
+    if seq > sim.sub_seq[sub]:
+        return math.nan
+    oldest: float = sim.flight_at[sub, seq % cap]
+    return oldest
+
+
+@compiled
+def switch(sim: Sim, old_version: int, c: int, s: int, generation: int, index: int
+) -> None:
+    """:meth:`CatanPolicy._switcher`: the core's slots as they were scheduled, the subchains as they are now."""
+    if generation != sim.generation:
+        return
+    version = sim.version
+    now = sim.now
+    owner = sim.slot_sub[old_version, c, s]
+    best = -1
+    for i in range(sim.core_nslots[old_version, c]):
+        other = sim.slot_sub[old_version, c, i]
+        oldest = oldest_in_flight(sim, other)
+        late = not math.isnan(oldest) and now - oldest > sim.sub_latency[version, other]
+        if late and other != owner:
+            better = best < 0 or sim.sub_priority[version, other] > sim.sub_priority[version, best]
+            if not better and sim.sub_priority[version, other] == sim.sub_priority[version, best]:
+                better = other > best  # ties go to the greater name, as max() over (priority, name)
+            if better:
+                best = other
+    chosen = owner
+    if best >= 0 and sim.sub_priority[version, best] > sim.sub_priority[version, owner]:
+        chosen = best
+    if chosen != owner:
+        sim.sub_steals[chosen] += 1
+    raise_owner(sim, sim.core_id[old_version, c], chosen)
+    runs = sim.sub_runs[version, owner]
+    if runs >= 0 and index % runs == 0:
+        trigger_head(sim, owner)
+
+
+@compiled
+def raise_owner(sim: Sim, core: int, owner: int) -> None:
+    """:meth:`CatanPolicy._raise`: the previous owner's jobs to FIFO 1 (front), ``owner``'s to FIFO 2 (back)."""
+    previous = sim.raised[core]
+    if previous == owner:
+        return
+    sim.raised[core] = owner
+    for k in range(2):
+        sub = previous if k == 0 else owner
+        level = RESTING_SHARED if k == 0 else RAISED
+        if sub < 0:
+            continue
+        pool = sim.sub_pool[sub]
+        for i in range(sim.pool_njobs[pool]):
+            node = sim.pool_jobs[pool, i]
+            if sim.sub_of[node] == sub:
+                sim.job_priority[node] = level
+                ticket = arrival(sim)
+                sim.job_since[node] = ticket if level == RAISED else -ticket
+        sim.pool_dirty[pool] = True
+
+
+@compiled
+def trigger_head(sim: Sim, sub: int) -> None:
+    if sim.heads_in_flight[sub] > 0:
+        if not sim.sub_pending[sub]:
+            sim.sub_skipped[sub] += 1
+        sim.sub_pending[sub] = True
+        return
+    sim.sub_pending[sub] = False
+    seq = sim.sub_seq[sub] + 1
+    sim.sub_seq[sub] = seq
+    cap = sim.flight_index.shape[1]
+    sim.flight_index[sub, seq % cap] = 0
+    sim.flight_at[sub, seq % cap] = sim.now
+    sim.flight_live[sub, seq % cap] = True
+    sim.heads_in_flight[sub] += 1
+    catan_trigger(sim, sim.sub_nodes[sim.sub_ptr[sub]], seq)
+
+
+@compiled
+def catan_trigger(sim: Sim, node: int, seq: int) -> None:
+    if sim.busy_seq[node] != NO_SEQ:
+        cap = sim.wait.shape[1]
+        sim.wait[node, sim.wait_tail[node] % cap] = seq
+        sim.wait_tail[node] += 1
+        return
+    sub = sim.sub_of[node]
+    version = sim.version
+    sim.busy_seq[node] = seq
+    now = sim.now
+    read_inputs(sim, node, now, sim.job_origins[node])
+    compute = sample(sim, node, now / 1000.0)
+    if not sim.sub_shared[version, sub]:
+        priority = DEDICATED
+    else:
+        priority = RAISED if sim.raised[sim.sub_cores[version, sub, 0]] == sub else RESTING_SHARED
+    sim.job_seq[node] = seq
+    sim.job_compute[node] = compute
+    remaining = compute / sim.node_speedup[version, node]
+    submit(sim, sim.sub_pool[sub], node, remaining, sim.node_threads[version, node], priority)
+
+
+@compiled
+def catan_done(sim: Sim, node: int) -> None:
+    seq = sim.job_seq[node]
+    if sim.policy == CATAN_MEASURED:
+        m = sim.measured_n
+        sim.measured_node[m] = node
+        sim.measured_ms[m] = sim.job_compute[node]
+        sim.measured_n = m + 1
+    sim.latest_origins[node, :] = sim.job_origins[node]
+    produce(sim, node)
+    sub = sim.sub_of[node]
+    sim.busy_seq[node] = NO_SEQ  # free: the next waiting run of this node starts
+    if sim.wait_tail[node] > sim.wait_head[node]:
+        waiting = sim.wait[node, sim.wait_head[node] % sim.wait.shape[1]]
+        sim.wait_head[node] += 1
+        catan_trigger(sim, node, waiting)
+    cap = sim.flight_index.shape[1]
+    if seq > sim.sub_seq[sub] or seq < sim.flight_low[sub] or not sim.flight_live[sub, seq % cap]:
+        return
+    index = sim.flight_index[sub, seq % cap]
+    head_done = index == 0
+    length = sim.sub_ptr[sub + 1] - sim.sub_ptr[sub]
+    if head_done:
+        sim.heads_in_flight[sub] -= 1
+    if index + 1 < length:
+        sim.flight_index[sub, seq % cap] = index + 1
+        catan_trigger(sim, sim.sub_nodes[sim.sub_ptr[sub] + index + 1], seq)
+    else:
+        sim.flight_live[sub, seq % cap] = False
+        if sim.now - sim.flight_at[sub, seq % cap] > sim.sub_latency[sim.version, sub]:
+            sim.sub_late[sub] += 1
+    if head_done and sim.sub_pending[sub]:
+        trigger_head(sim, sub)
+
+
+# --------------------------------------------------------------------------- the hand-tuned baselines
+
+
+@compiled
+def timer_trigger(sim: Sim, node: int) -> None:
+    if sim.timer_busy[node]:
+        sim.timer_pending[node] = True
+        return
+    sim.timer_busy[node] = True
+    now = sim.now
+    read_inputs(sim, node, now, sim.job_origins[node])
+    compute = sample(sim, node, now / 1000.0)
+    submit(sim, 0, node, compute, 1, sim.priority[node])
+
+
+@compiled
+def timer_done(sim: Sim, node: int) -> None:
+    sim.latest_origins[node, :] = sim.job_origins[node]
+    produce(sim, node)
+    sim.timer_busy[node] = False
+    if sim.timer_pending[node]:
+        sim.timer_pending[node] = False
+        timer_trigger(sim, node)
+
+
+@compiled
+def start_sensors(sim: Sim) -> None:
+    for i in range(sim.sensor_order.shape[0]):
+        node = sim.sensor_order[i]
+        at(sim, 0.0, SENSOR, node, 0, 0, 0, 0, 0.0)
+
+
+@compiled
+def start_timers(sim: Sim, fair: bool) -> None:
+    """:class:`TimerPolicy`: one pool of every core; each listed node's timer from 0."""
+    new_pool(sim, 0, np.arange(sim.cores), sim.cores)
+    sim.pool_fair[0] = fair
+    sim.pools = 1
+    for i in range(sim.timer_order.shape[0]):
+        at(sim, 0.0, TIMER, sim.timer_order[i], 0, 0, 0, 0, 0.0)
+
+
+@compiled
+def schedule_reoptimise(sim: Sim, when_ms: float) -> None:
+    at(sim, when_ms, REOPTIMISE, 0, 0, 0, 0, 0, 0.0)
+
+
+@compiled
+def set_version(sim: Sim, version: int) -> None:
+    sim.version = version
+
+
+# --------------------------------------------------------------------------- for Python
+
+
+@compiled
+def records(sim: Sim) -> tuple[IntArray, FloatArray, IntArray, FloatArray, IntArray, FloatArray, FloatArray]:
+    """Completions (node, time), staleness (node, ms) and chain arrivals (chain, origin, done), in order."""
+    return (
+        sim.done_node[: sim.done_n],
+        sim.done_at[: sim.done_n],
+        sim.stale_node[: sim.stale_n],
+        sim.stale_ms[: sim.stale_n],
+        sim.arrival_chain[: sim.arrivals_n],
+        sim.arrival_origin[: sim.arrivals_n],
+        sim.arrival_done[: sim.arrivals_n],
+    )
+
+
+@compiled
+def take_measured(sim: Sim) -> tuple[IntArray, FloatArray]:
+    """The compute times measured since the last call (node, ms), in order."""
+    n = sim.measured_n
+    sim.measured_n = 0
+    return sim.measured_node[:n].copy(), sim.measured_ms[:n].copy()
+
+
+@compiled
+def set_draws(sim: Sim, mode: FloatArray, factor: FloatArray) -> None:
+    sim.mode = mode
+    sim.factor = factor
+
+
+@compiled
+def clock_of(sim: Sim) -> tuple[float, int]:
+    """Simulated time (ms) and the schedule version in force."""
+    return sim.now, sim.version
