@@ -16,16 +16,22 @@ says how single runs vary around it.  One run of a scheduled node starting at
 
 Each node has its own streams, seeded from ``(seed, node name)`` by SHA-256,
 so the same spec, seed and calls give the same times in any process, and
-drawing for one node never moves another's values.
+drawing for one node never moves another's values.  Modes and jitter are
+drawn with numpy (PCG64) in blocks of :data:`BLOCK` runs, each from its own
+stream: a run's values do not depend on how many runs are asked for at once,
+so the compiled simulation can take thousands in one call and still see
+exactly what the run-by-run Python engine sees.
 """
 
 from __future__ import annotations
 
-import bisect
 import hashlib
 import itertools
 import math
 import random
+
+import numpy as np
+import numpy.typing as npt
 
 from catanc.spec import ModalCompute, Node, Spec, Workload
 
@@ -53,10 +59,22 @@ def _linear(start: float, end: float, over_s: float, at_s: float) -> float:
     return start + (end - start) * (at_s / over_s)
 
 
-def _stream(seed: int, node: str, purpose: str) -> random.Random:
-    """A generator for one node and purpose; never Python's hash(), which is salted per process."""
+BLOCK = 1024
+"""Runs drawn at a time (any size gives the same values)."""
+
+
+def _seed(seed: int, node: str, purpose: str) -> int:
+    """A seed for one node and purpose; never Python's hash(), which is salted per process."""
     digest = hashlib.sha256(f"catanc-workload\0{seed}\0{node}\0{purpose}".encode()).digest()
-    return random.Random(int.from_bytes(digest, "big"))
+    return int.from_bytes(digest, "big")
+
+
+def _stream(seed: int, node: str, purpose: str) -> random.Random:
+    return random.Random(_seed(seed, node, purpose))
+
+
+def _generator(seed: int, node: str, purpose: str) -> np.random.Generator:
+    return np.random.Generator(np.random.PCG64(_seed(seed, node, purpose)))
 
 
 class NodeStream:
@@ -69,14 +87,18 @@ class NodeStream:
 
     __slots__ = (
         "_arrivals",
+        "_factors",
         "_growth",
         "_jitter",
         "_jitter_a",
         "_jitter_b",
+        "_jitter_draws",
+        "_mode_draws",
         "_mode_ms",
         "_mode_thresholds",
+        "_modes",
+        "_next",
         "_next_spike_s",
-        "_runs",
         "_spike_ms",
         "_spike_rate",
     )
@@ -93,7 +115,11 @@ class NodeStream:
         else:
             self._mode_ms = (float(compute),)
             self._mode_thresholds = ()
-        self._runs = _stream(seed, name, "runs")
+        self._mode_draws = _generator(seed, name, "modes")
+        self._jitter_draws = _generator(seed, name, "jitter")
+        self._modes: npt.NDArray[np.float64] = np.empty(0)  # drawn, not yet taken: runs self._next onwards
+        self._factors: npt.NDArray[np.float64] = np.empty(0)
+        self._next = 0
         workload = node.workload
         growth = None if workload is None else workload.growth
         self._growth = None if growth is None else (growth.start, growth.end, growth.over_s)
@@ -136,31 +162,46 @@ class NodeStream:
 
     def base(self) -> tuple[float, float]:
         """The next normal run's mode (ms) and jitter multiplier (1.0 without jitter), growth not applied."""
-        runs = self._runs
-        if self._mode_thresholds:
-            ms = self._mode_ms[bisect.bisect_right(self._mode_thresholds, runs.random())]
-        else:
-            ms = self._mode_ms[0]
-        kind = self._jitter
-        if kind == "lognormal":
-            return ms, math.exp(self._jitter_a + self._jitter_b * runs.gauss())
-        if kind == "uniform":
-            return ms, self._jitter_a + self._jitter_b * runs.random()
-        if kind == "normal":
-            factor = runs.gauss(self._jitter_a, self._jitter_b)
-            while factor <= 0.0:  # rare: the spec allows a normal only with cv <= 0.3
-                factor = runs.gauss(self._jitter_a, self._jitter_b)
-            return ms, factor
-        return ms, 1.0
+        if self._next >= len(self._modes):
+            self._draw_block()
+        i = self._next
+        self._next = i + 1
+        return float(self._modes[i]), float(self._factors[i])
 
-    def bases(self, count: int) -> tuple[list[float], list[float]]:
+    def bases(self, count: int) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         """The next ``count`` :meth:`base` draws: their modes and their jitter multipliers."""
-        modes, factors = [], []
-        for _ in range(count):
-            mode_ms, factor = self.base()
-            modes.append(mode_ms)
-            factors.append(factor)
-        return modes, factors
+        while len(self._modes) - self._next < count:
+            self._draw_block()
+        i = self._next
+        self._next = i + count
+        return self._modes[i : i + count], self._factors[i : i + count]
+
+    def _draw_block(self) -> None:
+        """BLOCK more runs after the ones still to be taken."""
+        if self._mode_thresholds:
+            picks = np.searchsorted(self._mode_thresholds, self._mode_draws.random(BLOCK), side="right")
+            modes = np.asarray(self._mode_ms)[picks]
+        else:
+            modes = np.full(BLOCK, self._mode_ms[0])
+        kind, a, b = self._jitter, self._jitter_a, self._jitter_b
+        if kind == "lognormal":
+            factors = np.exp(a + b * self._jitter_draws.standard_normal(BLOCK))
+        elif kind == "uniform":
+            factors = a + b * self._jitter_draws.random(BLOCK)
+        elif kind == "normal":  # redrawn until positive: the next positive values, in order
+            kept: list[npt.NDArray[np.float64]] = []
+            have = 0
+            while have < BLOCK:
+                values = a + b * self._jitter_draws.standard_normal(BLOCK)
+                values = values[values > 0.0]
+                kept.append(values)
+                have += len(values)
+            factors = np.concatenate(kept)[:BLOCK]  # positives past the block are dropped: blocks never vary
+        else:
+            factors = np.ones(BLOCK)
+        self._modes = np.concatenate([self._modes[self._next :], modes])
+        self._factors = np.concatenate([self._factors[self._next :], factors])
+        self._next = 0
 
     def spikes_until(self, end_s: float) -> list[float]:
         """The spike arrivals still to come, up to the first one after ``end_s`` (consumes them)."""

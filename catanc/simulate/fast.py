@@ -15,7 +15,6 @@ from collections.abc import Sequence
 from types import SimpleNamespace
 from typing import Any
 
-import numba
 import numpy as np
 
 from catanc.runtime.schedule import RuntimeSchedule
@@ -272,7 +271,11 @@ def run_fields(graph: Fields, chains: int, subchains: int, policy: int) -> Field
         "version": 0,
         "policy": policy,
         "pools": 0,
-        "events": numba.typed.List.empty_list(k.EVENT_TYPE),
+        "heap_n": 0,
+        "heap_time": np.zeros(FIRST_RING),
+        "heap_order": np.zeros(FIRST_RING, np.int64),
+        "heap_ints": np.zeros((FIRST_RING, 6), np.int64),
+        "heap_f": np.zeros(FIRST_RING),
         "job_pool": np.full(n, -1, np.int64),
         "job_remaining": np.zeros(n),
         "job_threads": np.ones(n, np.int64),
@@ -367,19 +370,24 @@ def run_compiled(sim: k.Sim, table: ScheduleTable | None, draws: DrawTable, end_
 
 
 def records_of(sim: k.Sim, spec: Spec, chains: int, replans: list[Replan], schedule: RuntimeSchedule | None) -> Records:
-    """The run's records, grouped as the Python engine keeps them."""
+    """The run's records, grouped as the Python engine keeps them (arrivals per chain as an (n, 2) array)."""
     done_node, done_at, stale_node, stale_ms, arrival_chain, arrival_origin, arrival_done = k.records(sim)
     names = list(spec.nodes)
-    done: dict[str, list[float]] = {name: [] for name in names}
-    for node, at in zip(done_node.tolist(), done_at.tolist(), strict=True):
-        done[names[node]].append(at)
-    stale: dict[str, list[float]] = {name: [] for name in names}
-    for node, ms in zip(stale_node.tolist(), stale_ms.tolist(), strict=True):
-        stale[names[node]].append(ms)
-    arrivals: list[list[tuple[float, float]]] = [[] for _ in range(chains)]
-    for chain, origin, at in zip(arrival_chain.tolist(), arrival_origin.tolist(), arrival_done.tolist(), strict=True):
-        arrivals[chain].append((origin, at))
+    done = dict(zip(names, _grouped(done_node, done_at, len(names)), strict=True))
+    stale = dict(zip(names, _grouped(stale_node, stale_ms, len(names)), strict=True))
+    order = np.argsort(arrival_chain, kind="stable")
+    bounds = np.searchsorted(arrival_chain[order], np.arange(chains + 1))
+    pairs = np.column_stack([arrival_origin[order], arrival_done[order]])
+    arrivals = [pairs[bounds[c] : bounds[c + 1]] for c in range(chains)]
     return Records(done, stale, arrivals, {}, replans, schedule)
+
+
+def _grouped(keys: k.IntArray, values: k.FloatArray, groups: int) -> list[list[float]]:
+    """``values`` split by ``keys`` (0..groups-1), each group in its original order."""
+    order = np.argsort(keys, kind="stable")
+    bounds = np.searchsorted(keys[order], np.arange(groups + 1))
+    ordered = values[order]
+    return [ordered[bounds[g] : bounds[g + 1]].tolist() for g in range(groups)]
 
 
 def no_schedules() -> Fields:

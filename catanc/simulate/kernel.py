@@ -24,7 +24,6 @@ event could overrun them (:func:`make_room`).
 
 from __future__ import annotations
 
-import heapq
 import math
 from collections.abc import Callable
 from typing import Any, TypeAlias, TypeVar, cast
@@ -46,21 +45,8 @@ def compiled(function: F) -> F:
     return cast(F, numba.njit(cache=True, nogil=True)(function))
 
 
-# Event kinds (an event is (time, order, kind, a, b, c, d, e, f)).
+# Event kinds (an event is (time, order, kind, a, b, c, d, e, f): what a kind needs of a..f).
 SENSOR, TIMER, CLOCK, BEGIN, SWITCH, LOWER, REOPTIMISE = 0, 1, 2, 3, 4, 5, 6
-EVENT_TYPE = numba.types.Tuple(
-    (
-        numba.types.float64,
-        numba.types.int64,
-        numba.types.int64,
-        numba.types.int64,
-        numba.types.int64,
-        numba.types.int64,
-        numba.types.int64,
-        numba.types.int64,
-        numba.types.float64,
-    )
-)
 
 # What run() returns.
 FINISHED, REOPTIMISE_NOW, NEED_DRAWS = 0, 1, 2
@@ -110,7 +96,7 @@ class SimProxy(structref.StructRefProxy):  # type: ignore[misc]
     (padded with inf), ``spike_next``, ``spike_ms``, ``has_growth``, ``growth``.
 
     The run: the counters ``now``, ``order``, ``arrival``, ``generation``,
-    ``version``, ``policy``, ``pools``; the event heap ``events``; one job per
+    ``version``, ``policy``, ``pools``; the event heap (``heap_*``: time, order, kind and its fields); one job per
     node at most (``job_*``); pools of cores (``pool_*``, ``sub_pool``,
     ``core_busy``); the data (``has_latest``, ``latest_at``, ``latest_origins``
     with NaN for no origin on a chain); catanc's runs (``busy_seq``, the
@@ -134,7 +120,8 @@ FIELDS = (
     # the draws
     "mode", "factor", "used", "filled", "spike_at", "spike_next", "spike_ms", "has_growth", "growth",
     # the run
-    "now", "order", "arrival", "generation", "version", "policy", "pools", "events",
+    "now", "order", "arrival", "generation", "version", "policy", "pools",
+    "heap_n", "heap_time", "heap_order", "heap_ints", "heap_f",
     "job_pool", "job_remaining", "job_threads", "job_priority", "job_since", "job_speed", "job_seq", "job_compute",
     "job_origins", "pool_ncores", "pool_cores", "pool_fair", "pool_jobs", "pool_njobs", "pool_busy", "pool_dirty",
     "sub_pool", "core_busy", "finished", "sort_buf", "stack", "has_latest", "latest_at", "latest_origins",
@@ -157,7 +144,71 @@ Sim: TypeAlias = Any
 def at(sim: Sim, when_ms: float, kind: int, a: int, b: int, c: int, d: int, e: int, f: float) -> None:
     order = sim.order
     sim.order = order + 1
-    heapq.heappush(sim.events, (max(when_ms, sim.now), order, kind, a, b, c, d, e, f))
+    when = max(when_ms, sim.now)
+    # A binary heap on (time, order) over flat arrays: sift the new event up from the end.
+    if sim.heap_n == sim.heap_time.shape[0]:
+        size = 2 * sim.heap_n
+        sim.heap_time = longer_floats(sim.heap_time, size)
+        sim.heap_order = longer_ints(sim.heap_order, size)
+        sim.heap_f = longer_floats(sim.heap_f, size)
+        wider = np.zeros((size, 6), np.int64)
+        wider[: sim.heap_n] = sim.heap_ints
+        sim.heap_ints = wider
+    i = sim.heap_n
+    sim.heap_n = i + 1
+    while i > 0:
+        parent = (i - 1) // 2
+        if sim.heap_time[parent] < when or (sim.heap_time[parent] == when and sim.heap_order[parent] < order):
+            break
+        move_event(sim, parent, i)
+        i = parent
+    sim.heap_time[i] = when
+    sim.heap_order[i] = order
+    sim.heap_ints[i, 0] = kind
+    sim.heap_ints[i, 1] = a
+    sim.heap_ints[i, 2] = b
+    sim.heap_ints[i, 3] = c
+    sim.heap_ints[i, 4] = d
+    sim.heap_ints[i, 5] = e
+    sim.heap_f[i] = f
+
+
+@compiled
+def move_event(sim: Sim, source: int, target: int) -> None:
+    sim.heap_time[target] = sim.heap_time[source]
+    sim.heap_order[target] = sim.heap_order[source]
+    sim.heap_ints[target, :] = sim.heap_ints[source, :]
+    sim.heap_f[target] = sim.heap_f[source]
+
+
+@compiled
+def pop_event(sim: Sim) -> tuple[float, int, int, int, int, int, int, int, float]:
+    """The earliest event (the first scheduled among equal times), taken off the heap."""
+    ints = sim.heap_ints
+    event = (sim.heap_time[0], sim.heap_order[0], ints[0, 0], ints[0, 1], ints[0, 2], ints[0, 3], ints[0, 4],
+             ints[0, 5], sim.heap_f[0])  # fmt: skip
+    n = sim.heap_n - 1
+    sim.heap_n = n
+    if n == 0:
+        return event
+    when, order = sim.heap_time[n], sim.heap_order[n]
+    i = 0
+    while True:  # sift the last event down from the root
+        child = 2 * i + 1
+        if child >= n:
+            break
+        right = child + 1
+        if right < n and (
+            sim.heap_time[right] < sim.heap_time[child]
+            or (sim.heap_time[right] == sim.heap_time[child] and sim.heap_order[right] < sim.heap_order[child])
+        ):
+            child = right
+        if when < sim.heap_time[child] or (when == sim.heap_time[child] and order < sim.heap_order[child]):
+            break
+        move_event(sim, child, i)
+        i = child
+    move_event(sim, n, i)
+    return event
 
 
 @compiled
@@ -338,7 +389,6 @@ def wider_ring(ring: Any, low: IntArray, high: IntArray) -> Any:
 @compiled
 def run(sim: Sim, end_ms: float) -> int:
     """:meth:`Engine.run_until`: to ``end_ms``, or until a re-solve is due or Python must draw more."""
-    events = sim.events
     while True:
         if draws_short(sim):
             return NEED_DRAWS
@@ -348,7 +398,7 @@ def run(sim: Sim, end_ms: float) -> int:
                 allocate(sim, pool)
                 sim.pool_dirty[pool] = False
         done_in, pool = next_done(sim)
-        next_event = events[0][0] if len(events) > 0 else math.inf
+        next_event = sim.heap_time[0] if sim.heap_n > 0 else math.inf
         now = sim.now
         if min(now + done_in, next_event) > end_ms:
             advance_to(sim, end_ms)
@@ -361,7 +411,7 @@ def run(sim: Sim, end_ms: float) -> int:
         if count:
             finish_all(sim, count)
             continue
-        event = heapq.heappop(events)
+        event = pop_event(sim)
         if event[2] == REOPTIMISE:
             return REOPTIMISE_NOW
         dispatch(sim, event)

@@ -15,6 +15,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+import numpy.typing as npt
+
 from catanc.runtime.measure import percentile
 from catanc.runtime.schedule import RuntimeSchedule
 
@@ -24,17 +27,19 @@ def window_responses(arrivals: Sequence[tuple[float, float]]) -> list[float]:
     return [response for _, response in timed_responses(arrivals)]
 
 
-def timed_responses(arrivals: Sequence[tuple[float, float]]) -> list[tuple[float, float]]:
-    """``(done, response)`` pairs (ms) from a chain's ``(origin, done)`` arrivals, in completion order."""
-    responses: list[tuple[float, float]] = []
-    previous: float | None = None
-    for origin, done in arrivals:
-        if previous is None:
-            previous = origin
-        elif origin > previous:
-            responses.append((done, done - previous))
-            previous = origin
-    return responses
+def timed_responses(arrivals: Sequence[tuple[float, float]] | npt.NDArray[np.float64]) -> list[tuple[float, float]]:
+    """``(done, response)`` pairs (ms) from a chain's ``(origin, done)`` arrivals, in completion order.
+
+    The window before an output starts at the newest origin any earlier output carried: the
+    running maximum, so one vectorised pass gives what the loop over arrivals would.
+    """
+    pairs = np.asarray(arrivals, dtype=np.float64).reshape(-1, 2)
+    if len(pairs) < 2:
+        return []
+    origins, done = pairs[:, 0], pairs[1:, 1]
+    previous = np.maximum.accumulate(origins)[:-1]
+    newer = origins[1:] > previous
+    return list(zip(done[newer].tolist(), (done[newer] - previous[newer]).tolist(), strict=True))
 
 
 @dataclass(frozen=True)

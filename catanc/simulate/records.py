@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
 
 from catanc.runtime.schedule import RuntimeSchedule
 from catanc.simulate.policies import Replan
@@ -14,7 +18,8 @@ class Records:
 
     done_ms: dict[str, list[float]]
     staleness_ms: dict[str, list[float]]
-    arrivals: list[list[tuple[float, float]]]  # per chain: (origin, done) at its last node, in completion order
+    arrivals: Sequence[Sequence[tuple[float, float]] | npt.NDArray[np.float64]]
+    """Per chain: ``(origin, done)`` at its last node, in completion order (a list, or an (n, 2) array)."""
     busy_by_core: dict[int, float]  # core -> time it ran jobs (ms)
     replans: list[Replan]
     schedule: RuntimeSchedule | None  # the schedule in force at the end (catan and static plans)
