@@ -23,6 +23,7 @@ from catanc.errors import CatancError, Diagnostic, ExitCode, SpecError
 if TYPE_CHECKING:
     from catanc.output import Comparison
     from catanc.problem import Problem
+    from catanc.simulate.metrics import PolicyResult
     from catanc.spec import Spec
 
 P = ParamSpec("P")
@@ -441,17 +442,23 @@ def simulate(
     ] = None,
 ) -> None:
     """Simulate the app on K cores under catanc's plan and the baselines; compare response times and rates."""
-    from catanc.simulate.report import comparison_payload, comparison_tables
     from catanc.simulate.run import POLICIES, Setup, check_policies, simulate_policies
 
     spec, _ = _load_problem(spec_path)
     chosen = check_policies(policy or list(POLICIES))
     results = simulate_policies(Setup(spec, cores, duration, seed), chosen)
+    title = f"{spec.app}, {cores} core{'s' if cores > 1 else ''}, {duration:g} s simulated, seed {seed}"
+    _show_comparison(spec, results, title, plot, as_json)
+
+
+def _show_comparison(spec: Spec, results: Sequence[PolicyResult], title: str, plot: Path | None, as_json: bool) -> None:
+    """simulate's and bench's output: plots first (if asked), then the JSON or the tables, then the plot paths."""
+    from catanc.simulate.report import comparison_payload, comparison_tables
+
     written: list[Path] = []
     if plot is not None:
         from catanc.simulate.plots import write_plots
 
-        title = f"{spec.app}, {cores} core{'s' if cores > 1 else ''}, {duration:g} s simulated, seed {seed}"
         scheduled = [name for name, node in spec.nodes.items() if node.scheduled]
         written = write_plots(results, plot, title=title, nodes=scheduled)
     if as_json:
@@ -486,7 +493,6 @@ def bench(
 ) -> None:
     """Run the app's synthetic workers on this machine under catanc's plan and the baselines; compare them."""
     from catanc.bench.run import POLICIES, BenchSetup, bench_policies
-    from catanc.simulate.report import comparison_payload, comparison_tables
 
     spec, _ = _load_problem(spec_path)
     setup = BenchSetup(spec_path, spec, cores, duration, seed)
@@ -496,21 +502,8 @@ def bench(
     except KeyboardInterrupt:
         err.print("catanc: interrupted; every worker stopped", markup=False)
         raise typer.Exit(130) from None
-    written: list[Path] = []
-    if plot is not None:
-        from catanc.simulate.plots import write_plots
-
-        title = f"{spec.app}, {cores} core{'s' if cores > 1 else ''}, {duration:g} s measured, seed {seed}"
-        scheduled = [name for name, node in spec.nodes.items() if node.scheduled]
-        written = write_plots(results, plot, title=title, nodes=scheduled)
-    if as_json:
-        sys.stdout.write(json.dumps(comparison_payload(results), indent=2, sort_keys=True) + "\n")
-    else:
-        out = _stdout()
-        for table in comparison_tables(results):
-            out.print(table)
-    for path in written:
-        (_stderr() if as_json else _stdout()).print(f"plot: {path}", markup=False)
+    title = f"{spec.app}, {cores} core{'s' if cores > 1 else ''}, {duration:g} s measured, seed {seed}"
+    _show_comparison(spec, results, title, plot, as_json)
 
 
 @app.command()
