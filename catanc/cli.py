@@ -44,6 +44,17 @@ Stage1Opt = Annotated[
 ]
 SolverOpt = Annotated[str, typer.Option(help="MILP solver: highs or cbc.")]
 TimeLimitOpt = Annotated[float | None, typer.Option(min=0.01, help="Stage I time limit in seconds (default 2.5).")]
+# simulate and bench: the same comparison, simulated or measured.
+WorkloadSeedOpt = Annotated[int, typer.Option("--seed", min=0, help="Seed of the workload's random draws.")]
+TablesJsonOpt = Annotated[bool, typer.Option("--json", help="Print JSON instead of tables.")]
+PlotDirOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--plot",
+        metavar="DIR",
+        help="Also write PNG plots into DIR (created if missing): responses-cdf.png, timeline.png, rates.png.",
+    ),
+]
 
 
 PIPED_WIDTH = 160
@@ -431,15 +442,9 @@ def simulate(
         ),
     ] = None,
     duration: Annotated[float, typer.Option(min=0.1, help="Simulated seconds.")] = 60.0,
-    seed: Annotated[int, typer.Option(min=0, help="Seed of the workload's random draws.")] = 0,
-    as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of tables.")] = False,
-    plot: Annotated[
-        Path | None,
-        typer.Option(
-            metavar="DIR",
-            help="Also write PNG plots into DIR (created if missing): responses-cdf.png, timeline.png, rates.png.",
-        ),
-    ] = None,
+    seed: WorkloadSeedOpt = 0,
+    as_json: TablesJsonOpt = False,
+    plot: PlotDirOpt = None,
 ) -> None:
     """Simulate the app on K cores under catanc's plan and the baselines; compare response times and rates."""
     from catanc.simulate.run import POLICIES, Setup, check_policies, simulate_policies
@@ -481,15 +486,9 @@ def bench(
         typer.Option(help="catan, baseline or fifo-static (repeat for several; default: all three)."),
     ] = None,
     duration: Annotated[float, typer.Option(min=0.5, help="Measured seconds per policy.")] = 20.0,
-    seed: Annotated[int, typer.Option(min=0, help="Seed of the workload's random draws.")] = 0,
-    as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of tables.")] = False,
-    plot: Annotated[
-        Path | None,
-        typer.Option(
-            metavar="DIR",
-            help="Also write PNG plots into DIR (created if missing): responses-cdf.png, timeline.png, rates.png.",
-        ),
-    ] = None,
+    seed: WorkloadSeedOpt = 0,
+    as_json: TablesJsonOpt = False,
+    plot: PlotDirOpt = None,
 ) -> None:
     """Run the app's synthetic workers on this machine under catanc's plan and the baselines; compare them."""
     from catanc.bench.run import POLICIES, BenchSetup, bench_policies
