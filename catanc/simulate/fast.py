@@ -70,15 +70,13 @@ def topology(
             befores[index[node]].append(index[chain[at - 1]] if at else -1)
         sinks[index[chain[-1]]].append(c)
     sub_of = np.full(len(names), -1, np.int64)
-    index_in_sub = np.full(len(names), -1, np.int64)
     sub_rows: list[list[int]] = []
     if schedule is not None:
         for s, name in enumerate(_sub_names(schedule)):
             run = schedule.subchains[name]
             sub_rows.append([index[node] for node in run.nodes])
-            for i, node in enumerate(run.nodes):
+            for node in run.nodes:
                 sub_of[index[node]] = s
-                index_in_sub[index[node]] = i
     sensor_period = np.full(len(names), math.nan)
     sensors = []
     for name, spec_node in spec.nodes.items():
@@ -116,7 +114,6 @@ def topology(
         "sink_ptr": sink_ptr,
         "sink_chain": sink_chain,
         "sub_of": sub_of,
-        "index_in_sub": index_in_sub,
         "sub_ptr": sub_ptr,
         "sub_nodes": sub_nodes,
         "sensor_period": sensor_period,

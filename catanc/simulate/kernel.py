@@ -79,7 +79,7 @@ class SimProxy(structref.StructRefProxy):  # type: ignore[misc]
     The graph (fixed): ``scheduled``, ``pass_through`` (unscheduled without a
     rate), ``pred_ptr/pred``, ``succ_ptr/succ``, ``pos_ptr/pos_chain/pos_before``
     (a node's places on the measured chains; the node before it, -1 at the
-    head), ``sink_ptr/sink_chain``, ``sub_of`` and ``index_in_sub`` per node,
+    head), ``sink_ptr/sink_chain``, ``sub_of`` per node,
     ``sub_ptr/sub_nodes``, ``sensor_period`` (NaN if not a sensor) and
     ``sensor_order`` (spec order), ``timer_period``/``timer_order``/``trig_ptr``/
     ``trig``/``priority`` (the baselines' wiring), ``cores``.
@@ -111,7 +111,7 @@ class SimProxy(structref.StructRefProxy):  # type: ignore[misc]
 FIELDS = (
     # the graph
     "scheduled", "pass_through", "pred_ptr", "pred", "succ_ptr", "succ", "pos_ptr", "pos_chain", "pos_before",
-    "sink_ptr", "sink_chain", "sub_of", "index_in_sub", "sub_ptr", "sub_nodes", "sensor_period", "sensor_order",
+    "sink_ptr", "sink_chain", "sub_of", "sub_ptr", "sub_nodes", "sensor_period", "sensor_order",
     "timer_period", "timer_order", "trig_ptr", "trig", "priority", "cores",
     # the schedules
     "sub_ncores", "sub_cores", "sub_shared", "sub_period", "sub_latency", "sub_runs", "sub_priority",
