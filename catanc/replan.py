@@ -46,7 +46,8 @@ class Replanner:
         gap: float = RUNTIME_GAP,
     ) -> None:
         """``gap``: :meth:`resolve` may stop at an integer plan proven within this relative distance
-        of Stage II's optimum (0: exact, as :func:`catanc.plan` always is)."""
+        of Stage II's optimum, ``(plan - optimum) / plan <= gap`` (0: exact, as :func:`catanc.plan`
+        always is)."""
         if not (0.0 <= gap < 1.0):
             raise UsageError(f"gap must be in [0, 1), got {gap!r}")
         self.gap = gap

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from catanc.errors import UsageError
@@ -127,7 +127,9 @@ def test_bad_compute_times_are_usage_errors(nav: Replanner, times: dict[str, flo
 
 @settings(max_examples=10, deadline=None)
 @given(factors=st.lists(drift, min_size=8, max_size=8))
+@example(factors=[1.0, 1.5, 1.0, 1.25, 1.78125, 0.69140625, 1.125, 1.0])  # 1.007% above the optimum, 0.997% of the plan
 def test_a_gap_stays_within_it_of_the_exact_plan(factors: list[float]) -> None:
+    """The gap is measured against the plan, as MILP solvers do: (plan - optimum) / plan <= gap."""
     spec = load_spec(SPECS / "nav2d.yaml")
     exact, default = Replanner(spec, 2, gap=0.0), Replanner(spec, 2)
     assert default.gap == RUNTIME_GAP
@@ -136,7 +138,7 @@ def test_a_gap_stays_within_it_of_the_exact_plan(factors: list[float]) -> None:
     for replanner, gap in ((default, RUNTIME_GAP), (Replanner(spec, 2, gap=1e-2), 1e-2)):
         near = replanner.resolve(new)
         assert best.objective <= near.objective * (1 + 1e-6)
-        assert near.objective <= best.objective * (1 + gap) * (1 + 1e-6)
+        assert near.objective * (1 - gap) <= best.objective * (1 + 1e-6)
 
 
 def test_gap_out_of_range_is_a_usage_error() -> None:

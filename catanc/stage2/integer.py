@@ -52,7 +52,7 @@ class IntegerSolution:
     objective: float
     root_bound: float  # a lower bound: the relaxation's value (the optimum itself when enumerated)
     nodes: int  # relaxations solved
-    gap: float = 0.0  # proven relative distance to the optimum: 0 unless stopped by node_limit
+    gap: float = 0.0  # proven (objective - optimum) / objective: 0 unless stopped by node_limit
 
 
 def most_runs(compute_ms: float, schedule: Schedule) -> int:
@@ -82,8 +82,9 @@ def solve_integer(
     are of interest (None when there is none): another allocation's plan,
     say.  ``start`` is a guess at the answer, evaluated first so that it
     prunes from the outset (the previous plan, when re-planning).  ``gap``
-    accepts a plan proven within that relative distance of the optimum
-    (default: exact, to the solver's accuracy :data:`PRUNE_TOLERANCE`).
+    accepts a plan proven within that relative distance of the optimum,
+    measured against the plan as MILP solvers do: ``(plan - optimum) / plan
+    <= gap`` (default: exact, to the solver's accuracy :data:`PRUNE_TOLERANCE`).
 
     Without batch subchains the answer for fixed runs has a closed form
     (:mod:`catanc.stage2.whole`): small boxes are then enumerated outright,
