@@ -429,6 +429,52 @@ def test_a_re_solve_before_the_nodes_ran_keeps_the_spec_times(harness: Harness, 
         )
 
 
+def test_a_subchain_starts_only_once_every_node_of_it_has_registered(harness: Harness, tmp_path: Path) -> None:
+    """`front` is cam -> track. With cam up alone for 1.5 s (longer than the 1 s lost limit), a run
+    started then would stall at track and be given up as lost; none is started until track is up."""
+    table = compile_table(MIXED_SPEC, tmp_path, 2)
+    harness.start(table, "--start", "spec", duration=4.0)
+    harness.lingering("cam", MIXED_COMPUTE["cam"])
+    harness.registered(["cam"])
+    time.sleep(1.5)
+    harness.lingering("track", MIXED_COMPUTE["track"])
+    harness.registered(["track"])
+    harness.wait()
+    events = harness.events()
+    assert not of_kind(events, "lost")
+    track_up = next(e["t"] for e in of_kind(events, "register") if e["node"] == "track")
+    front = [e for e in of_kind(events, "run") if e["subchain"] == "front"]
+    assert front, "front never ran once both its nodes were up"
+    assert all(e["t"] >= track_up for e in front)
+
+
+# A node that takes its first trigger and never answers (it sleeps: no CPU is burnt at SCHED_FIFO).
+SILENT_NODE = """\
+import sys, time
+from catanc.client import Node
+
+with Node(sys.argv[1], socket_path=sys.argv[2]) as node:
+    for _trigger in node:
+        time.sleep(60)
+"""
+
+
+def test_a_run_stuck_at_a_node_is_given_up_while_other_traffic_flows(harness: Harness, tmp_path: Path) -> None:
+    """track never answers while cam, map and plan keep the socket busy (datagrams every few ms, so
+    the receiver never waits out its timeout): front's stuck run is still reported lost after ~1 s."""
+    table = compile_table(MIXED_SPEC, tmp_path, 2)
+    harness.start(table, "--start", "spec", duration=3.5)
+    for node in ("cam", "map", "plan"):
+        harness.lingering(node, MIXED_COMPUTE[node])
+    harness.node([sys.executable, "-c", SILENT_NODE, "track", str(harness.socket)])
+    harness.registered(["cam", "track", "map", "plan"])
+    harness.wait()
+    lost = [e for e in of_kind(harness.events(), "lost") if e["subchain"] == "front"]
+    assert lost
+    assert lost[0]["node"] == "track"
+    assert of_kind(harness.events(), "run"), "the other subchains kept running"
+
+
 # --------------------------------------------------------------------------- re-solving
 
 

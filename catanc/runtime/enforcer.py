@@ -84,6 +84,8 @@ STOP_CHECK_MS = 50.0
 """A core scheduler's longest sleep before it looks whether the run is stopping."""
 LOST_AFTER = 20.0
 """A run not done after this many planned latencies (and at least a second) is given up as lost."""
+LOST_CHECK_MS = 100.0
+"""How often runs in flight are looked at for lost ones."""
 
 
 def now_ms() -> float:
@@ -121,7 +123,7 @@ class SubchainState:
     late: int = 0
     lost: int = 0
     steals: int = 0
-    skipped: int = 0  # triggers not sent: no registered head node, or the head still busy
+    skipped: int = 0  # triggers not sent: a node of the subchain not registered yet, or the head still busy
     pending: bool = False  # a trigger came while the head was busy: trigger it as soon as the head is done
 
 
@@ -271,10 +273,13 @@ class Enforcer:
 
     def _receiver(self) -> None:
         self._raise_self(cpus=None)
+        checked_ms = self.clock()
         while not self.stopping.is_set():
             got = self.sock.receive(RECEIVE_TIMEOUT_S)  # skips and counts garbage datagrams
-            if got is None:
+            if self.clock() - checked_ms >= LOST_CHECK_MS:  # also under steady traffic, which never times out
+                checked_ms = self.clock()
                 self._check_lost()
+            if got is None:
                 continue
             message, address = got
             if isinstance(message, protocol.Hello):
@@ -426,8 +431,9 @@ class Enforcer:
         with self.lock:
             state = self.states[run.name]
             head_busy = any(flight.index == 0 for flight in state.in_flight.values())
-            speaking = [e for e in self.endpoints.get(run.nodes[0], []) if e.address is not None]
-            if not speaking:
+            # A run starts only when every node of it can be triggered: one started while a later
+            # node is still starting up would stall there and be given up as lost.
+            if not all(self._speaking(node) for node in run.nodes):
                 state.skipped += 1
                 return
             if head_busy:  # never queue triggers on a busy node (they would pile up in its socket): defer
@@ -442,6 +448,10 @@ class Enforcer:
             state.in_flight[state.seq] = Flight(0, now, None)
             self._trigger(run.nodes[0], state.seq)
 
+    def _speaking(self, node: str) -> bool:
+        """Whether ``node`` has a thread registered through the client (attached ones run on their own timers)."""
+        return any(endpoint.address is not None for endpoint in self.endpoints.get(node, []))
+
     def _trigger(self, node: str, seq: int) -> None:
         """Trigger ``node`` for run ``seq`` now, or once it has finished the run it is busy with.
 
@@ -451,9 +461,8 @@ class Enforcer:
         if self.busy.get(node) is not None:
             self.waiting.setdefault(node, deque()).append(seq)
             return
-        for endpoint in self.endpoints.get(node, [])[:1]:
-            if endpoint.address is None:
-                continue  # attached without the client: it runs on its own timer
+        speaking = [endpoint for endpoint in self.endpoints.get(node, []) if endpoint.address is not None]
+        for endpoint in speaking[:1]:  # attached threads (no address) run on their own timers
             run = self.schedule.subchain_of(node)
             flight = self.states[run.name].in_flight.get(seq) if run is not None else None
             threads = 1
