@@ -122,9 +122,7 @@ def measured_result(
         policy=policy,
         duration_s=duration_s,
         chains=tuple(
-            ChainResult(
-                nodes, named, Summary.of([r for _, r in timed[i]]), found.get(nodes), samples=tuple(timed[i])
-            )
+            ChainResult(nodes, named, Summary.of([r for _, r in timed[i]]), found.get(nodes), samples=tuple(timed[i]))
             for i, (nodes, named) in enumerate(chains)
         ),
         nodes={

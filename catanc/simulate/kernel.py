@@ -676,8 +676,7 @@ def oldest_in_flight(sim: Sim, sub: int) -> float:
 
 
 @compiled
-def switch(sim: Sim, old_version: int, c: int, s: int, generation: int, index: int
-) -> None:
+def switch(sim: Sim, old_version: int, c: int, s: int, generation: int, index: int) -> None:
     """:meth:`CatanPolicy._switcher`: the core's slots as they were scheduled, the subchains as they are now."""
     if generation != sim.generation:
         return

@@ -232,9 +232,7 @@ def policy_result(
         policy=policy,
         duration_s=setup.duration_s,
         chains=tuple(
-            ChainResult(
-                nodes, named, Summary.of([r for _, r in timed[i]]), model.get(nodes), samples=tuple(timed[i])
-            )
+            ChainResult(nodes, named, Summary.of([r for _, r in timed[i]]), model.get(nodes), samples=tuple(timed[i]))
             for i, (nodes, named) in enumerate(chains)
         ),
         nodes={
