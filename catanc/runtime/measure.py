@@ -43,6 +43,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+import numpy.typing as npt
+
 from catanc.errors import UsageError, did_you_mean
 from catanc.spec import ModalCompute, Node, Runtime, Spec
 
@@ -236,6 +239,22 @@ class ComputeWindow:
         self.total += 1
         return True
 
+    def extend(self, compute_ms: Iterable[float] | npt.NDArray[np.float64]) -> int:
+        """:meth:`add` each of ``compute_ms`` in order, at once; how many were kept (the rest rejected and counted).
+
+        A float64 array is checked in one numpy pass and only its last ``window`` valid
+        samples are copied in: the window, ``total`` and ``rejected`` end as adding one by
+        one leaves them.  Anything else is added one by one.
+        """
+        if not (isinstance(compute_ms, np.ndarray) and compute_ms.dtype == np.float64 and compute_ms.ndim == 1):
+            return sum(self.add(value) for value in compute_ms)
+        valid = compute_ms[np.isfinite(compute_ms) & (compute_ms >= 0.0)]
+        kept = len(valid)
+        self.rejected += len(compute_ms) - kept
+        self.total += kept
+        self._samples.extend(valid[-self.window :].tolist())
+        return kept
+
     @property
     def samples(self) -> tuple[float, ...]:
         """The window, oldest first."""
@@ -304,13 +323,26 @@ class Measurements:
         Raises :class:`~catanc.errors.UsageError` for a node that is not measured here
         (unknown, or not scheduled): that is a wiring mistake, not a bad sample.
         """
+        window = self._window(node)
+        with self._lock:
+            return window.add(compute_ms)
+
+    def record_many(self, node: str, compute_ms: Iterable[float] | npt.NDArray[np.float64]) -> int:
+        """:meth:`record` each of ``compute_ms`` for ``node``, in order, under one lock; how many were kept.
+
+        The same as recording them one by one (:meth:`ComputeWindow.extend`), in one call.
+        """
+        window = self._window(node)
+        with self._lock:
+            return window.extend(compute_ms)
+
+    def _window(self, node: str) -> ComputeWindow:
         window = self._windows.get(node)
         if window is None:
             raise UsageError(
                 f"no compute times are kept for {node!r}: not a scheduled node{did_you_mean(node, self._windows)}"
             )
-        with self._lock:
-            return window.add(compute_ms)
+        return window
 
     def estimates(self, *, measured_only: bool = False) -> dict[str, float]:
         """Node -> planning compute time (ms), for :meth:`catanc.replan.Replanner.resolve`.

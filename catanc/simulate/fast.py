@@ -354,8 +354,12 @@ def run_compiled(sim: k.Sim, table: ScheduleTable | None, draws: DrawTable, end_
         assert table is not None
         assert reoptimiser is not None
         nodes, times = k.take_measured(sim)
-        for node, ms in zip(nodes.tolist(), times.tolist(), strict=True):
-            reoptimiser.measurements.record(table.nodes[node], ms)
+        order = np.argsort(nodes, kind="stable")  # each node's times in the order they were measured
+        bounds = np.searchsorted(nodes[order], np.arange(len(table.nodes) + 1))
+        ordered = times[order]
+        for node, name in enumerate(table.nodes):
+            if bounds[node + 1] > bounds[node]:
+                reoptimiser.measurements.record_many(name, ordered[bounds[node] : bounds[node + 1]])
         now, current = k.clock_of(sim)
         after, reinstall, next_ms = reoptimiser.step(now, table.versions[current])
         version = table.add(after)
