@@ -483,7 +483,10 @@ def bench(
     cores: CoresOpt,
     policy: Annotated[
         list[str] | None,
-        typer.Option(help="catan, baseline or fifo-static (repeat for several; default: all three)."),
+        typer.Option(
+            help="catan, baseline, fifo-static, static-fullrun or static-20s (repeat for several; "
+            "default: catan, baseline and fifo-static)."
+        ),
     ] = None,
     duration: Annotated[float, typer.Option(min=0.5, help="Measured seconds per policy.")] = 20.0,
     seed: WorkloadSeedOpt = 0,
@@ -491,13 +494,15 @@ def bench(
     plot: PlotDirOpt = None,
 ) -> None:
     """Run the app's synthetic workers on this machine under catanc's plan and the baselines; compare them."""
-    from catanc.bench.run import POLICIES, BenchSetup, bench_policies
+    from catanc.bench.run import DEFAULT_POLICIES, BenchSetup, bench_policies
 
     spec, _ = _load_problem(spec_path)
     setup = BenchSetup(spec_path, spec, cores, duration, seed)
     err = _stderr()
     try:
-        results = bench_policies(setup, policy or list(POLICIES), progress=lambda text: err.print(text, markup=False))
+        results = bench_policies(
+            setup, policy or list(DEFAULT_POLICIES), progress=lambda text: err.print(text, markup=False)
+        )
     except KeyboardInterrupt:
         err.print("catanc: interrupted; every worker stopped", markup=False)
         raise typer.Exit(130) from None

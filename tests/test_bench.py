@@ -38,7 +38,7 @@ from catanc.runtime import protocol
 from catanc.runtime.protocol import Address
 from catanc.runtime.sched import read_policy
 from catanc.runtime.worker import RunRecord
-from catanc.simulate.run import Setup, reported_chains, simulate_policies
+from catanc.simulate.run import Setup, prepare, reported_chains, simulate_policies, workload_sampler
 from catanc.spec import Spec
 from tests.kernel import WAIT_S, nobody_ids, poll, require_fifo
 
@@ -448,6 +448,54 @@ def test_catans_subchain_runs_near_its_planned_rate(
     assert nodes["det"]["rate_hz"] <= nodes["cam"]["rate_hz"] + 1 / DURATION_S
     assert nodes["det"]["rate_hz"] >= 0.9 * nodes["cam"]["rate_hz"]  # one subchain: det follows each cam run
     assert nodes["map"]["rate_hz"] > 0
+
+
+# TINY with map growing 2x over 10 s: the first 20 s's tail and the whole run's differ.
+GROWING = TINY.replace(
+    "map: {compute_ms: 20}", "map: {compute_ms: 20, workload: {growth: {start: 1.0, end: 2.0, over_s: 10}}}"
+)
+
+
+@pytest.mark.parametrize(("policy", "duration_s"), [("static-fullrun", 30.0), ("static-20s", 30.0)])
+def test_a_static_policy_plans_what_the_simulator_plans_and_never_re_solves(
+    tmp_path: Path, policy: str, duration_s: float
+) -> None:
+    path = tmp_path / "growing.yaml"
+    path.write_text(GROWING)
+    spec = load_spec(path)
+    setup = bench_run.BenchSetup(path, spec, 1, duration_s, 3)
+    planned = bench_run.planned_spec(setup, policy)
+    # The simulator's static plan, made by its own path (prepare: the problem with the tails).
+    simulated = prepare(Setup(spec, 1, duration_s, 3), policy, workload_sampler).plan
+    assert simulated is not None
+    enforced = plan(planned, 1)
+    assert enforced.objective == pytest.approx(simulated.objective, rel=1e-6)
+    for name, sub in simulated.subchains.items():
+        assert enforced.subchains[name].period_ms == pytest.approx(sub.period_ms, rel=1e-6)
+    runtime = planned.runtime
+    assert min(runtime.first_solve_after_s, runtime.stage2_every_s, runtime.stage1_every_s) > duration_s
+    # The whole run's tail sees map at up to 2x; the first 20 s's too (growth ends at 10 s); both
+    # exceed the spec's 20 ms, which catan starts from.
+    assert planned.nodes["map"].compute_ms > 30.0
+    assert spec.nodes["map"].compute_ms == 20  # the workers' spec is untouched
+
+
+def test_a_static_bench_runs_under_the_enforcer_without_re_solving(tmp_path: Path) -> None:
+    require_fifo(10)
+    spec = tmp_path / "growing.yaml"
+    spec.write_text(GROWING)
+    argv = [sys.executable, "-c", BENCH_MAIN, "bench", str(spec), "-k", "1", "--duration", str(DURATION_S), "--json"]
+    finished = subprocess.run(
+        [*argv, "--policy", "static-fullrun"], capture_output=True, text=True, timeout=120, check=False
+    )
+    assert finished.returncode == 0, finished.stderr
+    body = json.loads(finished.stdout)["policies"]["static-fullrun"]
+    assert body["replans"] == 0
+    static = plan(
+        bench_run.planned_spec(bench_run.BenchSetup(spec, load_spec(spec), 1, DURATION_S, 0), "static-fullrun"), 1
+    )
+    planned_hz = 1000.0 / static.subchains["fast"].period_ms
+    assert 0.7 * planned_hz <= body["nodes"]["cam"]["rate_hz"] <= 1.05 * planned_hz  # as catan's check above
 
 
 def test_a_bench_leaves_no_process_behind(bench_json: tuple[dict[str, Any], str, list[int]]) -> None:

@@ -14,6 +14,10 @@ of them, and records every run); then
 - ``fifo-static``: the same triggers, each node thread at a static SCHED_FIFO level by its
   subchain's weight (:func:`~catanc.bench.triggers.fifo_levels`), the driver one level above
   them (it stands for the timers, which the simulator fires on time).
+- ``static-fullrun`` / ``static-20s`` (not run by default): the real enforcer with one plan made
+  before the run from the workload model's p95 compute times over the whole run / its first 20 s,
+  as the simulator's policies of those names make it, and never re-solved (the paper's
+  Static-FullRun and Static-20s).
 
 The measured window starts once every node has registered and lasts ``duration_s``; the
 runs inside it are replayed (:mod:`catanc.bench.replay`).  Whatever ends a run (its end, an
@@ -54,16 +58,20 @@ from catanc.runtime.sched import (
 from catanc.runtime.schedule import RuntimeSchedule
 from catanc.runtime.worker import RunRecord, read_records, workload_worker_command
 from catanc.simulate.metrics import PolicyResult
-from catanc.simulate.run import reported_chains
+from catanc.simulate.run import STATIC_20S, reported_chains, tail_compute, workload_sampler
 from catanc.spec import Spec
 
-POLICIES = ("catan", "baseline", "fifo-static")
-FIFO_POLICIES = frozenset({"catan", "fifo-static"})
+POLICIES = ("catan", "baseline", "fifo-static", "static-fullrun", "static-20s")
+DEFAULT_POLICIES = ("catan", "baseline", "fifo-static")
+ENFORCED_POLICIES = frozenset({"catan", "static-fullrun", "static-20s"})  # run under the real enforcer
+FIFO_POLICIES = frozenset({*ENFORCED_POLICIES, "fifo-static"})
 REGISTER_TIMEOUT_S = 30.0
 """How long the workers may take to start and register (they import catanc's spec loader: ~0.6 s each)."""
 EXIT_TIMEOUT_S = 5.0
 """How long stopped workers may take to finish their last run and write their records."""
 WAIT_STEP_S = 0.01
+NO_RESOLVE_MARGIN_S = 3600.0
+"""A static plan's first re-solve is due this long after the run ends: never."""
 
 Progress = Callable[[str], None]
 
@@ -105,7 +113,7 @@ def check_setup(setup: BenchSetup, policies: Sequence[str]) -> None:
         raise UsageError(f"--cores {setup.cores}: this process may use only {len(cpus)} CPU(s) ({sorted(cpus)})")
     if any(policy in ("baseline", "fifo-static") for policy in policies):
         trigger_rules(setup.spec)
-    needed = [ENFORCER_FIFO] if "catan" in policies else []
+    needed = [ENFORCER_FIFO] if ENFORCED_POLICIES.intersection(policies) else []
     if "fifo-static" in policies:
         needed.append(driver_level(fifo_levels(build_problem(setup.spec), setup.spec)))
     if needed:
@@ -145,8 +153,8 @@ def bench_policy(setup: BenchSetup, policy: str) -> PolicyResult:
         folder = Path(tmp)
         workers = Workers(setup, folder)
         try:
-            if policy == "catan":
-                measured = run_catan(setup, folder, workers)
+            if policy in ENFORCED_POLICIES:
+                measured = run_enforced(setup, planned_spec(setup, policy), folder, workers)
             else:
                 measured = run_timers(setup, policy, folder, workers)
             measured.runs = workers.finish()
@@ -222,14 +230,36 @@ class Workers:
 # --------------------------------------------------------------------------- catan: the enforcer
 
 
-def run_catan(setup: BenchSetup, folder: Path, workers: Workers) -> Measured:
-    """The workers under the real enforcer, as ``catanc run`` runs them."""
+def static_profile(spec: Spec, policy: str, duration_s: float, seed: int) -> dict[str, float]:
+    """The tail compute times a static plan is made from, as the simulator's static policies profile them."""
+    end = duration_s if policy == "static-fullrun" else min(STATIC_20S, duration_s)
+    return tail_compute(spec, workload_sampler(spec, seed), 0.0, end)
+
+
+def planned_spec(setup: BenchSetup, policy: str) -> Spec:
+    """The spec the enforcer plans with: the app's for ``catan``; for a static policy, the app with
+    the profiled tail compute times (:func:`static_profile`) and no re-solve
+    before the run ends. The workers still burn what the app's own workload model draws."""
+    spec = setup.spec
+    if policy == "catan":
+        return spec
+    tails = static_profile(spec, policy, setup.duration_s, setup.seed)
+    nodes = {name: node.model_copy(update={"compute_ms": tails[name]}) if name in tails else node
+             for name, node in spec.nodes.items()}  # fmt: skip
+    never = setup.duration_s + NO_RESOLVE_MARGIN_S
+    runtime = spec.runtime.model_copy(
+        update={"first_solve_after_s": never, "stage2_every_s": never, "stage1_every_s": never}
+    )
+    return spec.model_copy(update={"nodes": nodes, "runtime": runtime})
+
+
+def run_enforced(setup: BenchSetup, spec: Spec, folder: Path, workers: Workers) -> Measured:
+    """The workers under the real enforcer planning with ``spec``, as ``catanc run`` runs them."""
     from catanc.runtime.enforcer import Enforcer  # noqa: PLC0415 - the baselines need none of it
     from catanc.runtime.log import read_log  # noqa: PLC0415
     from catanc.runtime.table import RuntimeTable  # noqa: PLC0415
     from catanc.runtime.watchdog import Watchdog  # noqa: PLC0415
 
-    spec = setup.spec
     table = RuntimeTable(path=setup.spec_path, app=spec.app, cores=setup.cores, spec=spec, plan={}, processes=())
     socket_path = folder / "enforcer.sock"
     log_path = folder / "enforcer.jsonl"
