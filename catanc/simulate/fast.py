@@ -371,24 +371,25 @@ def run_compiled(sim: k.Sim, table: ScheduleTable | None, draws: DrawTable, end_
 
 
 def records_of(sim: k.Sim, spec: Spec, chains: int, replans: list[Replan], schedule: RuntimeSchedule | None) -> Records:
-    """The run's records, grouped as the Python engine keeps them (arrivals per chain as an (n, 2) array)."""
+    """The run's records, grouped as the Python engine keeps them (as arrays: per node, per chain (n, 2))."""
     done_node, done_at, stale_node, stale_ms, arrival_chain, arrival_origin, arrival_done = k.records(sim)
     names = list(spec.nodes)
-    done = dict(zip(names, _grouped(done_node, done_at, len(names)), strict=True))
-    stale = dict(zip(names, _grouped(stale_node, stale_ms, len(names)), strict=True))
-    order = np.argsort(arrival_chain, kind="stable")
-    bounds = np.searchsorted(arrival_chain[order], np.arange(chains + 1))
-    pairs = np.column_stack([arrival_origin[order], arrival_done[order]])
-    arrivals = [pairs[bounds[c] : bounds[c + 1]] for c in range(chains)]
+    done = dict(zip(names, _grouped(done_node, [done_at], len(names)), strict=True))
+    stale = dict(zip(names, _grouped(stale_node, [stale_ms], len(names)), strict=True))
+    arrivals = [pairs.reshape(-1, 2) for pairs in _grouped(arrival_chain, [arrival_origin, arrival_done], chains)]
     return Records(done, stale, arrivals, {}, replans, schedule)
 
 
-def _grouped(keys: k.IntArray, values: k.FloatArray, groups: int) -> list[list[float]]:
-    """``values`` split by ``keys`` (0..groups-1), each group in its original order."""
-    order = np.argsort(keys, kind="stable")
-    bounds = np.searchsorted(keys[order], np.arange(groups + 1))
-    ordered = values[order]
-    return [ordered[bounds[g] : bounds[g + 1]].tolist() for g in range(groups)]
+def _grouped(keys: k.IntArray, columns: Sequence[k.FloatArray], groups: int) -> list[k.FloatArray]:
+    """The rows of ``columns`` split by ``keys`` (0..groups-1), each group in its original order.
+
+    One column gives each group's values; several give each group's rows as a flat array, row by row.
+    """
+    small = keys.astype(np.min_scalar_type(max(groups - 1, 0)))  # numpy sorts 8- and 16-bit keys by radix
+    order = np.argsort(small, kind="stable")
+    bounds = np.searchsorted(small[order], np.arange(groups + 1))
+    ordered = columns[0][order] if len(columns) == 1 else np.column_stack([column[order] for column in columns])
+    return [ordered[bounds[g] : bounds[g + 1]].ravel() for g in range(groups)]
 
 
 def no_schedules() -> Fields:

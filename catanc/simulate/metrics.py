@@ -28,18 +28,37 @@ def window_responses(arrivals: Sequence[tuple[float, float]]) -> list[float]:
 
 
 def timed_responses(arrivals: Sequence[tuple[float, float]] | npt.NDArray[np.float64]) -> list[tuple[float, float]]:
-    """``(done, response)`` pairs (ms) from a chain's ``(origin, done)`` arrivals, in completion order.
+    """``(done, response)`` pairs (ms) from a chain's ``(origin, done)`` arrivals, in completion order."""
+    done, response = response_arrays(arrivals)
+    return list(zip(done.tolist(), response.tolist(), strict=True))
+
+
+def response_arrays(
+    arrivals: Sequence[tuple[float, float]] | npt.NDArray[np.float64],
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """:func:`timed_responses` as two arrays: when each output was done, and its response time.
 
     The window before an output starts at the newest origin any earlier output carried: the
     running maximum, so one vectorised pass gives what the loop over arrivals would.
     """
     pairs = np.asarray(arrivals, dtype=np.float64).reshape(-1, 2)
     if len(pairs) < 2:
-        return []
+        return np.empty(0), np.empty(0)
     origins, done = pairs[:, 0], pairs[1:, 1]
     previous = np.maximum.accumulate(origins)[:-1]
     newer = origins[1:] > previous
-    return list(zip(done[newer].tolist(), (done[newer] - previous[newer]).tolist(), strict=True))
+    return done[newer], done[newer] - previous[newer]
+
+
+def ascending(values: Sequence[float] | npt.NDArray[np.float64]) -> Sequence[float]:
+    """``values`` as a list sorted the way :func:`sorted` sorts it (numpy's stable sort for an array).
+
+    :func:`~catanc.runtime.measure.percentile` sorts again, which costs a sorted list one pass.
+    """
+    if isinstance(values, np.ndarray):
+        sorted_values: list[float] = np.sort(values, kind="stable").tolist()
+        return sorted_values
+    return values
 
 
 @dataclass(frozen=True)
@@ -54,6 +73,14 @@ class Summary:
         if not values:
             return None
         return cls(len(values), math.fsum(values) / len(values), percentile(values, 95), max(values))
+
+    @classmethod
+    def of_array(cls, values: npt.NDArray[np.float64]) -> Summary | None:
+        """:meth:`of` the values of a float array (no NaN), the same numbers with numpy's sort."""
+        if not len(values):
+            return None
+        listed: list[float] = values.tolist()
+        return cls(len(listed), math.fsum(listed) / len(listed), percentile(ascending(values), 95), max(listed))
 
     def as_dict(self) -> dict[str, float]:
         return {"mean": round(self.mean, 3), "p95": round(self.p95, 3), "max": round(self.max, 3)}
@@ -110,6 +137,10 @@ class PolicyResult:
         }
 
 
-def node_result(done_ms: Sequence[float], staleness_ms: Sequence[float], duration_ms: float) -> NodeResult:
-    stale = percentile(staleness_ms, 95) if staleness_ms else None
+def node_result(
+    done_ms: Sequence[float] | npt.NDArray[np.float64],
+    staleness_ms: Sequence[float] | npt.NDArray[np.float64],
+    duration_ms: float,
+) -> NodeResult:
+    stale = percentile(ascending(staleness_ms), 95) if len(staleness_ms) else None
     return NodeResult(len(done_ms) * 1000.0 / duration_ms, stale)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -16,8 +16,8 @@ from catanc.simulate.policies import Replan
 class Records:
     """Per node its completion times and input staleness, per chain its arrivals, per core its busy time."""
 
-    done_ms: dict[str, list[float]]
-    staleness_ms: dict[str, list[float]]
+    done_ms: Mapping[str, Sequence[float] | npt.NDArray[np.float64]]  # a list, or an array (the compiled kernel's)
+    staleness_ms: Mapping[str, Sequence[float] | npt.NDArray[np.float64]]
     arrivals: Sequence[Sequence[tuple[float, float]] | npt.NDArray[np.float64]]
     """Per chain: ``(origin, done)`` at its last node, in completion order (a list, or an (n, 2) array)."""
     busy_by_core: dict[int, float]  # core -> time it ran jobs (ms)

@@ -20,6 +20,9 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
+import numpy as np
+import numpy.typing as npt
+
 from catanc.errors import UsageError
 from catanc.graph import all_chains
 from catanc.planner import Plan, plan_problem, priorities
@@ -30,11 +33,11 @@ from catanc.runtime.schedule import RuntimeSchedule, runtime_schedule
 from catanc.simulate.cpu import Discipline
 from catanc.simulate.dataflow import Dataflow
 from catanc.simulate.engine import Engine
-from catanc.simulate.metrics import ChainResult, PolicyResult, Summary, node_result, timed_responses
+from catanc.simulate.metrics import ChainResult, PolicyResult, Summary, node_result, response_arrays
 from catanc.simulate.policies import CatanPolicy, Reoptimiser, Sampler, TimerPolicy, start_sensors
 from catanc.simulate.records import Records
 from catanc.spec import Spec
-from catanc.workload import ComputeSampler
+from catanc.workload import ComputeSampler, NodeStream
 
 POLICIES = ("catan", "baseline", "fifo-static", "static-fullrun", "static-20s")
 DEFAULT_POLICIES = ("catan", "baseline", "fifo-static")
@@ -69,14 +72,53 @@ def reported_chains(spec: Spec, problem: Problem) -> list[tuple[tuple[str, ...],
 
 def tail_compute(spec: Spec, sampler: Sampler, start_s: float, end_s: float) -> dict[str, float]:
     """Each scheduled node's planning compute time (the runtime's p95 estimate) over ``[start_s, end_s]``."""
+    times = profile_times(start_s, end_s)
+    return _tails(spec, lambda name: [sampler(name, at) for at in times])
+
+
+def workload_tail_compute(spec: Spec, seed: int, start_s: float, end_s: float) -> dict[str, float]:
+    """:func:`tail_compute` with :func:`workload_sampler`, each node's draws taken in one block."""
+    sampler = ComputeSampler(spec, seed)
+    times = np.array(profile_times(start_s, end_s))
+    return _tails(spec, lambda name: stream_draws(sampler.stream(name), times).tolist())
+
+
+def profile_times(start_s: float, end_s: float) -> list[float]:
+    """When :func:`tail_compute` draws: :data:`PROFILE_SAMPLES` times evenly spread over ``[start_s, end_s]``."""
+    return [start_s + (end_s - start_s) * i / (PROFILE_SAMPLES - 1) for i in range(PROFILE_SAMPLES)]
+
+
+def _tails(spec: Spec, samples_of: Callable[[str], list[float]]) -> dict[str, float]:
     q = spec.runtime.percentile
-    times = [start_s + (end_s - start_s) * i / (PROFILE_SAMPLES - 1) for i in range(PROFILE_SAMPLES)]
-    tails = {}
-    for name, node in sorted(spec.nodes.items()):
-        if node.scheduled:
-            samples = [sampler(name, at) for at in times]
-            tails[name] = estimate(samples, q, mode_times(node.compute_ms))
-    return tails
+    return {
+        name: estimate(samples_of(name), q, mode_times(node.compute_ms))
+        for name, node in sorted(spec.nodes.items())
+        if node.scheduled
+    }
+
+
+def stream_draws(stream: NodeStream, at_s: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """What :meth:`NodeStream.draw` returns for each of the non-decreasing times ``at_s``, called in order.
+
+    A run takes the spike when an arrival came at or before it and after the run before it;
+    every other run takes the next :meth:`~NodeStream.bases` draw, times the growth factor.
+    The same operations on the same values as the run-by-run calls, so the same bits.
+    """
+    if not len(at_s):
+        return np.empty(0)
+    arrivals = np.array(stream.spikes_until(float(at_s[-1])))
+    taken = np.searchsorted(arrivals, at_s, side="right")  # arrivals at or before each run
+    spike = np.diff(taken, prepend=0) > 0
+    normal = ~spike
+    modes, factors = stream.bases(int(normal.sum()))
+    values = modes.copy()
+    if stream.growth is not None:
+        start, end, over_s = stream.growth
+        at = at_s[normal]
+        values *= np.where(at >= over_s, end, np.where(at <= 0.0, start, start + (end - start) * (at / over_s)))
+    draws = np.full(len(at_s), stream.spike_ms)
+    draws[normal] = values * factors
+    return draws
 
 
 def check_policies(names: Sequence[str]) -> tuple[str, ...]:
@@ -127,7 +169,11 @@ def prepare(setup: Setup, policy: str, sampler_for: SamplerFactory) -> Prepared:
         return Prepared(chains, schedule, replanner, None, None, "fifo")
     # One plan, as the Replanner's Stage I would make it, from the tail compute times.
     end = setup.duration_s if policy == "static-fullrun" else min(STATIC_20S, setup.duration_s)
-    profiled = problem.with_compute(tail_compute(spec, sampler_for(spec, setup.seed), 0.0, end))
+    if sampler_for is workload_sampler:
+        tails = workload_tail_compute(spec, setup.seed, 0.0, end)
+    else:
+        tails = tail_compute(spec, sampler_for(spec, setup.seed), 0.0, end)
+    profiled = problem.with_compute(tails)
     plan = plan_problem(profiled, spec.schedule, cores, backend="conic")
     return Prepared(chains, runtime_schedule(plan, profiled, spec.schedule), None, plan, None, "fifo")
 
@@ -227,12 +273,18 @@ def policy_result(
     """What a run of ``policy`` shows, from its records (shared by both engines and by ``catanc bench``)."""
     duration_ms = setup.duration_s * 1000.0
     model = {chain.nodes: chain.response_ms for chain in plan.chains} if plan is not None else {}
-    timed = [timed_responses(arrivals) for arrivals in records.arrivals]
+    timed = [response_arrays(arrivals) for arrivals in records.arrivals]
     return PolicyResult(
         policy=policy,
         duration_s=setup.duration_s,
         chains=tuple(
-            ChainResult(nodes, named, Summary.of([r for _, r in timed[i]]), model.get(nodes), samples=tuple(timed[i]))
+            ChainResult(
+                nodes,
+                named,
+                Summary.of_array(timed[i][1]),
+                model.get(nodes),
+                samples=tuple(zip(timed[i][0].tolist(), timed[i][1].tolist(), strict=True)),
+            )
             for i, (nodes, named) in enumerate(chains)
         ),
         nodes={
@@ -241,6 +293,11 @@ def policy_result(
         },
         utilisation=tuple(records.busy_by_core.get(core, 0.0) / duration_ms for core in range(setup.cores)),
         replans=len(records.replans),
-        node_done_ms={name: tuple(done) for name, done in records.done_ms.items()},
+        node_done_ms={name: _floats(done) for name, done in records.done_ms.items()},
         schedule=records.schedule,
     )
+
+
+def _floats(values: Sequence[float] | npt.NDArray[np.float64]) -> tuple[float, ...]:
+    """``values`` as a tuple of Python floats (an array's elements are numpy scalars)."""
+    return tuple(values.tolist() if isinstance(values, np.ndarray) else values)
