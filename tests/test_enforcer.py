@@ -475,6 +475,32 @@ def test_a_run_stuck_at_a_node_is_given_up_while_other_traffic_flows(harness: Ha
     assert of_kind(harness.events(), "run"), "the other subchains kept running"
 
 
+# One node busy all the time (1.2 s runs back to back on its own core): when the run ends, it is
+# in the middle of one, which ends after the enforcer's own shutdown (~0.2 s) is done.
+BUSY_SPEC = """\
+catan: 1
+app: busy
+nodes:
+  work: {compute_ms: 1200}
+subchains: {work: [work]}
+objective:
+  - {node: work, weight: 1.0}
+runtime: {first_solve_after_s: 100, stage2_every_s: 100, stage1_every_s: 100}
+"""
+
+
+def test_a_node_in_the_middle_of_a_run_at_the_end_reports_it_and_ends_cleanly(
+    harness: Harness, tmp_path: Path
+) -> None:
+    table = compile_table(BUSY_SPEC, tmp_path, 1)
+    harness.start(table, "--start", "spec", duration=2.0)
+    harness.lingering("work", 1200.0)
+    harness.registered(["work"])
+    assert harness.wait() == 0
+    time.sleep(1.5)  # its last run (<= 1.2 s) is over: LINGERING_NODE has printed any error by now
+    assert (tmp_path / "node-0.err").read_text() == "", "the node lost the enforcer in its last run"
+
+
 # --------------------------------------------------------------------------- re-solving
 
 

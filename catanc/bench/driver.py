@@ -81,10 +81,16 @@ class Driver:
             if got is not None:
                 self._handle(*got)
 
-    def stop(self) -> None:
-        """Tell every registered node the run is over (their loops end)."""
+    def stop(self, grace_s: float = protocol.STOP_GRACE_S) -> None:
+        """Tell every registered node the run is over (their loops end), then wait at most ``grace_s``
+        for their goodbyes: a node in the middle of a run still reports it, and fails if the socket is gone."""
         for address in self.endpoints.values():
             self.sock.send(protocol.Stop(), address)
+        deadline = self.clock() + grace_s * 1000.0
+        while self.endpoints and (remaining_ms := deadline - self.clock()) > 0:
+            got = self.sock.receive(remaining_ms / 1000.0)
+            if got is not None and isinstance(got[0], protocol.Bye):
+                self._handle(*got)
 
     def _handle(self, message: protocol.Message, address: Address) -> None:
         if isinstance(message, protocol.Hello):
