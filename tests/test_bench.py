@@ -624,9 +624,10 @@ def test_usage_errors_come_before_anything_starts(tmp_path: Path) -> None:
     assert "no baseline (baseline.rates_hz) to run" in result.output
     tiny = tmp_path / "tiny.yaml"
     tiny.write_text(TINY)
-    result = runner.invoke(app, ["bench", str(tiny), "-k", "1", "--policy", "static-20s"])
+    result = runner.invoke(app, ["bench", str(tiny), "-k", "1", "--policy", "static-30s"])
     assert result.exit_code == ExitCode.BAD_INPUT
-    assert "unknown policy 'static-20s' (expected one of: catan, baseline, fifo-static)" in result.output
+    expected = "catan, baseline, fifo-static, static-fullrun, static-20s"
+    assert f"unknown policy 'static-30s' (expected one of: {expected})" in result.output
     cpus = len(os.sched_getaffinity(0))
     result = runner.invoke(app, ["bench", str(tiny), "-k", str(cpus + 1), "--policy", "baseline"])
     assert result.exit_code == ExitCode.BAD_INPUT
