@@ -362,6 +362,29 @@ def make_room(sim: Sim) -> None:
 
 
 @compiled
+def turns_with_room(sim: Sim) -> int:
+    """Loop turns that surely fit in the draws, records and rings as they are (at least 1 after :func:`make_room`).
+
+    Each turn takes at most what :func:`draws_short` and :func:`make_room` leave room for
+    (4 draws of a node, ``margin`` records, 4 places in a ring), so after ``t`` turns there
+    was room for each: checking only then is checking before every turn.
+    """
+    n = sim.scheduled.shape[0]
+    produced = n * (sim.succ.shape[0] + n + 1)
+    turns = (sim.done_at.shape[0] - sim.done_n) // produced
+    turns = min(turns, (sim.stale_ms.shape[0] - sim.stale_n) // (2 * produced))
+    turns = min(turns, (sim.arrival_done.shape[0] - sim.arrivals_n) // (produced * sim.latest_origins.shape[1]))
+    turns = min(turns, (sim.measured_ms.shape[0] - sim.measured_n) // n)
+    for node in range(n):
+        if sim.scheduled[node]:
+            turns = min(turns, (sim.filled[node] - sim.used[node]) // 4)
+        turns = min(turns, (sim.wait.shape[1] - (sim.wait_tail[node] - sim.wait_head[node])) // 4)
+    for sub in range(sim.sub_seq.shape[0]):
+        turns = min(turns, (sim.flight_index.shape[1] - (sim.sub_seq[sub] - sim.flight_low[sub])) // 4)
+    return max(turns, 1)
+
+
+@compiled
 def longer_ints(array: IntArray, at_least: int) -> IntArray:
     grown = np.zeros(max(2 * array.shape[0], at_least), np.int64)
     grown[: array.shape[0]] = array
@@ -389,10 +412,14 @@ def wider_ring(ring: Any, low: IntArray, high: IntArray) -> Any:
 @compiled
 def run(sim: Sim, end_ms: float) -> int:
     """:meth:`Engine.run_until`: to ``end_ms``, or until a re-solve is due or Python must draw more."""
+    safe = 0  # loop turns left before the draws, records and rings must be looked at again
     while True:
-        if draws_short(sim):
-            return NEED_DRAWS
-        make_room(sim)
+        if safe == 0:
+            if draws_short(sim):
+                return NEED_DRAWS
+            make_room(sim)
+            safe = turns_with_room(sim)
+        safe -= 1
         for pool in range(sim.pools):
             if sim.pool_dirty[pool]:
                 allocate(sim, pool)
