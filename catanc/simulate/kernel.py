@@ -371,7 +371,7 @@ def turns_with_room(sim: Sim) -> int:
     """
     n = sim.scheduled.shape[0]
     produced = n * (sim.succ.shape[0] + n + 1)
-    turns = (sim.done_at.shape[0] - sim.done_n) // produced
+    turns: int = (sim.done_at.shape[0] - sim.done_n) // produced
     turns = min(turns, (sim.stale_ms.shape[0] - sim.stale_n) // (2 * produced))
     turns = min(turns, (sim.arrival_done.shape[0] - sim.arrivals_n) // (produced * sim.latest_origins.shape[1]))
     turns = min(turns, (sim.measured_ms.shape[0] - sim.measured_n) // n)
