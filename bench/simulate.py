@@ -1,6 +1,7 @@
 """How much faster than real time the simulator runs (issue 7's aim: at least 1000x on nav2d).
 
     python -m bench.simulate                  # nav2d, 1 and 2 cores, every policy, 60 simulated s
+    python -m bench.simulate --duration 60 --duration 250 --breakdown
     python -m bench.simulate --duration 20 --spec specs/vr_illixr.yaml
 
 Wall time of :func:`catanc.simulate.run.simulate` per policy (planning
@@ -8,41 +9,119 @@ included: the static plans and ``catan``'s first plan and re-solves are part
 of a run), and the speed-up ``simulated s / wall s``, for the compiled kernel
 (the default) and, with ``--python``, for the Python engine it is checked
 against.  Each policy runs once for a second first, so numba's compiling or
-loading its cache is not timed.
+loading its cache is not timed; each row is the fastest of ``--repeat`` runs
+(the machine may be shared: the load average is printed before and after).
+
+``--breakdown`` splits each compiled run's wall time (of its fastest run) by
+where it went: planning before the run (the static plans' profiling draws
+included), re-solves (``catan``), the kernel, drawing compute times for it,
+turning its records into the result, and the rest (arrays, feeding the
+measurements to the re-optimiser).  The parts are timed by wrapping those
+functions for the run (a few calls each), not by a profiler.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import itertools
+import os
 import time
+from collections.abc import Callable, Iterator
+from typing import Any
 
 from catanc.load import load_spec
+from catanc.simulate import fast, kernel, policies
+from catanc.simulate import run as simulate_run
 from catanc.simulate.run import POLICIES, EngineChoice, Setup, simulate
 
 AIM = 1000.0
+
+PARTS = ("planning", "re-solves", "kernel", "draws", "results")
+"""What --breakdown times (wall s per part), beside the rest."""
+
+
+class Stopwatch:
+    """Seconds spent in each wrapped function, by part."""
+
+    def __init__(self) -> None:
+        self.spent = dict.fromkeys(PARTS, 0.0)
+
+    def wrap(self, part: str, function: Callable[..., Any]) -> Callable[..., Any]:
+        def timed(*args: Any, **kwargs: Any) -> Any:
+            began = time.perf_counter()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                self.spent[part] += time.perf_counter() - began
+
+        return timed
+
+
+@contextlib.contextmanager
+def timing(watch: Stopwatch) -> Iterator[None]:
+    """Wrap the parts' functions (where their callers look them up) for the duration of the block."""
+    targets: list[tuple[Any, str, str]] = [
+        (simulate_run, "prepare", "planning"),
+        (policies.Reoptimiser, "step", "re-solves"),
+        (kernel, "run", "kernel"),
+        (fast.DrawTable, "grow", "draws"),
+        (fast, "records_of", "results"),
+        (simulate_run, "policy_result", "results"),
+    ]
+    originals = [(owner, name, getattr(owner, name)) for owner, name, _ in targets]
+    try:
+        for (owner, name, part), (_, _, function) in zip(targets, originals, strict=True):
+            setattr(owner, name, watch.wrap(part, function))
+        yield
+    finally:
+        for owner, name, function in originals:
+            setattr(owner, name, function)
+
+
+def load() -> str:
+    one, five, _ = os.getloadavg()
+    return f"load average {one:.2f} (1 min), {five:.2f} (5 min)"
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--spec", default="specs/nav2d.yaml")
-    parser.add_argument("--duration", type=float, default=60.0)
+    parser.add_argument("--duration", type=float, action="append", help="Simulated seconds (repeatable; 60).")
     parser.add_argument("--cores", type=int, action="append")
+    parser.add_argument("--policy", action="append", choices=POLICIES)
+    parser.add_argument("--repeat", type=int, default=3, help="Runs per row; the fastest is shown.")
     parser.add_argument("--python", action="store_true", help="Also time the Python engine.")
+    parser.add_argument("--breakdown", action="store_true", help="Where a compiled run's wall time goes.")
     args = parser.parse_args()
     spec = load_spec(args.spec)
     engines: list[EngineChoice] = ["compiled", "python"] if args.python else ["compiled"]
-    for policy in POLICIES:  # imports, compiling (or loading numba's cache) and first solver calls out of the way
+    chosen = args.policy or list(POLICIES)
+    for policy in chosen:  # imports, compiling (or loading numba's cache) and first solver calls out of the way
         simulate(Setup(spec, 1, 1.0, 0), policy)
-    for engine, cores, policy in itertools.product(engines, args.cores or [1, 2], POLICIES):
-        began = time.perf_counter()
-        result = simulate(Setup(spec, cores, args.duration, 0), policy, engine=engine)
-        wall = time.perf_counter() - began
-        speed = args.duration / wall
-        print(
-            f"{spec.app} {engine:8} {cores} core(s) {policy:15} {wall:7.3f} s wall for {args.duration:g} s: "
-            f"{speed:7.0f}x real time ({speed / AIM:.2f}x the aim), {result.replans} re-plans"
+    print(load())
+    rows = itertools.product(engines, args.duration or [60.0], args.cores or [1, 2], chosen)
+    for engine, duration, cores, policy in rows:
+        best, parts = float("inf"), Stopwatch()
+        for _ in range(args.repeat):
+            watch = Stopwatch()
+            with timing(watch) if args.breakdown and engine == "compiled" else contextlib.nullcontext():
+                began = time.perf_counter()
+                result = simulate(Setup(spec, cores, duration, 0), policy, engine=engine)
+                wall = time.perf_counter() - began
+            if wall < best:
+                best, parts = wall, watch
+        speed = duration / best
+        line = (
+            f"{spec.app} {engine:8} {duration:5g} s {cores} core(s) {policy:15} {best:7.3f} s wall: "
+            f"{speed:6.0f}x real time ({speed / AIM:.2f}x the aim), {result.replans} re-plans"
         )
+        if args.breakdown and engine == "compiled":
+            spent = parts.spent
+            shown = ", ".join(f"{part} {1000 * spent[part]:.0f}" for part in PARTS)
+            line += f"; ms: {shown}, rest {1000 * (best - sum(spent.values())):.0f}"
+        print(line, flush=True)
+    print(load())
 
 
 if __name__ == "__main__":
