@@ -58,7 +58,7 @@ from catanc.runtime.sched import (
 from catanc.runtime.schedule import RuntimeSchedule
 from catanc.runtime.worker import RunRecord, read_records, workload_worker_command
 from catanc.simulate.metrics import PolicyResult
-from catanc.simulate.run import STATIC_20S, reported_chains, tail_compute, workload_sampler
+from catanc.simulate.run import Setup, reported_chains, static_profile
 from catanc.spec import Spec
 
 POLICIES = ("catan", "baseline", "fifo-static", "static-fullrun", "static-20s")
@@ -230,20 +230,14 @@ class Workers:
 # --------------------------------------------------------------------------- catan: the enforcer
 
 
-def static_profile(spec: Spec, policy: str, duration_s: float, seed: int) -> dict[str, float]:
-    """The tail compute times a static plan is made from, as the simulator's static policies profile them."""
-    end = duration_s if policy == "static-fullrun" else min(STATIC_20S, duration_s)
-    return tail_compute(spec, workload_sampler(spec, seed), 0.0, end)
-
-
 def planned_spec(setup: BenchSetup, policy: str) -> Spec:
     """The spec the enforcer plans with: the app's for ``catan``; for a static policy, the app with
-    the profiled tail compute times (:func:`static_profile`) and no re-solve
+    the profiled tail compute times (:func:`~catanc.simulate.run.static_profile`) and no re-solve
     before the run ends. The workers still burn what the app's own workload model draws."""
     spec = setup.spec
     if policy == "catan":
         return spec
-    tails = static_profile(spec, policy, setup.duration_s, setup.seed)
+    tails = static_profile(Setup(spec, setup.cores, setup.duration_s, setup.seed), policy)
     nodes = {name: node.model_copy(update={"compute_ms": tails[name]}) if name in tails else node
              for name, node in spec.nodes.items()}  # fmt: skip
     never = setup.duration_s + NO_RESOLVE_MARGIN_S

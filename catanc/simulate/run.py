@@ -153,6 +153,15 @@ class Prepared:
     discipline: Discipline
 
 
+def static_profile(setup: Setup, policy: str, sampler_for: SamplerFactory = workload_sampler) -> dict[str, float]:
+    """The tail compute times a static policy plans with: over the whole run (``static-fullrun``)
+    or its first 20 s (``static-20s``). ``catanc bench`` plans its static runs with these too."""
+    end = setup.duration_s if policy == "static-fullrun" else min(STATIC_20S, setup.duration_s)
+    if sampler_for is workload_sampler:
+        return workload_tail_compute(setup.spec, setup.seed, 0.0, end)
+    return tail_compute(setup.spec, sampler_for(setup.spec, setup.seed), 0.0, end)
+
+
 def prepare(setup: Setup, policy: str, sampler_for: SamplerFactory) -> Prepared:
     """Plan what ``policy`` needs (nothing for the baselines, one plan for a static policy)."""
     check_policies([policy])
@@ -168,12 +177,7 @@ def prepare(setup: Setup, policy: str, sampler_for: SamplerFactory) -> Prepared:
         schedule = runtime_schedule(replanner.plan, replanner.problem, spec.schedule)
         return Prepared(chains, schedule, replanner, None, None, "fifo")
     # One plan, as the Replanner's Stage I would make it, from the tail compute times.
-    end = setup.duration_s if policy == "static-fullrun" else min(STATIC_20S, setup.duration_s)
-    if sampler_for is workload_sampler:
-        tails = workload_tail_compute(spec, setup.seed, 0.0, end)
-    else:
-        tails = tail_compute(spec, sampler_for(spec, setup.seed), 0.0, end)
-    profiled = problem.with_compute(tails)
+    profiled = problem.with_compute(static_profile(setup, policy, sampler_for))
     plan = plan_problem(profiled, spec.schedule, cores, backend="conic")
     return Prepared(chains, runtime_schedule(plan, profiled, spec.schedule), None, plan, None, "fifo")
 
