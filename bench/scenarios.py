@@ -65,7 +65,7 @@ class Source:
     durations_s: Mapping[str, float]
     face_rates_hz: tuple[float, ...]
 
-    def run(self, spec_yaml: dict[str, Any], cores: int, policy: str, duration_s: float) -> PolicyResult:
+    def run(self, spec_yaml: Mapping[str, Any], cores: int, policy: str, duration_s: float) -> PolicyResult:
         with spec_file(spec_yaml) as path:
             spec = load_spec(path)
             began = time.monotonic()
@@ -168,6 +168,20 @@ def bucket_medians(samples: Sequence[tuple[float, float]], duration_s: float) ->
     return [round(sorted(b)[len(b) // 2], 2) if b else None for b in buckets]
 
 
+def per_core_and_variant(
+    source: Source,
+    duration_s: float,
+    variants: Mapping[str, tuple[str, Mapping[str, Any]]],
+    measure: Callable[[PolicyResult], dict[str, Any]],
+) -> dict[str, Any]:
+    """``{cores: {label: measure(result)}}`` for each ``label -> (policy, spec)`` on each of :data:`CORES`."""
+    numbers: dict[str, Any] = {}
+    for cores in CORES:
+        for label, (policy, data) in variants.items():
+            numbers.setdefault(f"{cores}", {})[label] = measure(source.run(data, cores, policy, duration_s))
+    return numbers
+
+
 # --------------------------------------------------------------------------- scenarios
 
 
@@ -212,20 +226,21 @@ NAV_POLICIES = {  # label -> (policy, baseline rates changed)
 
 def nav2d(source: Source) -> tuple[dict[str, Any], Figure]:
     """Section 7.2: the local chain and GL's staleness, catanc against the hand-tuned defaults."""
-    data, duration = spec_yaml("nav2d"), source.durations_s["nav2d"]
-    numbers: dict[str, Any] = {}
-    for cores in CORES:
-        for label, (policy, rates) in NAV_POLICIES.items():
-            result = source.run(with_rates(data, rates), cores, policy, duration)
-            numbers.setdefault(f"{cores}", {})[label] = {
-                "local": response(result, LOCAL_CHAIN),
-                "local_hz": rate(result, "LP"),
-                "GL_hz": rate(result, "GL"),
-                "GL_staleness_p95_ms": staleness(result, "GL"),
-                "pose_at_base": response(result, POSE_CHAIN),
-                "GM_hz": rate(result, "GM"),
-                "GP_hz": rate(result, "GP"),
-            }
+    data = spec_yaml("nav2d")
+    variants = {label: (policy, with_rates(data, rates)) for label, (policy, rates) in NAV_POLICIES.items()}
+
+    def measure(result: PolicyResult) -> dict[str, Any]:
+        return {
+            "local": response(result, LOCAL_CHAIN),
+            "local_hz": rate(result, "LP"),
+            "GL_hz": rate(result, "GL"),
+            "GL_staleness_p95_ms": staleness(result, "GL"),
+            "pose_at_base": response(result, POSE_CHAIN),
+            "GM_hz": rate(result, "GM"),
+            "GP_hz": rate(result, "GP"),
+        }
+
+    numbers = per_core_and_variant(source, source.durations_s["nav2d"], variants, measure)
     figure, axes = new_figure(2, "nav2d: local chain and GL, catanc against the hand-tuned defaults")
     labels = list(NAV_POLICIES)
     for ax, (key, title) in zip(
@@ -259,22 +274,23 @@ def yolo(source: Source, variant: str) -> tuple[dict[str, Any], Figure]:
     data = spec_yaml("nav2d_yolo")
     if variant == "yolo-fast":
         data = with_growth_over(data, duration)
+
+    def measure(result: PolicyResult) -> dict[str, Any]:
+        return {
+            "yolo_hz": rate(result, "YOLO"),
+            "yolo_period_s": bucket_periods(result.node_done_ms["YOLO"], duration),
+            "local": response(result, LOCAL_CHAIN),
+            "pose_at_base": response(result, POSE_CHAIN),
+            "pose_at_base_median_ms": bucket_medians(chain_of(result, POSE_CHAIN).samples, duration),
+            "GL_hz": rate(result, "GL"),
+            "GM_hz": rate(result, "GM"),
+            "GP_hz": rate(result, "GP"),
+            "replans": result.replans,
+        }
+
+    variants = {policy: (policy, data) for policy in YOLO_POLICIES}
     numbers: dict[str, Any] = {"growth_over_s": 250.0 if variant == "yolo" else duration}
-    for cores in CORES:
-        for policy in YOLO_POLICIES:
-            result = source.run(data, cores, policy, duration)
-            pose = chain_of(result, POSE_CHAIN)
-            numbers.setdefault(f"{cores}", {})[policy] = {
-                "yolo_hz": rate(result, "YOLO"),
-                "yolo_period_s": bucket_periods(result.node_done_ms["YOLO"], duration),
-                "local": response(result, LOCAL_CHAIN),
-                "pose_at_base": response(result, POSE_CHAIN),
-                "pose_at_base_median_ms": bucket_medians(pose.samples, duration),
-                "GL_hz": rate(result, "GL"),
-                "GM_hz": rate(result, "GM"),
-                "GP_hz": rate(result, "GP"),
-                "replans": result.replans,
-            }
+    numbers |= per_core_and_variant(source, duration, variants, measure)
     figure, axes = new_figure(
         2 * len(CORES), f"nav2d+YOLO, GM and GP growing 0.6x to 2x over {numbers['growth_over_s']:g} s"
     )
@@ -314,18 +330,14 @@ def with_schedule(data: Mapping[str, Any], changes: Mapping[str, Any]) -> dict[s
 
 def vr(source: Source) -> tuple[dict[str, Any], Figure]:
     """Section 7.3: chains A, B and C, catanc against FIFO static priorities."""
-    data, duration = spec_yaml("vr_illixr"), source.durations_s["vr"]
-    numbers: dict[str, Any] = {}
-    for cores in CORES:
-        for label, (policy, changes) in VR_POLICIES.items():
-            result = source.run(with_schedule(data, changes), cores, policy, duration)
-            numbers.setdefault(f"{cores}", {})[label] = {
-                name: response(result, nodes) for name, nodes in VR_CHAINS.items()
-            } | {
-                "Render_hz": rate(result, "Render"),
-                "VIO_hz": rate(result, "VIO"),
-                "Timewarp_hz": rate(result, "Timewarp"),
-            }
+    data = spec_yaml("vr_illixr")
+    variants = {label: (policy, with_schedule(data, changes)) for label, (policy, changes) in VR_POLICIES.items()}
+
+    def measure(result: PolicyResult) -> dict[str, Any]:
+        rates = {f"{node}_hz": rate(result, node) for node in ("Render", "VIO", "Timewarp")}
+        return {name: response(result, nodes) for name, nodes in VR_CHAINS.items()} | rates
+
+    numbers = per_core_and_variant(source, source.durations_s["vr"], variants, measure)
     figure, axes = new_figure(len(CORES), "VR (ILLIXR): mean response time of chains A, B, C against fifo-static")
     for ax, cores in zip(axes, CORES, strict=True):
         body = numbers[f"{cores}"]
