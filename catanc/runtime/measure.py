@@ -41,13 +41,14 @@ from collections import deque
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
-
-import numpy as np
-import numpy.typing as npt
+from typing import TYPE_CHECKING, Any
 
 from catanc.errors import UsageError, did_you_mean
 from catanc.spec import ModalCompute, Node, Runtime, Spec
+
+if TYPE_CHECKING:
+    import numpy as np
+    import numpy.typing as npt
 
 MIN_PLANNING_MS = 1e-3
 """Floor of :meth:`Measurements.estimates` (1 us): the planner takes only positive times
@@ -246,6 +247,10 @@ class ComputeWindow:
         samples are copied in: the window, ``total`` and ``rejected`` end as adding one by
         one leaves them.  Anything else is added one by one.
         """
+        # Imported here: the enforcer's process never calls this and must not load numpy, whose
+        # OpenBLAS starts a thread at import (the enforcer's threads are all its own, by policy).
+        import numpy as np  # noqa: PLC0415
+
         if not (isinstance(compute_ms, np.ndarray) and compute_ms.dtype == np.float64 and compute_ms.ndim == 1):
             return sum(self.add(value) for value in compute_ms)
         valid = compute_ms[np.isfinite(compute_ms) & (compute_ms >= 0.0)]
