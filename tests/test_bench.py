@@ -297,46 +297,32 @@ def test_the_driver_triggers_as_the_simulators_timer_policy(tmp_path: Path) -> N
     assert 25 <= len(fake.done_ms["det"]) <= 33  # 31.1 ms runs back to back: coalesced triggers
 
 
-class StoppingSocket(FakeSocket):
-    """A Stop is answered with a Bye once the node's run in progress (if any) is done."""
-
-    BYE = -1
-
-    def send(self, message: protocol.Message, address: Address) -> bool:
-        if isinstance(message, protocol.Stop):
-            node = str(address)
-            busy_until = max((t for t, n, _ in self.pending if n == node), default=self.now)
-            heapq.heappush(self.pending, (busy_until, node, self.BYE))
-        return True
-
-    def receive(self, timeout_s: float | None) -> tuple[protocol.Message, Address] | None:
-        assert timeout_s is not None
-        if self.pending and self.pending[0][2] == self.BYE and self.pending[0][0] <= self.now + timeout_s * 1000.0:
-            self.now, node, _ = heapq.heappop(self.pending)
-            return protocol.Bye(node, 1), node
-        return super().receive(timeout_s)
-
-
 @pytest.mark.parametrize(("grace_s", "waits_for_all"), [(2.0, True), (0.01, False)])
 def test_the_driver_keeps_its_socket_for_the_last_runs_after_a_stop(
     tmp_path: Path, grace_s: float, waits_for_all: bool
 ) -> None:
-    """det (28.8 ms) is in the middle of a run when the run ends: stop() returns after its Bye, or at the grace."""
+    """det (28.8 ms) is in the middle of a run when the run ends: stop() returns once it reported it, or at the
+    grace; nothing new is triggered meanwhile."""
     spec = spec_of(TRIGGERED, tmp_path)
-    fake = StoppingSocket(spec)
+    fake = FakeSocket(spec)
     driver = Driver(fake, spec, trigger_rules(spec), place=lambda _hello: None, clock=fake.clock)  # type: ignore[arg-type]
     driver.register(list(fake.compute), 1.0, alive=lambda: None)
     driver.run(0.0, 1005.0)
     last = max((t for t, node, _ in fake.pending if node == "det"), default=None)
     assert last is not None
     assert last > 1005.0 + 10.0, "det is mid-run at the end"
+    finished = max(t for t, _, _ in fake.pending)
+    done_before = {node: len(times) for node, times in fake.done_ms.items()}
     driver.stop(grace_s)
     if waits_for_all:
-        assert driver.endpoints == {}
-        assert fake.now == pytest.approx(last)  # returned as the last Bye came
+        assert fake.pending == []  # every run reported, and no new trigger was sent
+        assert driver.running == {}
+        assert fake.now == pytest.approx(finished)  # returned as the last run reported
+        assert fake.done_ms["det"][-1] == pytest.approx(last)
     else:
-        assert "det" in driver.endpoints
+        assert "det" in driver.running
         assert fake.now == pytest.approx(1005.0 + grace_s * 1000.0, abs=1e-6)
+    assert all(len(times) - done_before[node] <= 1 for node, times in fake.done_ms.items())
 
 
 def test_the_driver_rejects_nodes_it_does_not_run(tmp_path: Path) -> None:

@@ -83,14 +83,15 @@ class Driver:
 
     def stop(self, grace_s: float = protocol.STOP_GRACE_S) -> None:
         """Tell every registered node the run is over (their loops end), then wait at most ``grace_s``
-        for their goodbyes: a node in the middle of a run still reports it, and fails if the socket is gone."""
+        for the runs still going: a node in the middle of one still reports it, and fails if the
+        socket is gone.  Nothing new is triggered."""
         for address in self.endpoints.values():
             self.sock.send(protocol.Stop(), address)
         deadline = self.clock() + grace_s * 1000.0
-        while self.endpoints and (remaining_ms := deadline - self.clock()) > 0:
+        while self.running and (remaining_ms := deadline - self.clock()) > 0:
             got = self.sock.receive(remaining_ms / 1000.0)
-            if got is not None and isinstance(got[0], protocol.Bye):
-                self._handle(*got)
+            if got is not None and isinstance(got[0], protocol.Done | protocol.Bye):
+                self.running.pop(got[0].node, None)
 
     def _handle(self, message: protocol.Message, address: Address) -> None:
         if isinstance(message, protocol.Hello):

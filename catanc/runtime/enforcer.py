@@ -246,7 +246,7 @@ class Enforcer:
                     if thread.ident is not None:
                         thread.join(timeout=2.0)
                 self._stop_nodes()
-                self._await_goodbyes(protocol.STOP_GRACE_S)
+                self._await_last_runs(protocol.STOP_GRACE_S)
                 with self.lock:
                     self.cpu_clocks.close()
                 self.planner.close()
@@ -270,20 +270,22 @@ class Enforcer:
         for endpoint in endpoints:
             self.sock.send(protocol.Stop(), endpoint.address)
 
-    def _await_goodbyes(self, grace_s: float) -> None:
-        """Keep the socket open until every stopped node has said goodbye, for at most ``grace_s``.
+    def _await_last_runs(self, grace_s: float) -> None:
+        """Keep the socket open, at most ``grace_s``, until every node busy with a run has reported it.
 
-        A node in the middle of a run when the run ends still sends its done message; with the
-        socket gone it would fail there ("lost the catanc enforcer") instead of ending cleanly.
+        A node in the middle of a run when the run ends still sends its done message (then
+        sees the Stop); with the socket gone it would fail there ("lost the catanc enforcer")
+        instead of ending cleanly.  Nothing new is triggered: the run is over.
         """
         deadline = time.monotonic() + grace_s
         while (remaining := deadline - time.monotonic()) > 0:
             with self.lock:
-                if not any(e.address is not None for endpoints in self.endpoints.values() for e in endpoints):
+                if not any(seq is not None for seq in self.busy.values()):
                     return
             got = self.sock.receive(min(remaining, RECEIVE_TIMEOUT_S))
-            if got is not None and isinstance(got[0], protocol.Bye):
-                self._unregister(got[0].node, got[0].tid)
+            if got is not None and isinstance(got[0], protocol.Done | protocol.Bye):
+                with self.lock:
+                    self.busy[got[0].node] = None
 
     # ------------------------------------------------------------------ registration and completion
 

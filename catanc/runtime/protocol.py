@@ -69,8 +69,8 @@ MAX_NAME = 128
 """The longest node name, in characters."""
 
 STOP_GRACE_S = 2.0
-"""After a Stop, how long the enforcer keeps its socket open for the nodes' last done and Bye:
-a node in the middle of a run when the run ends reports it before its loop ends."""
+"""After a Stop, how long the enforcer keeps its socket open for the done messages of runs still
+going: a node in the middle of a run when the run ends reports it before its loop ends."""
 
 _MAX_INT = 2**63 - 1
 
