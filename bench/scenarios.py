@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import copy
-import io
 import itertools
 import json
 import math
@@ -32,12 +31,11 @@ from typing import Any
 
 import yaml
 from matplotlib.axes import Axes
-from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from catanc.load import load_spec
 from catanc.simulate.metrics import ChainResult, PolicyResult
-from catanc.simulate.plots import write_files
+from catanc.simulate.plots import panel_figure, png_bytes, write_files
 from catanc.simulate.run import Setup, simulate
 
 SPECS = Path(__file__).resolve().parent.parent / "specs"
@@ -360,19 +358,9 @@ def vr(source: Source) -> tuple[dict[str, Any], Figure]:
 
 
 def new_figure(panels: int, title: str) -> tuple[Figure, list[Axes]]:
+    """A scenario's figure: 6 x 3.6 in per panel, two panels per row."""
     columns = 2 if panels > 1 else 1
-    rows = math.ceil(panels / columns)
-    figure = Figure(figsize=(6.0 * columns, 3.6 * rows), dpi=100, layout="constrained")
-    FigureCanvasAgg(figure)
-    axes = list(figure.subplots(rows, columns, squeeze=False).flat)
-    figure.suptitle(title)
-    return figure, axes[:panels]
-
-
-def png(figure: Figure) -> bytes:
-    buffer = io.BytesIO()
-    figure.savefig(buffer, format="png", metadata={"Software": None})  # the same bytes for the same numbers
-    return buffer.getvalue()
+    return panel_figure(panels, 6.0 * columns, 3.6 * math.ceil(panels / columns), title)
 
 
 SCENARIOS: dict[str, Callable[[Source], tuple[dict[str, Any], Figure]]] = {
@@ -471,7 +459,7 @@ def main() -> None:
         for name in chosen:
             print(f"{source.name}: {name}", file=sys.stderr, flush=True)
             numbers[name], figure = SCENARIOS[name](source)
-            files[f"{source.name}-{name}.png"] = png(figure)
+            files[f"{source.name}-{name}.png"] = png_bytes(figure)
             # Written after each scenario: a long real run keeps what it measured if it is stopped.
             write_files(
                 args.out, {**files, numbers_path.name: (json.dumps(numbers, indent=1, sort_keys=True) + "\n").encode()}

@@ -112,7 +112,7 @@ def render_plots(
     results: Sequence[PolicyResult], *, title: str, nodes: Sequence[str] | None = None
 ) -> dict[str, bytes]:
     """``{file name: PNG bytes}`` of the three plots (see the module's docstring)."""
-    return {name: _png(figure) for name, figure in draw_figures(results, title=title, nodes=nodes).items()}
+    return {name: png_bytes(figure) for name, figure in draw_figures(results, title=title, nodes=nodes).items()}
 
 
 def draw_figures(
@@ -136,7 +136,8 @@ class _Styles:
     widths: Mapping[str, float]
 
 
-def _new_figure(width_in: float, height_in: float) -> Figure:
+def new_figure(width_in: float, height_in: float) -> Figure:
+    """An empty figure drawn off-screen (Agg), laid out by matplotlib's constrained layout."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: PLC0415
     from matplotlib.figure import Figure  # noqa: PLC0415
 
@@ -145,7 +146,8 @@ def _new_figure(width_in: float, height_in: float) -> Figure:
     return figure
 
 
-def _png(figure: Figure) -> bytes:
+def png_bytes(figure: Figure) -> bytes:
+    """The figure as PNG, the same bytes for the same drawing."""
     buffer = io.BytesIO()
     figure.savefig(buffer, format="png", metadata={"Software": None})  # no matplotlib version in the bytes
     return buffer.getvalue()
@@ -160,8 +162,17 @@ def _grid(figure: Figure, panels: int) -> list[Axes]:
     return axes[:panels]
 
 
-def _grid_height(panels: int, row_in: float) -> float:
-    return row_in * math.ceil(panels / (1 if panels == 1 else 2)) + 1.0
+def panel_figure(panels: int, width_in: float, height_in: float, title: str) -> tuple[Figure, list[Axes]]:
+    """A titled figure of ``panels`` axes, two per row when there are several (a spare one hidden)."""
+    figure = new_figure(width_in, height_in)
+    figure.suptitle(title)
+    return figure, _grid(figure, panels)
+
+
+def _panels(panels: int, row_in: float, title: str) -> tuple[Figure, list[Axes]]:
+    """:func:`panel_figure` sized as responses-cdf.png and rates.png are: ``row_in`` per row of panels."""
+    rows = math.ceil(panels / (1 if panels == 1 else 2))
+    return panel_figure(panels, 13.0 if panels > 1 else 10.0, row_in * rows + 1.0, title)
 
 
 def _first(items: Sequence[str], what: str) -> tuple[list[str], str]:
@@ -236,10 +247,8 @@ def _responses_figure(results: Sequence[PolicyResult], styles: _Styles, title: s
     chains = _named_chains(results)
     keys = [chain_label(chain) for chain in chains]
     shown, left_out = _first(keys, "named chains")
-    panels = max(1, len(shown))
-    figure = _new_figure(13.0 if panels > 1 else 10.0, _grid_height(panels, 3.4))
-    figure.suptitle(f"{title}: chain response times, CDF over outputs; dotted: the model's R{left_out}")
-    axes = _grid(figure, panels)
+    suptitle = f"{title}: chain response times, CDF over outputs; dotted: the model's R{left_out}"
+    figure, axes = _panels(max(1, len(shown)), 3.4, suptitle)
     if not chains:
         _note(axes[0], "no named chains (the objective and constraints name none)")
         return figure
@@ -310,13 +319,13 @@ def _timeline_figure(results: Sequence[PolicyResult], title: str) -> Figure:
     planned = [(result.policy, result.schedule) for result in results if result.schedule is not None]
     unplanned = [result.policy for result in results if result.schedule is None]
     if not planned:
-        figure = _new_figure(10.0, 2.2)
+        figure = new_figure(10.0, 2.2)
         figure.suptitle(f"{title}: one schedule period per core")
         listed = ", ".join(unplanned) or "no policies"
         _note(figure.subplots(), f"no slot schedule to draw: {listed} (timers or measured runs, no plan)")
         return figure
     heights = [schedule.cores for _, schedule in planned]
-    figure = _new_figure(13.0, sum(0.55 * h + 1.1 for h in heights) + 0.8)
+    figure = new_figure(13.0, sum(0.55 * h + 1.1 for h in heights) + 0.8)
     note = f"\n(no slot schedule: {', '.join(unplanned)})" if unplanned else ""
     figure.suptitle(f"{title}: one schedule period per core{note}")
     axes = figure.subplots(len(planned), 1, squeeze=False, height_ratios=[h + 1.0 for h in heights])[:, 0]
@@ -419,10 +428,7 @@ def _dedicated_row(
 def _rates_figure(results: Sequence[PolicyResult], styles: _Styles, title: str, nodes: Sequence[str] | None) -> Figure:
     chosen = list(nodes) if nodes is not None else sorted({node for r in results for node in r.node_done_ms})
     shown, left_out = _first(chosen, "nodes")
-    panels = max(1, len(shown))
-    figure = _new_figure(13.0 if panels > 1 else 10.0, _grid_height(panels, 2.6))
-    figure.suptitle(f"{title}: node rates (runs per {RATE_BIN_S:g} s){left_out}")
-    axes = _grid(figure, panels)
+    figure, axes = _panels(max(1, len(shown)), 2.6, f"{title}: node rates (runs per {RATE_BIN_S:g} s){left_out}")
     if not shown:
         _note(axes[0], "no nodes to draw")
         return figure
