@@ -451,7 +451,7 @@ class Enforcer:
             head_busy = any(flight.index == 0 for flight in state.in_flight.values())
             # A run starts only when every node of it can be triggered: one started while a later
             # node is still starting up would stall there and be given up as lost.
-            if not all(self._speaking(node) for node in run.nodes):
+            if any(self._speaker(node) is None for node in run.nodes):
                 state.skipped += 1
                 return
             if head_busy:  # never queue triggers on a busy node (they would pile up in its socket): defer
@@ -466,9 +466,9 @@ class Enforcer:
             state.in_flight[state.seq] = Flight(0, now, None)
             self._trigger(run.nodes[0], state.seq)
 
-    def _speaking(self, node: str) -> bool:
-        """Whether ``node`` has a thread registered through the client (attached ones run on their own timers)."""
-        return any(endpoint.address is not None for endpoint in self.endpoints.get(node, []))
+    def _speaker(self, node: str) -> Endpoint | None:
+        """``node``'s first thread registered through the client (attached ones run on their own timers)."""
+        return next((endpoint for endpoint in self.endpoints.get(node, []) if endpoint.address is not None), None)
 
     def _trigger(self, node: str, seq: int) -> None:
         """Trigger ``node`` for run ``seq`` now, or once it has finished the run it is busy with.
@@ -479,19 +479,20 @@ class Enforcer:
         if self.busy.get(node) is not None:
             self.waiting.setdefault(node, deque()).append(seq)
             return
-        speaking = [endpoint for endpoint in self.endpoints.get(node, []) if endpoint.address is not None]
-        for endpoint in speaking[:1]:  # attached threads (no address) run on their own timers
-            run = self.schedule.subchain_of(node)
-            flight = self.states[run.name].in_flight.get(seq) if run is not None else None
-            threads = 1
-            if run is not None and flight is not None:
-                threads, flight.speedup = run.threads_of(flight.index)
-                if seq % KERNEL_CHECK_EVERY == 0:
-                    flight.cpu_ns = self._cpu_ns(node)
-            if self.sock.send_bytes(protocol.trigger_datagram(node, seq, threads), endpoint.address):
-                self.busy[node] = seq
-            else:
-                self._gone(endpoint)
+        endpoint = self._speaker(node)
+        if endpoint is None:
+            return
+        run = self.schedule.subchain_of(node)
+        flight = self.states[run.name].in_flight.get(seq) if run is not None else None
+        threads = 1
+        if run is not None and flight is not None:
+            threads, flight.speedup = run.threads_of(flight.index)
+            if seq % KERNEL_CHECK_EVERY == 0:
+                flight.cpu_ns = self._cpu_ns(node)
+        if self.sock.send_bytes(protocol.trigger_datagram(node, seq, threads), endpoint.address):
+            self.busy[node] = seq
+        else:
+            self._gone(endpoint)
 
     def _free(self, node: str) -> None:
         """``node`` finished its run: start the next one queued for it, if any."""
