@@ -71,9 +71,12 @@ time.sleep(60)
 
 # Two cores: one dedicated subchain, two sharing the other core, one unscheduled node that registers.
 # Stage I puts `front` (cam + track, 18 ms, capped at 25 Hz) alone on core 0: its period is the cap,
-# 40 ms; `map` (12 ms, f = 1) and `plan` (15 ms, f = 1/2) share core 1 with T ~ 20.8 ms, i.e. ~48
-# and ~24 Hz.  Every period is >= 20 ms and every run >= 8 ms, so the trigger/done hops (~0.1-0.3 ms
+# 40 ms; `map` (12 ms, f = 1) and `plan` (15 ms, f = 1/2) share core 1 with T ~ 23.2 ms, i.e. ~43
+# and ~22 Hz.  Every period is >= 20 ms and every run >= 8 ms, so the trigger/done hops (~0.1-0.3 ms
 # each) and the 0.12 ms switches are ~1-3% of a period: a 10% rate check is honest for this spec.
+# The slack is 15%, not the default 5%: on a shared VM the host's steal and the kernel's own claims
+# (Linux >= 6.12 keeps 50 ms a second of each CPU for SCHED_OTHER tasks) can take 5% of core 1, and
+# `plan`, whose run spans two of its slices, then misses triggers (CI once measured it 12% slow).
 # The only re-solve (Stage II with the measured times, at 2.5 s, once every node has run) keeps the
 # allocation.
 MIXED_SPEC = """\
@@ -100,6 +103,7 @@ objective:
   - {node: plan, weight: 0.1}
 constraints:
   - {node: cam, max_rate_hz: 25}
+schedule: {slack: 0.15}
 runtime: {first_solve_after_s: 2.5, stage2_every_s: 100, stage1_every_s: 100}
 """
 MIXED_COMPUTE: dict[str, float] = {"cam": 10, "track": 8, "map": 12, "plan": 15, "imu": 0}
@@ -489,9 +493,7 @@ runtime: {first_solve_after_s: 100, stage2_every_s: 100, stage1_every_s: 100}
 """
 
 
-def test_a_node_in_the_middle_of_a_run_at_the_end_reports_it_and_ends_cleanly(
-    harness: Harness, tmp_path: Path
-) -> None:
+def test_a_node_in_the_middle_of_a_run_at_the_end_reports_it_and_ends_cleanly(harness: Harness, tmp_path: Path) -> None:
     table = compile_table(BUSY_SPEC, tmp_path, 1)
     harness.start(table, "--start", "spec", duration=2.0)
     harness.lingering("work", 1200.0)
