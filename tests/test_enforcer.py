@@ -958,8 +958,9 @@ def test_a_multi_threaded_node_runs_on_its_threads_and_is_planned_with_its_one_t
     # (wall time); unconverted it would be ~11-13 ms.  Only the lower bound tells them apart.
     assert median >= 0.85 * THREADED_ONE_THREAD_MS, f"compute logged as {median} ms"
     latencies = sorted(e["latency_ms"] for e in of_kind(events, "run") if e["subchain"] == "solve")
-    typical = latencies[len(latencies) // 2]  # on two threads in parallel: far nearer 11.1 ms than 20
-    assert 0.9 * run_ms <= typical <= 0.8 * THREADED_ONE_THREAD_MS, f"a run took {typical} ms"
+    typical = latencies[len(latencies) // 2]
+    serial_ms = 2 * run_ms  # the two threads' 11.1 ms burns one after the other, on one core
+    assert 0.9 * run_ms <= typical <= 0.9 * serial_ms, f"a run took {typical} ms: not in parallel"
     resolves = of_kind(events, "resolve")
     assert resolves, "no re-solve"
     for resolve in resolves:  # a p95 of wall times: above the median under load, never near the raw 11.1 ms
