@@ -94,7 +94,7 @@ def test_a_run_reads_the_latest_output_at_its_start_and_publishes_at_its_end(pip
     assert flow.records["B"].done_ms == [5, 13, 16]
     # B's oldest input is A's or S's (ticks at 0, 10, ...): at 3, A's is 1 ms old, S's 3 ms.
     assert flow.records["B"].staleness_ms == pytest.approx([3, 9, 4])
-    assert flow.arrivals[0] == [(0, 5), (0, 13), (10, 16)]
+    assert flow.arrivals[0] == [(0, 5), (10, 16)]  # B's output at 13 repeats origin 0: no new event reached it
     # The chain's window: the first output sets the origin; only a newer origin is a response,
     # from the previous origin (0) to the output that first reflects the newer one (16).
     assert [r for _, r in measured(pipe, flow).chains[0].samples] == [16]

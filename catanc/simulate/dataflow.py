@@ -16,6 +16,7 @@ actuator) passes on at once whatever reaches it.  Neither uses modelled CPU.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -58,7 +59,11 @@ class Dataflow:
             self.sink_of[chain[-1]].append(index)
         self.latest: dict[str, Output] = {}
         self.records: dict[str, NodeRecord] = {name: NodeRecord() for name in spec.nodes}
-        self.arrivals: list[list[tuple[float, float]]] = [[] for _ in self.chains]  # per chain: (origin, done)
+        # Per chain: (origin, done) of each output of its last node that carries an origin newer than
+        # any before it.  The others show no response time (metrics.response_arrays), and on a
+        # dedicated core a fast sink repeats one origin many times: keeping them cost most of the records.
+        self.arrivals: list[list[tuple[float, float]]] = [[] for _ in self.chains]
+        self.newest: list[float] = [-math.inf for _ in self.chains]
         self.listeners: list[Callable[[str, float], None]] = []  # told of every output: (node, time)
 
     def read_inputs(self, node: str, now_ms: float) -> Origins:
@@ -83,7 +88,8 @@ class Dataflow:
         self.records[node].done_ms.append(now_ms)
         for index in self.sink_of[node]:
             origin = origins.get(index)
-            if origin is not None:
+            if origin is not None and origin > self.newest[index]:
+                self.newest[index] = origin
                 self.arrivals[index].append((origin, now_ms))
         for listener in self.listeners:
             listener(node, now_ms)

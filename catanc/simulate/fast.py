@@ -320,6 +320,7 @@ def run_fields(graph: Fields, chains: int, subchains: int, policy: int) -> Field
         "stale_n": 0,
         "stale_node": np.zeros(FIRST_RECORDS, np.int64),
         "stale_ms": np.zeros(FIRST_RECORDS),
+        "newest_origin": np.full(max(chains, 1), -math.inf),
         "arrivals_n": 0,
         "arrival_chain": np.zeros(FIRST_RECORDS, np.int64),
         "arrival_origin": np.zeros(FIRST_RECORDS),

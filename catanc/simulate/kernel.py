@@ -99,12 +99,13 @@ class SimProxy(structref.StructRefProxy):  # type: ignore[misc]
     ``version``, ``policy``, ``pools``; the event heap (``heap_*``: time, order, kind and its fields); one job per
     node at most (``job_*``); pools of cores (``pool_*``, ``sub_pool``,
     ``core_busy``); the data (``has_latest``, ``latest_at``, ``latest_origins``
-    with NaN for no origin on a chain); catanc's runs (``busy_seq``, the
-    ``wait`` rings, ``sub_*`` counters, ``heads_in_flight``, the ``flight_*``
-    rings by seq, ``raised`` per core); the baselines' ``timer_busy`` and
-    ``timer_pending``; scratch (``finished``, ``sort_buf``, ``stack``); and the
-    records with their counts (``done_*``, ``stale_*``, ``arrival_*``,
-    ``measured_*``), grown here as they fill.
+    with NaN for no origin on a chain, ``newest_origin`` per chain, -inf before
+    its first arrival); catanc's runs (``busy_seq``, the ``wait`` rings,
+    ``sub_*`` counters, ``heads_in_flight``, the ``flight_*`` rings by seq,
+    ``raised`` per core); the baselines' ``timer_busy`` and ``timer_pending``;
+    scratch (``finished``, ``sort_buf``, ``stack``); and the records with their
+    counts (``done_*``, ``stale_*``, ``arrival_*``, ``measured_*``), grown here
+    as they fill.
     """
 
 
@@ -127,8 +128,8 @@ FIELDS = (
     "sub_pool", "core_busy", "finished", "sort_buf", "stack", "has_latest", "latest_at", "latest_origins",
     "busy_seq", "wait", "wait_head", "wait_tail", "sub_seq", "sub_pending", "sub_late", "sub_steals", "sub_skipped",
     "heads_in_flight", "flight_index", "flight_at", "flight_live", "flight_low", "raised", "timer_busy",
-    "timer_pending", "done_n", "done_node", "done_at", "stale_n", "stale_node", "stale_ms", "arrivals_n",
-    "arrival_chain", "arrival_origin", "arrival_done", "measured_n", "measured_node", "measured_ms",
+    "timer_pending", "done_n", "done_node", "done_at", "stale_n", "stale_node", "stale_ms", "newest_origin",
+    "arrivals_n", "arrival_chain", "arrival_origin", "arrival_done", "measured_n", "measured_node", "measured_ms",
 )  # fmt: skip
 structref.define_constructor(SimProxy, SimType, FIELDS)
 structref.define_boxing(SimType, SimProxy)
@@ -527,7 +528,8 @@ def produce(sim: Sim, node: int) -> None:
         for k in range(sim.sink_ptr[current], sim.sink_ptr[current + 1]):
             chain = sim.sink_chain[k]
             origin = sim.latest_origins[current, chain]
-            if not math.isnan(origin):
+            if origin > sim.newest_origin[chain]:  # False for NaN (no origin on this chain)
+                sim.newest_origin[chain] = origin
                 m = sim.arrivals_n
                 sim.arrival_chain[m] = chain
                 sim.arrival_origin[m] = origin
@@ -887,7 +889,11 @@ def set_version(sim: Sim, version: int) -> None:
 
 @compiled
 def records(sim: Sim) -> tuple[IntArray, FloatArray, IntArray, FloatArray, IntArray, FloatArray, FloatArray]:
-    """Completions (node, time), staleness (node, ms) and chain arrivals (chain, origin, done), in order."""
+    """Completions (node, time), staleness (node, ms) and chain arrivals (chain, origin, done), in order.
+
+    A chain's arrivals are those with an origin newer than any before, as
+    :class:`~catanc.simulate.dataflow.Dataflow` keeps them.
+    """
     return (
         sim.done_node[: sim.done_n],
         sim.done_at[: sim.done_n],
