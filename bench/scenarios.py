@@ -276,10 +276,10 @@ def yolo(source: Source, variant: str) -> tuple[dict[str, Any], Figure]:
     def measure(result: PolicyResult) -> dict[str, Any]:
         return {
             "yolo_hz": rate(result, "YOLO"),
-            "yolo_period_s": bucket_periods(result.node_done_ms["YOLO"], duration),
+            "yolo_period_s": bucket_periods(result.node_done_ms["YOLO"].tolist(), duration),
             "local": response(result, LOCAL_CHAIN),
             "pose_at_base": response(result, POSE_CHAIN),
-            "pose_at_base_median_ms": bucket_medians(chain_of(result, POSE_CHAIN).samples, duration),
+            "pose_at_base_median_ms": bucket_medians(chain_of(result, POSE_CHAIN).samples.tolist(), duration),
             "GL_hz": rate(result, "GL"),
             "GM_hz": rate(result, "GM"),
             "GP_hz": rate(result, "GP"),

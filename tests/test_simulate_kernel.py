@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 from typing import Any
 
+import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -32,9 +33,11 @@ def assert_same_run(compiled: PolicyResult, python: PolicyResult) -> None:
     assert json.dumps(comparison_payload([compiled]), sort_keys=True) == json.dumps(
         comparison_payload([python]), sort_keys=True
     )
-    assert compiled.node_done_ms == python.node_done_ms  # every completion, to the last bit
+    assert compiled.node_done_ms.keys() == python.node_done_ms.keys()
+    for node, done in compiled.node_done_ms.items():  # every completion, to the last bit
+        assert np.array_equal(done, python.node_done_ms[node])
     for mine, theirs in zip(compiled.chains, python.chains, strict=True):
-        assert mine.samples == theirs.samples
+        assert np.array_equal(mine.samples, theirs.samples)
     assert compiled.utilisation == pytest.approx(python.utilisation, rel=1e-9, abs=1e-12)
     assert compiled.replans == python.replans
     assert compiled.schedule == python.schedule

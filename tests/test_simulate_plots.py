@@ -64,7 +64,7 @@ SCHEDULE = RuntimeSchedule(
 def chain(
     nodes: tuple[str, ...], responses: list[float], *, named: bool = True, model: float | None = None
 ) -> ChainResult:
-    samples = tuple((100.0 * (i + 1), r) for i, r in enumerate(responses))
+    samples = np.array([(100.0 * (i + 1), r) for i, r in enumerate(responses)]).reshape(-1, 2)
     return ChainResult(nodes, named, Summary.of(responses), model, samples)
 
 
@@ -75,7 +75,8 @@ def result(
     schedule: RuntimeSchedule | None,
 ) -> PolicyResult:
     nodes = {name: NodeResult(len(times) / 2.0, None) for name, times in done.items()}
-    return PolicyResult(policy, 2.0, chains, nodes, (0.5, 0.5), 0, done, schedule)
+    arrays = {name: np.array(times, dtype=np.float64) for name, times in done.items()}
+    return PolicyResult(policy, 2.0, chains, nodes, (0.5, 0.5), 0, arrays, schedule)
 
 
 def catan() -> PolicyResult:

@@ -19,10 +19,12 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
 
+import numpy as np
+
 from catanc.runtime.schedule import RuntimeSchedule
 from catanc.runtime.worker import RunRecord
 from catanc.simulate.dataflow import Dataflow, Origins
-from catanc.simulate.metrics import ChainResult, PolicyResult, Summary, node_result, timed_responses
+from catanc.simulate.metrics import PolicyResult, chain_result, node_result
 from catanc.spec import Spec
 
 END, TICK, START, END_AFTER_START = 0, 1, 2, 3
@@ -115,21 +117,20 @@ def measured_result(
     schedule: RuntimeSchedule | None = None,
 ) -> PolicyResult:
     """A replayed run as the simulator reports a simulated one (``catanc.simulate.run.simulate``)."""
-    timed = [timed_responses(arrivals) for arrivals in flow.arrivals]
     duration_ms = duration_s * 1000.0
     found = model or {}
     return PolicyResult(
         policy=policy,
         duration_s=duration_s,
         chains=tuple(
-            ChainResult(nodes, named, Summary.of([r for _, r in timed[i]]), found.get(nodes), samples=tuple(timed[i]))
-            for i, (nodes, named) in enumerate(chains)
+            chain_result(nodes, named, arrivals, found.get(nodes))
+            for (nodes, named), arrivals in zip(chains, flow.arrivals, strict=True)
         ),
         nodes={
             name: node_result(record.done_ms, record.staleness_ms, duration_ms) for name, record in flow.records.items()
         },
         utilisation=utilisation,
         replans=replans,
-        node_done_ms={name: tuple(record.done_ms) for name, record in flow.records.items()},
+        node_done_ms={name: np.asarray(record.done_ms, dtype=np.float64) for name, record in flow.records.items()},
         schedule=schedule,
     )

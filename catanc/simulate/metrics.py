@@ -21,6 +21,8 @@ import numpy.typing as npt
 from catanc.runtime.measure import percentile
 from catanc.runtime.schedule import RuntimeSchedule
 
+FloatArray = npt.NDArray[np.float64]
+
 
 def window_responses(arrivals: Sequence[tuple[float, float]]) -> list[float]:
     """Response times (ms) from a chain's ``(origin, done)`` arrivals at its last node, in completion order."""
@@ -92,8 +94,9 @@ class ChainResult:
     named: bool  # the objective or a constraint names it (else: another source-to-sink path)
     response: Summary | None  # None: no output reached the end of the chain
     model_ms: float | None  # the plan's analytic response time R (catan policies, named chains)
-    samples: tuple[tuple[float, float], ...] = field(default=(), compare=False, repr=False)
-    """Every ``(done_ms, response_ms)`` behind ``response``, in completion order (for plots; not in the JSON)."""
+    samples: FloatArray = field(default_factory=lambda: np.empty((0, 2)), compare=False, repr=False)
+    """Every ``(done_ms, response_ms)`` behind ``response`` as the rows of an (n, 2) array, in completion
+    order (for plots; not in the JSON).  An array: nav2d keeps ~100k of them a minute."""
 
     def as_dict(self) -> dict[str, Any]:
         body: dict[str, Any] = {"nodes": list(self.nodes), "named": self.named}
@@ -122,7 +125,7 @@ class PolicyResult:
     nodes: dict[str, NodeResult]
     utilisation: tuple[float, ...]  # per core, 0..1
     replans: int
-    node_done_ms: dict[str, tuple[float, ...]] = field(default_factory=dict, compare=False, repr=False)
+    node_done_ms: dict[str, FloatArray] = field(default_factory=dict, compare=False, repr=False)
     """Per node, when each run (or tick) finished, for rates over time (plots; not in the JSON)."""
     schedule: RuntimeSchedule | None = field(default=None, compare=False, repr=False)
     """The schedule in force at the end (catan and static policies), for a timeline of one period per core."""
@@ -135,6 +138,17 @@ class PolicyResult:
             "cores": [{"core": i, "utilisation": round(u, 4)} for i, u in enumerate(self.utilisation)],
             "replans": self.replans,
         }
+
+
+def chain_result(
+    nodes: tuple[str, ...],
+    named: bool,
+    arrivals: Sequence[tuple[float, float]] | FloatArray,
+    model_ms: float | None,
+) -> ChainResult:
+    """What a chain's ``(origin, done)`` arrivals at its last node show (see :func:`response_arrays`)."""
+    done, response = response_arrays(arrivals)
+    return ChainResult(nodes, named, Summary.of_array(response), model_ms, samples=np.column_stack((done, response)))
 
 
 def node_result(

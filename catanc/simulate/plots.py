@@ -30,6 +30,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 from catanc.errors import OutputError
 from catanc.runtime.report import RATE_BIN_S, rate_bins
 from catanc.runtime.schedule import CoreSchedule, RuntimeSchedule, SubchainRun
@@ -266,7 +268,7 @@ def _cdf_panel(
     drawn: list[float] = []
     silent = []
     for policy, chain in chains:
-        values = sorted(response for _, response in chain.samples) if chain is not None else []
+        values = np.sort(chain.samples[:, 1]).tolist() if chain is not None else []
         if not values:
             silent.append(policy)
         else:

@@ -33,7 +33,7 @@ from catanc.runtime.schedule import RuntimeSchedule, runtime_schedule
 from catanc.simulate.cpu import Discipline
 from catanc.simulate.dataflow import Dataflow
 from catanc.simulate.engine import Engine
-from catanc.simulate.metrics import ChainResult, PolicyResult, Summary, node_result, response_arrays
+from catanc.simulate.metrics import PolicyResult, chain_result, node_result
 from catanc.simulate.policies import CatanPolicy, Reoptimiser, Sampler, TimerPolicy, start_sensors
 from catanc.simulate.records import Records
 from catanc.spec import Spec
@@ -277,19 +277,12 @@ def policy_result(
     """What a run of ``policy`` shows, from its records (shared by both engines and by ``catanc bench``)."""
     duration_ms = setup.duration_s * 1000.0
     model = {chain.nodes: chain.response_ms for chain in plan.chains} if plan is not None else {}
-    timed = [response_arrays(arrivals) for arrivals in records.arrivals]
     return PolicyResult(
         policy=policy,
         duration_s=setup.duration_s,
         chains=tuple(
-            ChainResult(
-                nodes,
-                named,
-                Summary.of_array(timed[i][1]),
-                model.get(nodes),
-                samples=tuple(zip(timed[i][0].tolist(), timed[i][1].tolist(), strict=True)),
-            )
-            for i, (nodes, named) in enumerate(chains)
+            chain_result(nodes, named, arrivals, model.get(nodes))
+            for (nodes, named), arrivals in zip(chains, records.arrivals, strict=True)
         ),
         nodes={
             name: node_result(records.done_ms[name], records.staleness_ms[name], duration_ms)
@@ -297,11 +290,6 @@ def policy_result(
         },
         utilisation=tuple(records.busy_by_core.get(core, 0.0) / duration_ms for core in range(setup.cores)),
         replans=len(records.replans),
-        node_done_ms={name: _floats(done) for name, done in records.done_ms.items()},
+        node_done_ms={name: np.asarray(done, dtype=np.float64) for name, done in records.done_ms.items()},
         schedule=records.schedule,
     )
-
-
-def _floats(values: Sequence[float] | npt.NDArray[np.float64]) -> tuple[float, ...]:
-    """``values`` as a tuple of Python floats (an array's elements are numpy scalars)."""
-    return tuple(values.tolist() if isinstance(values, np.ndarray) else values)
