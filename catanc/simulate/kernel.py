@@ -26,12 +26,15 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any, TypeAlias, TypeVar, cast
 
 import numba
 import numpy as np
 import numpy.typing as npt
 from numba.experimental import structref
+
+from catanc.simulate.numba_cache import drop_stale_cache
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -43,6 +46,9 @@ BoolArray = npt.NDArray[np.bool_]
 def compiled(function: F) -> F:
     """An entry point: numba's no-Python mode, cached on disk beside the module."""
     return cast(F, numba.njit(cache=True, nogil=True)(function))
+
+
+drop_stale_cache(Path(__file__))  # numba reads the cache at a function's first call: see numba_cache
 
 
 # Event kinds (an event is (time, order, kind, a, b, c, d, e, f): what a kind needs of a..f).
@@ -146,7 +152,6 @@ def at(sim: Sim, when_ms: float, kind: int, a: int, b: int, c: int, d: int, e: i
     order = sim.order
     sim.order = order + 1
     when = max(when_ms, sim.now)
-    # A binary heap on (time, order) over flat arrays: sift the new event up from the end.
     if sim.heap_n == sim.heap_time.shape[0]:
         size = 2 * sim.heap_n
         sim.heap_time = longer_floats(sim.heap_time, size)
@@ -155,44 +160,48 @@ def at(sim: Sim, when_ms: float, kind: int, a: int, b: int, c: int, d: int, e: i
         wider = np.zeros((size, 6), np.int64)
         wider[: sim.heap_n] = sim.heap_ints
         sim.heap_ints = wider
+    # A binary heap on (time, order) over flat arrays: sift the new event up from the end.  The
+    # arrays are read into locals once: each read of a struct's field costs a reference count.
+    times, orders, ints, floats = sim.heap_time, sim.heap_order, sim.heap_ints, sim.heap_f
     i = sim.heap_n
     sim.heap_n = i + 1
     while i > 0:
         parent = (i - 1) // 2
-        if sim.heap_time[parent] < when or (sim.heap_time[parent] == when and sim.heap_order[parent] < order):
+        if times[parent] < when or (times[parent] == when and orders[parent] < order):
             break
-        move_event(sim, parent, i)
+        move_event(times, orders, ints, floats, parent, i)
         i = parent
-    sim.heap_time[i] = when
-    sim.heap_order[i] = order
-    sim.heap_ints[i, 0] = kind
-    sim.heap_ints[i, 1] = a
-    sim.heap_ints[i, 2] = b
-    sim.heap_ints[i, 3] = c
-    sim.heap_ints[i, 4] = d
-    sim.heap_ints[i, 5] = e
-    sim.heap_f[i] = f
+    times[i] = when
+    orders[i] = order
+    ints[i, 0] = kind
+    ints[i, 1] = a
+    ints[i, 2] = b
+    ints[i, 3] = c
+    ints[i, 4] = d
+    ints[i, 5] = e
+    floats[i] = f
 
 
 @compiled
-def move_event(sim: Sim, source: int, target: int) -> None:
-    sim.heap_time[target] = sim.heap_time[source]
-    sim.heap_order[target] = sim.heap_order[source]
-    sim.heap_ints[target, :] = sim.heap_ints[source, :]
-    sim.heap_f[target] = sim.heap_f[source]
+def move_event(times: FloatArray, orders: IntArray, ints: Any, floats: FloatArray, source: int, target: int) -> None:
+    times[target] = times[source]
+    orders[target] = orders[source]
+    for j in range(6):
+        ints[target, j] = ints[source, j]
+    floats[target] = floats[source]
 
 
 @compiled
 def pop_event(sim: Sim) -> tuple[float, int, int, int, int, int, int, int, float]:
     """The earliest event (the first scheduled among equal times), taken off the heap."""
-    ints = sim.heap_ints
-    event = (sim.heap_time[0], sim.heap_order[0], ints[0, 0], ints[0, 1], ints[0, 2], ints[0, 3], ints[0, 4],
-             ints[0, 5], sim.heap_f[0])  # fmt: skip
+    times, orders, ints, floats = sim.heap_time, sim.heap_order, sim.heap_ints, sim.heap_f
+    event = (times[0], orders[0], ints[0, 0], ints[0, 1], ints[0, 2], ints[0, 3], ints[0, 4], ints[0, 5],
+             floats[0])  # fmt: skip
     n = sim.heap_n - 1
     sim.heap_n = n
     if n == 0:
         return event
-    when, order = sim.heap_time[n], sim.heap_order[n]
+    when, order = times[n], orders[n]
     i = 0
     while True:  # sift the last event down from the root
         child = 2 * i + 1
@@ -200,15 +209,14 @@ def pop_event(sim: Sim) -> tuple[float, int, int, int, int, int, int, int, float
             break
         right = child + 1
         if right < n and (
-            sim.heap_time[right] < sim.heap_time[child]
-            or (sim.heap_time[right] == sim.heap_time[child] and sim.heap_order[right] < sim.heap_order[child])
+            times[right] < times[child] or (times[right] == times[child] and orders[right] < orders[child])
         ):
             child = right
-        if when < sim.heap_time[child] or (when == sim.heap_time[child] and order < sim.heap_order[child]):
+        if when < times[child] or (when == times[child] and order < orders[child]):
             break
-        move_event(sim, child, i)
+        move_event(times, orders, ints, floats, child, i)
         i = child
-    move_event(sim, n, i)
+    move_event(times, orders, ints, floats, n, i)
     return event
 
 
@@ -237,15 +245,17 @@ def allocate(sim: Sim, pool: int) -> None:
     free = float(sim.pool_ncores[pool])
     count = sim.pool_njobs[pool]
     jobs = sim.pool_jobs[pool]
+    speeds, threads = sim.job_speed, sim.job_threads
     if not sim.pool_fair[pool]:
         order = sim.sort_buf  # by (priority high first, then arrival): insertion sort, few jobs
+        priority, since = sim.job_priority, sim.job_since
         for i in range(count):
             node = jobs[i]
             j = i
             while j > 0:
                 other = order[j - 1]
-                if sim.job_priority[other] > sim.job_priority[node] or (
-                    sim.job_priority[other] == sim.job_priority[node] and sim.job_since[other] <= sim.job_since[node]
+                if priority[other] > priority[node] or (
+                    priority[other] == priority[node] and since[other] <= since[node]
                 ):
                     break
                 order[j] = other
@@ -253,32 +263,33 @@ def allocate(sim: Sim, pool: int) -> None:
             order[j] = node
         for i in range(count):
             node = order[i]
-            threads = float(sim.job_threads[node])
-            given = min(threads, free)
-            sim.job_speed[node] = given / threads
+            wanted = float(threads[node])
+            given = min(wanted, free)
+            speeds[node] = given / wanted
             free -= given
         return
     demand = 0
     for i in range(count):
-        demand += sim.job_threads[jobs[i]]
+        demand += threads[jobs[i]]
     if demand <= free:
         for i in range(count):
-            sim.job_speed[jobs[i]] = 1.0
+            speeds[jobs[i]] = 1.0
         return
     share = free / demand
     for i in range(count):
-        sim.job_speed[jobs[i]] = min(1.0, share)
+        speeds[jobs[i]] = min(1.0, share)
 
 
 @compiled
 def next_done(sim: Sim) -> tuple[float, int]:
     best, which = math.inf, -1
+    jobs, njobs, speed, remaining = sim.pool_jobs, sim.pool_njobs, sim.job_speed, sim.job_remaining
     for pool in range(sim.pools):
         done_in = math.inf
-        for i in range(sim.pool_njobs[pool]):
-            node = sim.pool_jobs[pool, i]
-            if sim.job_speed[node] > 0.0:
-                done_in = min(done_in, sim.job_remaining[node] / sim.job_speed[node])
+        for i in range(njobs[pool]):
+            node = jobs[pool, i]
+            if speed[node] > 0.0:
+                done_in = min(done_in, remaining[node] / speed[node])
         if done_in < best:
             best, which = done_in, pool
     return best, which
@@ -289,25 +300,27 @@ def advance_to(sim: Sim, when_ms: float) -> int:
     """Move time on; the jobs that finished are ``sim.finished[:count]``, in the Python engine's order."""
     dt = max(when_ms - sim.now, 0.0)
     count = 0
+    speeds, remaining, threads, busy = sim.job_speed, sim.job_remaining, sim.job_threads, sim.pool_busy
+    finished = sim.finished
     for pool in range(sim.pools):
         jobs = sim.pool_jobs[pool]
         n = sim.pool_njobs[pool]
         ended = False
         for i in range(n):
             node = jobs[i]
-            speed = sim.job_speed[node]
+            speed = speeds[node]
             if speed > 0.0:
-                sim.job_remaining[node] -= dt * speed
-                sim.pool_busy[pool] += dt * speed * sim.job_threads[node]
-                if sim.job_remaining[node] <= DONE_EPS_MS:
-                    sim.finished[count] = node
+                remaining[node] -= dt * speed
+                busy[pool] += dt * speed * threads[node]
+                if remaining[node] <= DONE_EPS_MS:
+                    finished[count] = node
                     count += 1
                     ended = True
         if ended:
             kept = 0
             for i in range(n):
                 node = jobs[i]
-                if sim.job_remaining[node] > DONE_EPS_MS:
+                if remaining[node] > DONE_EPS_MS:
                     jobs[kept] = node
                     kept += 1
                 else:
@@ -486,18 +499,21 @@ def dispatch(sim: Sim, event: Any) -> None:
 def read_inputs(sim: Sim, node: int, now: float, into: FloatArray) -> None:
     """:meth:`Dataflow.read_inputs`: the origins of what ``node`` reads now go to ``into``."""
     into[:] = math.nan
+    has_latest, latest_origins = sim.has_latest, sim.latest_origins
+    pos_chain, pos_before = sim.pos_chain, sim.pos_before
     for k in range(sim.pos_ptr[node], sim.pos_ptr[node + 1]):
-        chain = sim.pos_chain[k]
-        before = sim.pos_before[k]
+        chain = pos_chain[k]
+        before = pos_before[k]
         if before < 0:
             into[chain] = now
-        elif sim.has_latest[before]:
-            into[chain] = sim.latest_origins[before, chain]  # NaN when it had none on this chain
+        elif has_latest[before]:
+            into[chain] = latest_origins[before, chain]  # NaN when it had none on this chain
     age = -math.inf
+    pred, latest_at = sim.pred, sim.latest_at
     for k in range(sim.pred_ptr[node], sim.pred_ptr[node + 1]):
-        before = sim.pred[k]
-        if sim.has_latest[before]:
-            age = max(age, now - sim.latest_at[before])
+        before = pred[k]
+        if has_latest[before]:
+            age = max(age, now - latest_at[before])
     if age > -math.inf:
         n = sim.stale_n
         sim.stale_node[n] = node
@@ -510,6 +526,8 @@ def produce(sim: Sim, node: int) -> None:
     """:meth:`Dataflow.produce`, ``node``'s origins already in ``latest_origins``; depth first, as recursion."""
     now = sim.now
     stack = sim.stack
+    sink_ptr, sink_chain, latest_origins, newest = sim.sink_ptr, sim.sink_chain, sim.latest_origins, sim.newest_origin
+    succ_ptr, succ, pass_through = sim.succ_ptr, sim.succ, sim.pass_through
     stack[0] = node
     top = 1
     first = True
@@ -517,7 +535,7 @@ def produce(sim: Sim, node: int) -> None:
         top -= 1
         current = stack[top]
         if not first:  # a pass-through node reads its inputs as it is reached
-            read_inputs(sim, current, now, sim.latest_origins[current])
+            read_inputs(sim, current, now, latest_origins[current])
         first = False
         sim.has_latest[current] = True
         sim.latest_at[current] = now
@@ -525,11 +543,11 @@ def produce(sim: Sim, node: int) -> None:
         sim.done_node[n] = current
         sim.done_at[n] = now
         sim.done_n = n + 1
-        for k in range(sim.sink_ptr[current], sim.sink_ptr[current + 1]):
-            chain = sim.sink_chain[k]
-            origin = sim.latest_origins[current, chain]
-            if origin > sim.newest_origin[chain]:  # False for NaN (no origin on this chain)
-                sim.newest_origin[chain] = origin
+        for k in range(sink_ptr[current], sink_ptr[current + 1]):
+            chain = sink_chain[k]
+            origin = latest_origins[current, chain]
+            if origin > newest[chain]:  # False for NaN (no origin on this chain)
+                newest[chain] = origin
                 m = sim.arrivals_n
                 sim.arrival_chain[m] = chain
                 sim.arrival_origin[m] = origin
@@ -538,9 +556,9 @@ def produce(sim: Sim, node: int) -> None:
         if sim.policy >= TIMER_FAIR:  # the baselines listen to every output
             for k in range(sim.trig_ptr[current], sim.trig_ptr[current + 1]):
                 timer_trigger(sim, sim.trig[k])
-        for k in range(sim.succ_ptr[current + 1] - 1, sim.succ_ptr[current] - 1, -1):
-            after = sim.succ[k]
-            if sim.pass_through[after]:
+        for k in range(succ_ptr[current + 1] - 1, succ_ptr[current] - 1, -1):
+            after = succ[k]
+            if pass_through[after]:
                 stack[top] = after
                 top += 1
 

@@ -1,0 +1,54 @@
+"""Stale numba cache files are removed before numba can trip over them (catanc.simulate.numba_cache)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import catanc.simulate
+from catanc.simulate.numba_cache import drop_stale_cache
+
+HOUR_S = 3600.0
+
+
+def touch(path: Path, mtime: float) -> Path:
+    path.write_bytes(b"not a pickle")
+    os.utime(path, (mtime, mtime))
+    return path
+
+
+def test_only_the_cache_files_older_than_the_source_go(tmp_path: Path) -> None:
+    source = tmp_path / "kernel.py"
+    source.write_text("x = 1\n")
+    now = source.stat().st_mtime
+    cache = tmp_path / "__pycache__"
+    cache.mkdir()
+    stale = [touch(cache / "kernel.at-210.py311.nbi", now - HOUR_S), touch(cache / "kernel.at-9.py311.1.nbc", now - 1)]
+    fresh = [touch(cache / "kernel.at-216.py311.nbi", now + 1), touch(cache / "kernel.at-216.py311.1.nbc", now + 60)]
+    others = [
+        touch(cache / "kernel.cpython-311.pyc", now - HOUR_S),  # Python's own cache
+        touch(cache / "fast.run-3.py311.nbi", now - HOUR_S),  # another module's
+    ]
+    assert sorted(drop_stale_cache(source)) == sorted(stale)
+    assert [path.exists() for path in stale] == [False, False]
+    assert all(path.exists() for path in fresh + others)
+
+
+def test_a_missing_source_or_cache_folder_is_no_error(tmp_path: Path) -> None:
+    assert drop_stale_cache(tmp_path / "gone.py") == []
+    (tmp_path / "alone.py").write_text("")
+    assert drop_stale_cache(tmp_path / "alone.py") == []
+
+
+def test_importing_the_kernel_drops_its_stale_cache_files() -> None:
+    package = Path(catanc.simulate.__file__).parent
+    (package / "__pycache__").mkdir(exist_ok=True)
+    # A function's index from an older kernel, as numba names them; what it holds never matters.
+    probe = touch(package / "__pycache__" / "kernel.zz_stale_probe-1.py311.nbi", 0.0)
+    try:
+        subprocess.run([sys.executable, "-c", "import catanc.simulate.kernel"], check=True, timeout=120)
+        assert not probe.exists()
+    finally:
+        probe.unlink(missing_ok=True)
