@@ -12,15 +12,17 @@ from __future__ import annotations
 import json
 from typing import Any
 
+import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from catanc.errors import CatancError, UsageError
 from catanc.load import load_spec
+from catanc.runtime.measure import percentile
 from catanc.simulate.cpu import Job, Pool
 from catanc.simulate.engine import Engine
-from catanc.simulate.metrics import window_responses
+from catanc.simulate.metrics import percentile_of, window_responses
 from catanc.simulate.report import comparison_payload
 from catanc.simulate.run import POLICIES, Setup, check_policies, simulate, simulate_policies
 from catanc.spec import Spec
@@ -108,6 +110,14 @@ def test_window_responses_hand_worked() -> None:
     assert window_responses(arrivals) == [16.0, 27.0]
     assert window_responses([]) == []
     assert window_responses([(0.0, 1.0)]) == []
+
+
+@given(
+    st.lists(st.floats(0.0, 1e4, allow_nan=False) | st.sampled_from([0.0, 1.0, 2.5]), min_size=1, max_size=300),
+    st.floats(0.0, 100.0) | st.sampled_from([0.0, 50.0, 95.0, 100.0]),
+)
+def test_percentile_of_an_array_is_the_sorting_percentile_to_the_last_bit(values: list[float], q: float) -> None:
+    assert percentile_of(np.array(values), q) == percentile(values, q)
 
 
 ONE_SUBCHAIN = {

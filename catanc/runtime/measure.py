@@ -82,18 +82,24 @@ def percentile(samples: Iterable[float], q: float) -> float:
     The result always lies in ``[x[i], x[i+1]]``.  Raises ``ValueError`` on no samples.
     """
     ordered = sorted(samples)
-    if not ordered:
+    i, t = percentile_rank(len(ordered), q)
+    return ordered[i] if t == 0.0 else between(ordered[i], ordered[i + 1], t)
+
+
+def percentile_rank(count: int, q: float) -> tuple[int, float]:
+    """Where :func:`percentile` lies among ``count`` sorted samples: ``(i, t)``, ``t`` of the way from ``x[i]`` to
+    ``x[i+1]`` (``t = 0`` at the last sample).  Raises ``ValueError`` on no samples or ``q`` outside [0, 100]."""
+    if count == 0:
         raise ValueError("percentile of no samples")
     if not (0.0 <= q <= 100.0):
         raise ValueError(f"percentile must be in [0, 100], got {q!r}")
-    h = (len(ordered) - 1) * (q / 100.0)
-    i = min(math.floor(h), len(ordered) - 1)
-    low = ordered[i]
-    if i == len(ordered) - 1:
-        return low
-    high = ordered[i + 1]
-    t = h - i
-    # numpy's _lerp: interpolate from the nearer end, then clamp against rounding.
+    h = (count - 1) * (q / 100.0)
+    i = min(math.floor(h), count - 1)
+    return i, (0.0 if i == count - 1 else h - i)
+
+
+def between(low: float, high: float, t: float) -> float:
+    """``t`` of the way from ``low`` to ``high`` as numpy's ``_lerp``: from the nearer end, clamped for rounding."""
     value = low + (high - low) * t if t < 0.5 else high - (high - low) * (1.0 - t)
     return min(max(value, low), high)
 
