@@ -517,7 +517,10 @@ def test_a_node_that_slows_down_3x_gets_a_re_solve_that_lowers_its_rate(harness:
     assert harness.wait(duration + WAIT_S) == 0
     events = harness.events()
 
-    slow = [e["t"] for e in of_kind(events, "compute") if e["node"] == "map" and e["ms"] > 2 * MIXED_COMPUTE["map"]]
+    # When map slowed down: its first slow run of five in a row (a lone slow run at start-up, seen
+    # once in CI at 0.85 s, is not the slow-down).
+    runs = [(e["t"], e["ms"] > 2 * MIXED_COMPUTE["map"]) for e in of_kind(events, "compute") if e["node"] == "map"]
+    slow = [t for i, (t, _) in enumerate(runs) if all(is_slow for _, is_slow in runs[i : i + 5])]
     assert slow, "map never slowed down"
     slowed_at = slow[0]
     resolves = of_kind(events, "resolve")
