@@ -22,7 +22,7 @@ from catanc.load import load_spec
 from catanc.runtime.measure import percentile
 from catanc.simulate.cpu import Job, Pool
 from catanc.simulate.engine import Engine
-from catanc.simulate.metrics import percentile_of, window_responses
+from catanc.simulate.metrics import percentile_of, response_arrays
 from catanc.simulate.report import comparison_payload
 from catanc.simulate.run import POLICIES, Setup, check_policies, simulate, simulate_policies
 from catanc.spec import Spec
@@ -104,12 +104,13 @@ def test_every_job_finishes_once_and_the_cores_do_exactly_its_work(case: Any) ->
     assert not pool.jobs
 
 
-def test_window_responses_hand_worked() -> None:
+def test_response_arrays_hand_worked() -> None:
     # Origins 0, 10, 10 (a repeat), 30; each new one measured from the origin before it.
     arrivals = [(0.0, 5.0), (10.0, 16.0), (10.0, 18.0), (30.0, 37.0)]
-    assert window_responses(arrivals) == [16.0, 27.0]
-    assert window_responses([]) == []
-    assert window_responses([(0.0, 1.0)]) == []
+    done, response = response_arrays(arrivals)
+    assert (done.tolist(), response.tolist()) == ([16.0, 37.0], [16.0, 27.0])
+    assert response_arrays([])[1].tolist() == []
+    assert response_arrays([(0.0, 1.0)])[1].tolist() == []
 
 
 @given(

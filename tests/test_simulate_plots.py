@@ -65,7 +65,7 @@ def chain(
     nodes: tuple[str, ...], responses: list[float], *, named: bool = True, model: float | None = None
 ) -> ChainResult:
     samples = np.array([(100.0 * (i + 1), r) for i, r in enumerate(responses)]).reshape(-1, 2)
-    return ChainResult(nodes, named, Summary.of(responses), model, samples)
+    return ChainResult(nodes, named, Summary.of(np.array(responses)), model, samples)
 
 
 def result(

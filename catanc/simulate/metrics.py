@@ -24,21 +24,11 @@ from catanc.runtime.schedule import RuntimeSchedule
 FloatArray = npt.NDArray[np.float64]
 
 
-def window_responses(arrivals: Sequence[tuple[float, float]]) -> list[float]:
-    """Response times (ms) from a chain's ``(origin, done)`` arrivals at its last node, in completion order."""
-    return [response for _, response in timed_responses(arrivals)]
-
-
-def timed_responses(arrivals: Sequence[tuple[float, float]] | npt.NDArray[np.float64]) -> list[tuple[float, float]]:
-    """``(done, response)`` pairs (ms) from a chain's ``(origin, done)`` arrivals, in completion order."""
-    done, response = response_arrays(arrivals)
-    return list(zip(done.tolist(), response.tolist(), strict=True))
-
-
 def response_arrays(
     arrivals: Sequence[tuple[float, float]] | npt.NDArray[np.float64],
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-    """:func:`timed_responses` as two arrays: when each output was done, and its response time.
+    """From a chain's ``(origin, done)`` arrivals at its last node, in completion order: when each output that
+    shows a response was done, and its response time (ms).
 
     The window before an output starts at the newest origin any earlier output carried: the
     running maximum, so one vectorised pass gives what the loop over arrivals would.
@@ -74,14 +64,8 @@ class Summary:
     max: float
 
     @classmethod
-    def of(cls, values: Sequence[float]) -> Summary | None:
-        if not values:
-            return None
-        return cls(len(values), math.fsum(values) / len(values), percentile(values, 95), max(values))
-
-    @classmethod
-    def of_array(cls, values: npt.NDArray[np.float64]) -> Summary | None:
-        """:meth:`of` the values of a float array (no NaN), the same numbers with numpy's sort."""
+    def of(cls, values: FloatArray) -> Summary | None:
+        """The count, mean, p95 and maximum of ``values`` (no NaN); None for none."""
         if not len(values):
             return None
         listed: list[float] = values.tolist()
@@ -151,7 +135,7 @@ def chain_result(
 ) -> ChainResult:
     """What a chain's ``(origin, done)`` arrivals at its last node show (see :func:`response_arrays`)."""
     done, response = response_arrays(arrivals)
-    return ChainResult(nodes, named, Summary.of_array(response), model_ms, samples=np.column_stack((done, response)))
+    return ChainResult(nodes, named, Summary.of(response), model_ms, samples=np.column_stack((done, response)))
 
 
 def node_result(
