@@ -16,7 +16,6 @@ actuator) passes on at once whatever reaches it.  Neither uses modelled CPU.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -62,8 +61,8 @@ class Dataflow:
         # Per chain: (origin, done) of each output of its last node that carries an origin newer than
         # any before it.  The others show no response time (metrics.response_arrays), and on a
         # dedicated core a fast sink repeats one origin many times: keeping them cost most of the records.
+        # Their origins rise, so the last one kept is the newest so far.
         self.arrivals: list[list[tuple[float, float]]] = [[] for _ in self.chains]
-        self.newest: list[float] = [-math.inf for _ in self.chains]
         self.listeners: list[Callable[[str, float], None]] = []  # told of every output: (node, time)
 
     def read_inputs(self, node: str, now_ms: float) -> Origins:
@@ -87,10 +86,9 @@ class Dataflow:
         self.latest[node] = Output(now_ms, origins)
         self.records[node].done_ms.append(now_ms)
         for index in self.sink_of[node]:
-            origin = origins.get(index)
-            if origin is not None and origin > self.newest[index]:
-                self.newest[index] = origin
-                self.arrivals[index].append((origin, now_ms))
+            origin, kept = origins.get(index), self.arrivals[index]
+            if origin is not None and (not kept or origin > kept[-1][0]):
+                kept.append((origin, now_ms))
         for listener in self.listeners:
             listener(node, now_ms)
         for after in self.successors[node]:
