@@ -52,3 +52,25 @@ def test_importing_the_kernel_drops_its_stale_cache_files() -> None:
         assert not probe.exists()
     finally:
         probe.unlink(missing_ok=True)
+
+
+BUILD_A_SIM = """
+import catanc.simulate.kernel as k
+from catanc.load import load_spec
+from catanc.simulate.run import Setup, simulate
+
+simulate(Setup(load_spec("specs/nav2d.yaml"), 1, 0.1, 0), "baseline")
+print(len(k.new_sim.stats.cache_misses), hasattr(k.SimProxy, "_StructRefProxy__numba_ctor"))
+"""
+
+
+def test_a_second_process_builds_its_simulation_from_the_cache_without_compiling() -> None:
+    """numba's own ``SimProxy(...)`` constructor is never cached: it compiled for 7 s in every process."""
+    root = Path(catanc.simulate.__file__).parents[2]
+    outputs = [
+        subprocess.run(
+            [sys.executable, "-c", BUILD_A_SIM], cwd=root, check=True, timeout=600, capture_output=True, text=True
+        ).stdout.split()
+        for _ in range(2)
+    ]
+    assert outputs[1] == ["0", "False"]  # the first may have compiled and filled the cache

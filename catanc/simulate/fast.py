@@ -339,7 +339,7 @@ def new_sim(*parts: Fields) -> k.Sim:
     missing = set(k.FIELDS) - set(fields)
     if missing:  # pragma: no cover - a programming error
         raise AssertionError(f"kernel fields not given: {sorted(missing)}")
-    return k.SimProxy(*(fields[name] for name in k.FIELDS))
+    return k.new_sim(*(fields[name] for name in k.FIELDS))
 
 
 def run_compiled(sim: k.Sim, table: ScheduleTable | None, draws: DrawTable, end_ms: float,
