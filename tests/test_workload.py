@@ -78,6 +78,22 @@ def test_same_seed_same_values_and_nodes_do_not_share_streams(seed: int, steps: 
     assert o_alone == [value for (node, _), value in zip(timeline, one, strict=True) if node == "o"]
 
 
+@untimed
+@given(
+    seed=seeds,
+    jitter=st.sampled_from(["lognormal", "uniform", "normal"]),
+    counts=st.lists(st.integers(0, 3000), max_size=8),
+)
+def test_draws_taken_in_any_chunks_are_the_same_values(seed: int, jitter: str, counts: list[int]) -> None:
+    """``bases(n)`` (the compiled simulator's draws ahead) is n single ``base()`` draws, across blocks."""
+    spec = spec_with({"jitter": {"cv": 0.3, "dist": jitter}}, compute=MODAL)
+    chunked, single = ComputeSampler(spec, seed).stream("w"), ComputeSampler(spec, seed).stream("w")
+    for count in counts:
+        modes, factors = chunked.bases(count)
+        expected = [single.base() for _ in range(count)]
+        assert list(zip(modes.tolist(), factors.tolist(), strict=True)) == expected
+
+
 def test_seeds_and_names_give_different_streams() -> None:
     spec = spec_with({"jitter": {"cv": 0.3}}, other={"compute_ms": 10.0, "workload": {"jitter": {"cv": 0.3}}})
 
