@@ -69,6 +69,17 @@ def test_arrays_grown_mid_run_change_nothing(monkeypatch: pytest.MonkeyPatch) ->
         assert_same_run(simulate(Setup(spec, 2, 8.0, 1), policy, engine="compiled"), python)
 
 
+@pytest.mark.parametrize("ring", [4, 8, 64])
+def test_draws_taken_from_small_rings_change_nothing(monkeypatch: pytest.MonkeyPatch, ring: int) -> None:
+    """Rings of a few draws per node: the local chain's nodes wrap theirs thousands of times."""
+    spec = load_spec("specs/nav2d.yaml")
+    monkeypatch.setattr(fast, "FIRST_DRAWS", 4)
+    monkeypatch.setattr(fast, "RING_DRAWS", ring)
+    for policy in ("catan", "baseline"):
+        setup = Setup(spec, 2, 8.0, 2)
+        assert_same_run(simulate(setup, policy, engine="compiled"), simulate(setup, policy, engine="python"))
+
+
 @st.composite
 def apps_with_workloads(draw: st.DrawFn) -> dict[str, Any]:
     """A random app with random jitter, growth and spikes, a hand-tuned baseline and quick re-solves."""

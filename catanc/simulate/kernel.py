@@ -98,7 +98,8 @@ class SimProxy(structref.StructRefProxy):  # type: ignore[misc]
     ``core_switch``, ``core_nslots``, ``slot_sub``, ``slot_start``, ``slot_length``.
 
     The draws (:class:`catanc.workload.NodeStream` values, drawn ahead):
-    ``mode``/``factor`` ``[N, cap]``, ``used``, ``filled``, ``spike_at``
+    ``mode``/``factor`` ``[N, width]`` (rings: run ``j`` of a node at ``j % width``), ``used``, ``filled`` (runs
+    taken and drawn, ever), ``spike_at``
     (padded with inf), ``spike_next``, ``spike_ms``, ``has_growth``, ``growth``.
 
     The run: the counters ``now``, ``order``, ``arrival``, ``generation``,
@@ -148,6 +149,7 @@ def new_sim(*fields: Any) -> Any:
     ``SimProxy(*fields)`` would compile numba's constructor for ~140 fields in every process (7 s).
     """
     return SimProxy(*fields)
+
 
 Sim: TypeAlias = Any
 """A :class:`SimProxy` in annotations: numba types its fields; to mypy the struct is opaque."""
@@ -590,7 +592,9 @@ def sample(sim: Sim, node: int, at_s: float) -> float:
         return spike
     k = sim.used[node]
     sim.used[node] = k + 1
-    ms: float = sim.mode[node, k]
+    mode = sim.mode
+    k %= mode.shape[1]  # a ring: fast.DrawTable refills it past the runs taken
+    ms: float = mode[node, k]
     if sim.has_growth[node]:
         start, end, over_s = sim.growth[node, 0], sim.growth[node, 1], sim.growth[node, 2]
         if at_s >= over_s:
