@@ -3,6 +3,7 @@
     python -m bench.simulate                  # nav2d, 1 and 2 cores, every policy, 60 simulated s
     python -m bench.simulate --duration 60 --duration 250 --breakdown
     python -m bench.simulate --duration 20 --spec specs/vr_illixr.yaml
+    python -m bench.simulate --cli --duration 3600  # whole `catanc simulate` processes, start-up included
 
 Wall time of :func:`catanc.simulate.run.simulate` per policy (planning
 included: the static plans and ``catan``'s first plan and re-solves are part
@@ -18,6 +19,10 @@ included), re-solves (``catan``), the kernel, drawing compute times for it,
 turning its records into the result, and the rest (arrays, feeding the
 measurements to the re-optimiser).  The parts are timed by wrapping those
 functions for the run (a few calls each), not by a profiler.
+
+``--cli`` instead times what a user waits for: one ``catanc simulate``
+process per row (imports, loading numba's cache, planning, the run and the
+report), with its peak memory (``ru_maxrss`` of that child alone).
 """
 
 from __future__ import annotations
@@ -26,6 +31,8 @@ import argparse
 import contextlib
 import itertools
 import os
+import subprocess
+import sys
 import time
 from collections.abc import Callable, Iterator
 from typing import Any
@@ -84,6 +91,34 @@ def load() -> str:
     return f"load average {one:.2f} (1 min), {five:.2f} (5 min)"
 
 
+def time_cli(spec: str, cores: int, duration: float, policy: str) -> tuple[float, float]:
+    """Wall seconds and peak resident MB of one ``catanc simulate`` process."""
+    command = [sys.executable, "-m", "catanc", "simulate", spec, "--cores", str(cores), "--duration", f"{duration:g}"]
+    began = time.perf_counter()
+    child = subprocess.Popen([*command, "--policy", policy], stdout=subprocess.DEVNULL)
+    _, status, usage = os.wait4(child.pid, 0)
+    wall = time.perf_counter() - began
+    child.returncode = os.waitstatus_to_exitcode(status)
+    if child.returncode:
+        raise SystemExit(f"{' '.join(command)} failed with exit code {child.returncode}")
+    return wall, usage.ru_maxrss / 1024  # Linux reports KiB
+
+
+def cli_rows(args: argparse.Namespace) -> None:
+    chosen = args.policy or list(POLICIES)
+    time_cli(args.spec, 1, 1.0, chosen[0])  # numba's cache filled, files in the page cache
+    print(load())
+    for duration, cores, policy in itertools.product(args.duration or [60.0], args.cores or [1, 2], chosen):
+        wall, peak_mb = min(time_cli(args.spec, cores, duration, policy) for _ in range(args.repeat))
+        speed = duration / wall
+        print(
+            f"catanc simulate {args.spec} {duration:5g} s {cores} core(s) {policy:15} {wall:7.3f} s wall: "
+            f"{speed:6.0f}x real time ({speed / AIM:.2f}x the aim), peak {peak_mb:.0f} MB",
+            flush=True,
+        )
+    print(load())
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--spec", default="specs/nav2d.yaml")
@@ -93,7 +128,11 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=3, help="Runs per row; the fastest is shown.")
     parser.add_argument("--python", action="store_true", help="Also time the Python engine.")
     parser.add_argument("--breakdown", action="store_true", help="Where a compiled run's wall time goes.")
+    parser.add_argument("--cli", action="store_true", help="Time whole catanc simulate processes instead.")
     args = parser.parse_args()
+    if args.cli:
+        cli_rows(args)
+        return
     spec = load_spec(args.spec)
     engines: list[EngineChoice] = ["compiled", "python"] if args.python else ["compiled"]
     chosen = args.policy or list(POLICIES)
