@@ -76,7 +76,128 @@ def lower_bound(problem: Problem, layout: Layout, schedule: Schedule) -> tuple[f
                 others = math.fsum(least[other.name] for other in members if other.name != sub.name)
                 latency = (sub.compute_ms + others + switches) / usable
             timings[sub.name] = Timing(max(latency, sub.min_period_ms), latency)
-    return bound_scale(problem, timings), objective(problem, timings)
+    return bound_scale(problem, timings), max(
+        objective(problem, timings), load_bound(problem, layout, schedule, timings)
+    )
+
+
+@dataclass(frozen=True)
+class _Member:
+    """One shared subchain in :func:`load_bound`: the objective charges ``a l + b max(l, p_min)`` on its
+    latency ``l >= least``, and its core's load ``load / l``."""
+
+    load: float
+    least: float
+    p_min: float
+    a: float
+    b: float
+
+    def best_latency(self, price: float) -> float:
+        """The ``l >= least`` minimising ``a l + b max(l, p_min) + price load / l`` (convex in ``l``)."""
+        if self.p_min <= self.least:
+            return _toward(self.a + self.b, price * self.load, self.least, math.inf)
+        below = _toward(self.a, price * self.load, self.least, self.p_min)
+        return below if below < self.p_min else _toward(self.a + self.b, price * self.load, self.p_min, math.inf)
+
+    def value(self, price: float, latency: float) -> float:
+        if math.isinf(latency):  # only where a + b = 0: nothing charged, no load
+            return 0.0
+        return self.a * latency + self.b * max(latency, self.p_min) + price * self.load / latency
+
+
+def _toward(slope: float, pull: float, low: float, high: float) -> float:
+    """The minimiser of ``slope l + pull / l`` on ``[low, high]``."""
+    if slope <= 0.0:
+        return high
+    return min(max(math.sqrt(pull / slope), low), high)
+
+
+def load_bound(problem: Problem, layout: Layout, schedule: Schedule, least: dict[str, Timing]) -> float:
+    """A Lagrangian lower bound on the objective: each shared core's load ``sum c_i / l_i <= 1 - slack``
+    priced by a multiplier instead of each subchain's cheapest latency alone (``least``).
+
+    Relaxed: a chain's longest period counts one stage's (the longest in ``least``) or its floor;
+    the switches (``n s / T``) are charged to one non-batch member (``T <= l`` when ``f <= 1``);
+    minimum slices are dropped.  The objective is then separable: every subchain's best latency
+    for a price has a closed form, and every price gives a bound (the price is sought by a few
+    fixed-point steps; the bound holds whether or not they converge).
+    """
+    shared = {name for core in layout.shared for name in core.subchains}
+    latency_weight = dict.fromkeys(shared, 0.0)
+    period_weight = dict.fromkeys(shared, 0.0)
+    constant = 0.0
+    for term in problem.response_terms:
+        form, weight = problem.chain_forms[term.chain], term.weight
+        constant += weight * form.constant
+        for name in form.latency_of:
+            if name in shared:
+                latency_weight[name] += weight
+            else:
+                constant += weight * least[name].latency_ms
+        longest = max(form.longest_of, key=lambda name: least[name].period_ms, default=None)
+        periods = list(form.period_of)
+        if longest is None or form.floor >= least[longest].period_ms:
+            constant += weight * form.floor
+        else:
+            periods.append(longest)
+        for name in periods:
+            if name in shared:
+                period_weight[name] += weight
+            else:
+                constant += weight * least[name].period_ms
+    for period_term in problem.period_terms:
+        if period_term.subchain in shared:
+            period_weight[period_term.subchain] += period_term.weight
+        else:
+            constant += period_term.weight * least[period_term.subchain].period_ms
+    usable = 1.0 - schedule.slack
+    total = constant
+    for core in layout.shared:
+        subs = [problem.subchain(name) for name in core.subchains]
+        load = {sub.name: sub.compute_ms for sub in subs}
+        unbatched = [sub.name for sub in subs if not sub.batch]
+        if unbatched:  # the member the switches are charged to: the one a price shortens most
+            charged = max(unbatched, key=lambda name: (latency_weight[name] + period_weight[name]) / load[name])
+            load[charged] += len(subs) * schedule.switch_ms
+        members = [
+            _Member(load[sub.name], least[sub.name].latency_ms, sub.min_period_ms,
+                    latency_weight[sub.name], period_weight[sub.name])
+            for sub in subs
+        ]  # fmt: skip
+        total += _priced_core(members, usable)
+    return total
+
+
+def _priced_core(members: list[_Member], usable: float) -> float:
+    """``max over price >= 0`` of ``sum_i min_l [a l + b max(l, p_min) + price c / l] - price * usable``, nearly."""
+
+    def dual(price: float) -> float:
+        return math.fsum(member.value(price, member.best_latency(price)) for member in members) - price * usable
+
+    best = dual(0.0)
+    price = (math.fsum(math.sqrt(m.load * (m.a + m.b)) for m in members) / usable) ** 2
+    for _ in range(8):  # where the load at the best latencies meets the core: sqrt(price) = S / (usable - C)
+        if price <= 0.0:
+            break
+        best = max(best, dual(price))
+        fixed = interior = 0.0
+        for member in members:
+            latency = member.best_latency(price)
+            if math.isinf(latency):
+                continue
+            slope = member.a if latency < member.p_min else member.a + member.b
+            at_edge = latency in (member.least, member.p_min) or slope <= 0.0
+            if at_edge:
+                fixed += member.load / latency
+            else:
+                interior += math.sqrt(member.load * slope)
+        if interior <= 0.0 or fixed >= usable:
+            break
+        following = (interior / (usable - fixed)) ** 2
+        if abs(following - price) <= 1e-12 * price:
+            break
+        price = following
+    return best
 
 
 def solve_layout(
