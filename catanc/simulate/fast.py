@@ -248,12 +248,12 @@ class DrawTable:
         width = a["mode"].shape[1]
         wanted = max([width, *(min(2 * int(filled[i]), RING_DRAWS) for i in short)])
         if wanted > width:
-            for name in ("mode", "factor"):
-                wider = np.zeros((a[name].shape[0], wanted))
-                for i in self.streams:  # the runs drawn but not taken keep their places modulo the new width
-                    kept = np.arange(used[i], filled[i])
-                    wider[i, kept % wanted] = a[name][i, kept % width]
-                a[name] = wider
+            wider = {name: np.zeros((a[name].shape[0], wanted)) for name in ("mode", "factor")}
+            for i in self.streams:  # the runs drawn but not taken keep their places modulo the new width
+                kept = np.arange(used[i], filled[i])
+                for name, ring in wider.items():
+                    ring[i, kept % wanted] = a[name][i, kept % width]
+            a.update(wider)
             width = wanted
         for i in short:
             places = np.arange(filled[i], used[i] + width) % width
@@ -364,12 +364,9 @@ def run_compiled(sim: k.Sim, table: ScheduleTable | None, draws: DrawTable, end_
         assert table is not None
         assert reoptimiser is not None
         nodes, times = k.take_measured(sim)
-        order = np.argsort(nodes, kind="stable")  # each node's times in the order they were measured
-        bounds = np.searchsorted(nodes[order], np.arange(len(table.nodes) + 1))
-        ordered = times[order]
-        for node, name in enumerate(table.nodes):
-            if bounds[node + 1] > bounds[node]:
-                reoptimiser.measurements.record_many(name, ordered[bounds[node] : bounds[node + 1]])
+        for name, measured in zip(table.nodes, _grouped(nodes, [times], len(table.nodes)), strict=True):
+            if len(measured):  # each node's times in the order they were measured
+                reoptimiser.measurements.record_many(name, measured)
         now, current = k.clock_of(sim)
         after, reinstall, next_ms = reoptimiser.step(now, table.versions[current])
         version = table.add(after)

@@ -61,7 +61,9 @@ def lower_bound(problem: Problem, layout: Layout, schedule: Schedule) -> tuple[f
     A shared subchain's ``T / f_i`` is at least ``(c_i + sum of the others'
     least slices + switches) / (1 - slack)`` when ``f_i <= 1``, and at least
     ``c_i / (1 - slack)`` for a batch subchain (``f_i`` unbounded); the model's
-    scale and objective only grow with periods and latencies.
+    scale and objective only grow with periods and latencies.  The objective's
+    bound is the larger of the objective at those least timings and
+    :func:`load_bound`, which weighs each shared core's load as a whole.
     """
     timings, _ = dedicated_timings(problem, layout)
     usable = 1.0 - schedule.slack
@@ -171,18 +173,21 @@ def load_bound(problem: Problem, layout: Layout, schedule: Schedule, least: dict
 def _priced_core(members: list[_Member], usable: float) -> float:
     """``max over price >= 0`` of ``sum_i min_l [a l + b max(l, p_min) + price c / l] - price * usable``, nearly."""
 
-    def dual(price: float) -> float:
-        return math.fsum(member.value(price, member.best_latency(price)) for member in members) - price * usable
+    def dual(price: float, latencies: list[float]) -> float:
+        return (
+            math.fsum(member.value(price, latency) for member, latency in zip(members, latencies, strict=True))
+            - price * usable
+        )
 
-    best = dual(0.0)
+    best = dual(0.0, [member.best_latency(0.0) for member in members])
     price = (math.fsum(math.sqrt(m.load * (m.a + m.b)) for m in members) / usable) ** 2
     for _ in range(8):  # where the load at the best latencies meets the core: sqrt(price) = S / (usable - C)
         if price <= 0.0:
             break
-        best = max(best, dual(price))
+        latencies = [member.best_latency(price) for member in members]
+        best = max(best, dual(price, latencies))
         fixed = interior = 0.0
-        for member in members:
-            latency = member.best_latency(price)
+        for member, latency in zip(members, latencies, strict=True):
             if math.isinf(latency):
                 continue
             slope = member.a if latency < member.p_min else member.a + member.b
