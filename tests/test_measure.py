@@ -153,6 +153,18 @@ def test_assign_mode_is_the_nearest_on_a_log_scale(sample: float, modes: tuple[f
 
 def test_split_modes_keeps_order() -> None:
     assert split_modes([1.0, 13.0, 0.9, 11.0], (1.0, 12.0)) == ((1.0, 0.9), (13.0, 11.0))
+    # on a boundary (the geometric means 2 and 8), the higher mode
+    assert split_modes([8.0, 2.0, 1.99, 7.99], (1.0, 4.0, 16.0)) == ((1.99,), (2.0, 7.99), (8.0,))
+
+
+@untimed
+@given(st.lists(st.one_of(st.just(0.0), st.floats(1e-3, 1e5)), max_size=30), mode_sets)
+def test_split_modes_groups_by_assign_mode(samples: list[float], modes: tuple[float, ...]) -> None:
+    # assign_mode is held to the log-scale oracle above; split_modes computes the boundaries once
+    expected: list[list[float]] = [[] for _ in modes]
+    for sample in samples:
+        expected[assign_mode(sample, modes)].append(sample)
+    assert split_modes(samples, modes) == tuple(tuple(group) for group in expected)
 
 
 # --------------------------------------------------------------------------- modal estimates

@@ -33,6 +33,7 @@ decides between a client's own figure and the kernel's.
 
 from __future__ import annotations
 
+import bisect
 import itertools
 import math
 import os
@@ -129,19 +130,15 @@ def assign_mode(sample: float, modes: Sequence[float]) -> int:
     Log scale, because modes differ by factors (GL in nav2d: 1 ms and 12 ms, boundary
     sqrt(12) = 3.46 ms), and a run's spread around its mode grows with the mode's time.
     """
-    index = 0
-    for bound in mode_boundaries(modes):
-        if sample < bound:
-            break
-        index += 1
-    return index
+    return bisect.bisect_right(mode_boundaries(modes), sample)  # how many boundaries lie at or below it
 
 
 def split_modes(samples: Iterable[float], modes: Sequence[float]) -> tuple[tuple[float, ...], ...]:
     """The samples of each mode, in sorted-mode order (samples keep their order)."""
     groups: list[list[float]] = [[] for _ in modes]
+    bounds = mode_boundaries(modes)  # once, not per sample
     for sample in samples:
-        groups[assign_mode(sample, modes)].append(sample)
+        groups[bisect.bisect_right(bounds, sample)].append(sample)
     return tuple(tuple(group) for group in groups)
 
 
