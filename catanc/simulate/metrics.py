@@ -25,8 +25,8 @@ FloatArray = npt.NDArray[np.float64]
 
 
 def response_arrays(
-    arrivals: Sequence[tuple[float, float]] | npt.NDArray[np.float64],
-) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    arrivals: Sequence[tuple[float, float]] | FloatArray,
+) -> tuple[FloatArray, FloatArray]:
     """From a chain's ``(origin, done)`` arrivals at its last node, in completion order: when each output that
     shows a response was done, and its response time (ms).
 
@@ -139,8 +139,8 @@ def chain_result(
 
 
 def node_result(
-    done_ms: Sequence[float] | npt.NDArray[np.float64],
-    staleness_ms: Sequence[float] | npt.NDArray[np.float64],
+    done_ms: Sequence[float] | FloatArray,
+    staleness_ms: Sequence[float] | FloatArray,
     duration_ms: float,
 ) -> NodeResult:
     stale = percentile_of(staleness_ms, 95) if len(staleness_ms) else None
