@@ -63,6 +63,7 @@ CATAN, CATAN_MEASURED, TIMER_FAIR, TIMER_FIFO = 0, 1, 2, 3
 RAISED, RESTING_SHARED, DEDICATED = 2, 1, 2  # as in catanc.simulate.policies
 DONE_EPS_MS = 1e-9  # as in catanc.simulate.cpu
 NO_SEQ = -1
+ROOM_TURNS = 64  # loop turns that make_room leaves room for
 
 
 @structref.register
@@ -353,37 +354,40 @@ def draws_short(sim: Sim) -> bool:
 
 @compiled
 def make_room(sim: Sim) -> None:
-    """Room in every record and ring for one more event (an event adds at most ``margin`` of each)."""
+    """Room in every record and ring for :data:`ROOM_TURNS` more loop turns (a turn adds at most ``produced`` of each).
+
+    Room for one turn would do, but the check that follows (:func:`turns_with_room`) scans every
+    node and subchain: with room for a single turn it ran every other turn, a fifth of the kernel's
+    instructions (nav2d, 2 cores, callgrind).
+    """
     n = sim.scheduled.shape[0]
     produced = n * (sim.succ.shape[0] + n + 1)  # every node finishing, each passing data on to every node
-    if sim.done_n + produced > sim.done_at.shape[0]:
-        sim.done_node = longer_ints(sim.done_node, sim.done_n + produced)
-        sim.done_at = longer_floats(sim.done_at, sim.done_n + produced)
-    if sim.stale_n + 2 * produced > sim.stale_ms.shape[0]:
-        sim.stale_node = longer_ints(sim.stale_node, sim.stale_n + 2 * produced)
-        sim.stale_ms = longer_floats(sim.stale_ms, sim.stale_n + 2 * produced)
-    arrivals = produced * sim.latest_origins.shape[1]
+    room = ROOM_TURNS * produced
+    if sim.done_n + room > sim.done_at.shape[0]:
+        sim.done_node = longer_ints(sim.done_node, sim.done_n + room)
+        sim.done_at = longer_floats(sim.done_at, sim.done_n + room)
+    if sim.stale_n + 2 * room > sim.stale_ms.shape[0]:
+        sim.stale_node = longer_ints(sim.stale_node, sim.stale_n + 2 * room)
+        sim.stale_ms = longer_floats(sim.stale_ms, sim.stale_n + 2 * room)
+    arrivals = room * sim.latest_origins.shape[1]
     if sim.arrivals_n + arrivals > sim.arrival_done.shape[0]:
         sim.arrival_chain = longer_ints(sim.arrival_chain, sim.arrivals_n + arrivals)
         sim.arrival_origin = longer_floats(sim.arrival_origin, sim.arrivals_n + arrivals)
         sim.arrival_done = longer_floats(sim.arrival_done, sim.arrivals_n + arrivals)
-    if sim.measured_n + n > sim.measured_ms.shape[0]:
-        sim.measured_node = longer_ints(sim.measured_node, sim.measured_n + n)
-        sim.measured_ms = longer_floats(sim.measured_ms, sim.measured_n + n)
-    width = sim.wait.shape[1]
+    if sim.measured_n + ROOM_TURNS * n > sim.measured_ms.shape[0]:
+        sim.measured_node = longer_ints(sim.measured_node, sim.measured_n + ROOM_TURNS * n)
+        sim.measured_ms = longer_floats(sim.measured_ms, sim.measured_n + ROOM_TURNS * n)
+    ring_room = 4 * ROOM_TURNS
     for node in range(n):
-        if sim.wait_tail[node] - sim.wait_head[node] + 4 > width:
+        while sim.wait_tail[node] - sim.wait_head[node] + ring_room > sim.wait.shape[1]:
             sim.wait = wider_ring(sim.wait, sim.wait_head, sim.wait_tail - 1)
-            break
-    width = sim.flight_index.shape[1]
     for sub in range(sim.sub_seq.shape[0]):
         oldest_in_flight(sim, sub)  # moves flight_low past finished runs
-        if sim.sub_seq[sub] - sim.flight_low[sub] + 4 > width:
+        while sim.sub_seq[sub] - sim.flight_low[sub] + ring_room > sim.flight_index.shape[1]:
             high = sim.sub_seq.copy()
             sim.flight_index = wider_ring(sim.flight_index, sim.flight_low, high)
             sim.flight_at = wider_ring(sim.flight_at, sim.flight_low, high)
             sim.flight_live = wider_ring(sim.flight_live, sim.flight_low, high)
-            break
 
 
 @compiled
@@ -411,14 +415,16 @@ def turns_with_room(sim: Sim) -> int:
 
 @compiled
 def longer_ints(array: IntArray, at_least: int) -> IntArray:
-    grown = np.zeros(max(2 * array.shape[0], at_least), np.int64)
+    """``array`` in a longer one; what lies past it is never read before it is written (no zeroing)."""
+    grown = np.empty(max(2 * array.shape[0], at_least), np.int64)
     grown[: array.shape[0]] = array
     return grown
 
 
 @compiled
 def longer_floats(array: FloatArray, at_least: int) -> FloatArray:
-    grown = np.zeros(max(2 * array.shape[0], at_least), np.float64)
+    """As :func:`longer_ints`."""
+    grown = np.empty(max(2 * array.shape[0], at_least), np.float64)
     grown[: array.shape[0]] = array
     return grown
 
