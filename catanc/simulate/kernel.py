@@ -256,13 +256,13 @@ def submit(sim: Sim, pool: int, node: int, remaining: float, threads: int, prior
 def allocate(sim: Sim, pool: int) -> None:
     free = float(sim.pool_ncores[pool])
     count = sim.pool_njobs[pool]
-    jobs = sim.pool_jobs[pool]
+    jobs = sim.pool_jobs  # indexed [pool, i]: a row view would cost a reference count
     speeds, threads = sim.job_speed, sim.job_threads
     if not sim.pool_fair[pool]:
         order = sim.sort_buf  # by (priority high first, then arrival): insertion sort, few jobs
         priority, since = sim.job_priority, sim.job_since
         for i in range(count):
-            node = jobs[i]
+            node = jobs[pool, i]
             j = i
             while j > 0:
                 other = order[j - 1]
@@ -282,14 +282,14 @@ def allocate(sim: Sim, pool: int) -> None:
         return
     demand = 0
     for i in range(count):
-        demand += threads[jobs[i]]
+        demand += threads[jobs[pool, i]]
     if demand <= free:
         for i in range(count):
-            speeds[jobs[i]] = 1.0
+            speeds[jobs[pool, i]] = 1.0
         return
     share = free / demand
     for i in range(count):
-        speeds[jobs[i]] = min(1.0, share)
+        speeds[jobs[pool, i]] = min(1.0, share)
 
 
 @compiled
@@ -313,13 +313,12 @@ def advance_to(sim: Sim, when_ms: float) -> int:
     dt = max(when_ms - sim.now, 0.0)
     count = 0
     speeds, remaining, threads, busy = sim.job_speed, sim.job_remaining, sim.job_threads, sim.pool_busy
-    finished = sim.finished
+    finished, jobs, njobs = sim.finished, sim.pool_jobs, sim.pool_njobs
     for pool in range(sim.pools):
-        jobs = sim.pool_jobs[pool]
-        n = sim.pool_njobs[pool]
+        n = njobs[pool]
         ended = False
         for i in range(n):
-            node = jobs[i]
+            node = jobs[pool, i]
             speed = speeds[node]
             if speed > 0.0:
                 remaining[node] -= dt * speed
@@ -331,13 +330,13 @@ def advance_to(sim: Sim, when_ms: float) -> int:
         if ended:
             kept = 0
             for i in range(n):
-                node = jobs[i]
+                node = jobs[pool, i]
                 if remaining[node] > DONE_EPS_MS:
-                    jobs[kept] = node
+                    jobs[pool, kept] = node
                     kept += 1
                 else:
                     sim.job_pool[node] = -1
-            sim.pool_njobs[pool] = kept
+            njobs[pool] = kept
             sim.pool_dirty[pool] = True
     sim.now = max(sim.now, when_ms)
     return count
@@ -513,18 +512,32 @@ def dispatch(sim: Sim, event: Any) -> None:
 
 
 @compiled
-def read_inputs(sim: Sim, node: int, now: float, into: FloatArray) -> None:
-    """:meth:`Dataflow.read_inputs`: the origins of what ``node`` reads now go to ``into``."""
-    into[:] = math.nan
+def copy_row(source: FloatArray, target: FloatArray, row: int) -> None:
+    """``target[row] = source[row]``, element by element: numba's slice assignment checks shapes and overlap."""
+    for column in range(source.shape[1]):
+        target[row, column] = source[row, column]
+
+
+@compiled
+def read_inputs(sim: Sim, node: int, now: float, into: Any) -> None:
+    """:meth:`Dataflow.read_inputs`: the origins of what ``node`` reads now go to row ``node`` of ``into``.
+
+    Only the entries of ``node``'s chains are written.  The others are NaN from the start (fast.py
+    fills ``latest_origins`` and ``job_origins`` with NaN) and stay so: nothing writes a node's row
+    off its chains (:func:`copy_row` copies NaN there).  A row by index, not as a view: a view costs a
+    reference count, and this runs once or more per run.
+    """
     has_latest, latest_origins = sim.has_latest, sim.latest_origins
     pos_chain, pos_before = sim.pos_chain, sim.pos_before
     for k in range(sim.pos_ptr[node], sim.pos_ptr[node + 1]):
         chain = pos_chain[k]
         before = pos_before[k]
         if before < 0:
-            into[chain] = now
+            into[node, chain] = now
         elif has_latest[before]:
-            into[chain] = latest_origins[before, chain]  # NaN when it had none on this chain
+            into[node, chain] = latest_origins[before, chain]  # NaN when it had none on this chain
+        else:
+            into[node, chain] = math.nan
     age = -math.inf
     pred, latest_at = sim.pred, sim.latest_at
     for k in range(sim.pred_ptr[node], sim.pred_ptr[node + 1]):
@@ -552,7 +565,7 @@ def produce(sim: Sim, node: int) -> None:
         top -= 1
         current = stack[top]
         if not first:  # a pass-through node reads its inputs as it is reached
-            read_inputs(sim, current, now, latest_origins[current])
+            read_inputs(sim, current, now, latest_origins)
         first = False
         sim.has_latest[current] = True
         sim.latest_at[current] = now
@@ -582,7 +595,7 @@ def produce(sim: Sim, node: int) -> None:
 
 @compiled
 def tick(sim: Sim, node: int) -> None:
-    read_inputs(sim, node, sim.now, sim.latest_origins[node])
+    read_inputs(sim, node, sim.now, sim.latest_origins)
     produce(sim, node)
 
 
@@ -822,7 +835,7 @@ def catan_trigger(sim: Sim, node: int, seq: int) -> None:
     version = sim.version
     sim.busy_seq[node] = seq
     now = sim.now
-    read_inputs(sim, node, now, sim.job_origins[node])
+    read_inputs(sim, node, now, sim.job_origins)
     compute = sample(sim, node, now / 1000.0)
     if not sim.sub_shared[version, sub]:
         priority = DEDICATED
@@ -842,7 +855,7 @@ def catan_done(sim: Sim, node: int) -> None:
         sim.measured_node[m] = node
         sim.measured_ms[m] = sim.job_compute[node]
         sim.measured_n = m + 1
-    sim.latest_origins[node, :] = sim.job_origins[node]
+    copy_row(sim.job_origins, sim.latest_origins, node)
     produce(sim, node)
     sub = sim.sub_of[node]
     sim.busy_seq[node] = NO_SEQ  # free: the next waiting run of this node starts
@@ -879,14 +892,14 @@ def timer_trigger(sim: Sim, node: int) -> None:
         return
     sim.timer_busy[node] = True
     now = sim.now
-    read_inputs(sim, node, now, sim.job_origins[node])
+    read_inputs(sim, node, now, sim.job_origins)
     compute = sample(sim, node, now / 1000.0)
     submit(sim, 0, node, compute, 1, sim.priority[node])
 
 
 @compiled
 def timer_done(sim: Sim, node: int) -> None:
-    sim.latest_origins[node, :] = sim.job_origins[node]
+    copy_row(sim.job_origins, sim.latest_origins, node)
     produce(sim, node)
     sim.timer_busy[node] = False
     if sim.timer_pending[node]:
