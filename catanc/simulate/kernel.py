@@ -352,16 +352,23 @@ def draws_short(sim: Sim) -> bool:
 
 
 @compiled
+def produced_per_turn(sim: Sim) -> int:
+    """Completions a loop turn records at most (staleness samples twice as many; arrivals as many per chain)."""
+    n: int = sim.scheduled.shape[0]
+    produced: int = n * (sim.succ.shape[0] + n + 1)  # every node finishing, each passing data on to every node
+    return produced
+
+
+@compiled
 def make_room(sim: Sim) -> None:
-    """Room in every record and ring for :data:`ROOM_TURNS` more loop turns (a turn adds at most ``produced`` of each).
+    """Room in every record and ring for :data:`ROOM_TURNS` more loop turns (:func:`produced_per_turn`).
 
     Room for one turn would do, but the check that follows (:func:`turns_with_room`) scans every
     node and subchain: with room for a single turn it ran every other turn, a fifth of the kernel's
     instructions (nav2d, 2 cores, callgrind).
     """
     n = sim.scheduled.shape[0]
-    produced = n * (sim.succ.shape[0] + n + 1)  # every node finishing, each passing data on to every node
-    room = ROOM_TURNS * produced
+    room = ROOM_TURNS * produced_per_turn(sim)
     if sim.done_n + room > sim.done_at.shape[0]:
         sim.done_node = longer_ints(sim.done_node, sim.done_n + room)
         sim.done_at = longer_floats(sim.done_at, sim.done_n + room)
@@ -394,11 +401,11 @@ def turns_with_room(sim: Sim) -> int:
     """Loop turns that surely fit in the draws, records and rings as they are (at least 1 after :func:`make_room`).
 
     Each turn takes at most what :func:`draws_short` and :func:`make_room` leave room for
-    (4 draws of a node, ``margin`` records, 4 places in a ring), so after ``t`` turns there
-    was room for each: checking only then is checking before every turn.
+    (4 draws of a node, :func:`produced_per_turn` records, 4 places in a ring), so after ``t`` turns
+    there was room for each: checking only then is checking before every turn.
     """
     n = sim.scheduled.shape[0]
-    produced = n * (sim.succ.shape[0] + n + 1)
+    produced = produced_per_turn(sim)
     turns: int = (sim.done_at.shape[0] - sim.done_n) // produced
     turns = min(turns, (sim.stale_ms.shape[0] - sim.stale_n) // (2 * produced))
     turns = min(turns, (sim.arrival_done.shape[0] - sim.arrivals_n) // (produced * sim.latest_origins.shape[1]))
@@ -519,7 +526,7 @@ def copy_row(source: FloatArray, target: FloatArray, row: int) -> None:
 
 
 @compiled
-def read_inputs(sim: Sim, node: int, now: float, into: Any) -> None:
+def read_inputs(sim: Sim, node: int, now: float, into: FloatArray) -> None:
     """:meth:`Dataflow.read_inputs`: the origins of what ``node`` reads now go to row ``node`` of ``into``.
 
     Only the entries of ``node``'s chains are written.  The others are NaN from the start (fast.py
