@@ -20,6 +20,7 @@ from hypothesis import strategies as st
 from catanc.errors import CatancError
 from catanc.load import load_spec
 from catanc.simulate import fast
+from catanc.simulate import kernel as k
 from catanc.simulate.metrics import PolicyResult
 from catanc.simulate.report import comparison_payload
 from catanc.simulate.run import POLICIES, Setup, simulate
@@ -67,6 +68,35 @@ def test_arrays_grown_mid_run_change_nothing(monkeypatch: pytest.MonkeyPatch) ->
     monkeypatch.setattr(fast, "FIRST_RING", 4)
     for policy, python in expected.items():
         assert_same_run(simulate(Setup(spec, 2, 8.0, 1), policy, engine="compiled"), python)
+
+
+def test_chain_arrivals_follow_what_each_run_read_back_to_the_head() -> None:
+    """Worked by hand: nodes a, b, c and x; c reads b and x; chains (a, b, c), (b, c), (x, c) and (a,)."""
+    a, b, c, x = 0, 1, 2, 3
+    chains = [("a", "b", "c"), ("b", "c"), ("x", "c"), ("a",)]
+    # record: (node, read at, done at, what it read of each feed (c: b then x): a record, -1 for none yet)
+    table = [
+        (b, 0.0, 0.5, [-1]),  # 0: b before a's first output
+        (c, 0.6, 1.0, [0, -1]),  # 1: (b, c) from 0.0; nothing from a or x
+        (a, 1.0, 2.0, []),  # 2: (a,) from 1.0
+        (x, 2.2, 2.2, []),  # 3: a tick
+        (b, 2.5, 3.0, [2]),  # 4
+        (c, 3.5, 4.0, [4, 3]),  # 5: (a, b, c) from 1.0, (b, c) from 2.5, (x, c) from 2.2
+        (c, 4.5, 5.0, [4, 3]),  # 6: the same origins again: no arrival
+        (c, 5.5, 6.0, [0, 3]),  # 7: an older b (as a batch reads): older origins, no arrival
+        (a, 6.0, 7.0, []),  # 8: (a,) from 6.0
+    ]
+    by_chain, origin, done = k.chain_arrivals(
+        np.array([row[0] for row in table], np.int64),
+        np.array([row[2] for row in table]),
+        np.array([row[1] for row in table]),
+        np.array([f for row in table for f in row[3]], np.int64),
+        *fast.chain_tables(["a", "b", "c", "x"], chains),
+    )
+    arrivals: dict[int, list[tuple[float, float]]] = {}
+    for chain, pair in zip(by_chain.tolist(), zip(origin.tolist(), done.tolist(), strict=True), strict=True):
+        arrivals.setdefault(chain, []).append(pair)  # each chain's in order (chains interleave in any order)
+    assert arrivals == {0: [(1.0, 4.0)], 1: [(0.0, 1.0), (2.5, 4.0)], 2: [(2.2, 4.0)], 3: [(1.0, 2.0), (6.0, 7.0)]}
 
 
 @pytest.mark.parametrize("ring", [4, 8, 64])

@@ -10,6 +10,7 @@ kernel's arrays when it asks.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 from types import SimpleNamespace
@@ -49,6 +50,17 @@ def _sub_names(schedule: RuntimeSchedule) -> list[str]:
     return sorted(schedule.subchains)
 
 
+def _feeds(names: Sequence[str], chains: Sequence[tuple[str, ...]]) -> list[list[int]]:
+    """Per node, the nodes just before it on the measured chains (each once, in the order first met)."""
+    index = {name: i for i, name in enumerate(names)}
+    feeds: list[list[int]] = [[] for _ in names]
+    for chain in chains:
+        for before, node in itertools.pairwise(chain):
+            if index[before] not in feeds[index[node]]:
+                feeds[index[node]].append(index[before])
+    return feeds
+
+
 def topology(
     spec: Spec,
     chains: Sequence[tuple[str, ...]],
@@ -64,14 +76,6 @@ def topology(
     for source, target in spec.edge_pairs:
         preds[index[target]].append(index[source])
         succs[index[source]].append(index[target])
-    positions: list[list[int]] = [[] for _ in names]
-    befores: list[list[int]] = [[] for _ in names]
-    sinks: list[list[int]] = [[] for _ in names]
-    for c, chain in enumerate(chains):
-        for at, node in enumerate(chain):
-            positions[index[node]].append(c)
-            befores[index[node]].append(index[chain[at - 1]] if at else -1)
-        sinks[index[chain[-1]]].append(c)
     sub_of = np.full(len(names), -1, np.int64)
     sub_rows: list[list[int]] = []
     if schedule is not None:
@@ -99,9 +103,7 @@ def topology(
     priority = np.array([(priorities or {}).get(name, 0) for name in names], np.int64)
     pred_ptr, pred = _csr(preds)
     succ_ptr, succ = _csr(succs)
-    pos_ptr, pos_chain = _csr(positions)
-    _, pos_before = _csr(befores)
-    sink_ptr, sink_chain = _csr(sinks)
+    feed_ptr, feed = _csr(_feeds(names, chains))
     sub_ptr, sub_nodes = _csr(sub_rows)
     trig_ptr, trig = _csr(triggers)
     return {
@@ -111,11 +113,8 @@ def topology(
         "pred": pred,
         "succ_ptr": succ_ptr,
         "succ": succ,
-        "pos_ptr": pos_ptr,
-        "pos_chain": pos_chain,
-        "pos_before": pos_before,
-        "sink_ptr": sink_ptr,
-        "sink_chain": sink_chain,
+        "feed_ptr": feed_ptr,
+        "feed": feed,
         "sub_of": sub_of,
         "sub_ptr": sub_ptr,
         "sub_nodes": sub_nodes,
@@ -265,7 +264,7 @@ class DrawTable:
             k.set_draws(sim, a["mode"], a["factor"])
 
 
-def run_fields(graph: Fields, chains: int, subchains: int, policy: int) -> Fields:
+def run_fields(graph: Fields, subchains: int, policy: int) -> Fields:
     """The run's state at time 0: nothing running, nothing produced, empty records."""
     n, cores = graph["scheduled"].shape[0], graph["cores"]
     pools = max(subchains, 1)
@@ -290,7 +289,8 @@ def run_fields(graph: Fields, chains: int, subchains: int, policy: int) -> Field
         "job_speed": np.zeros(n),
         "job_seq": np.zeros(n, np.int64),
         "job_compute": np.zeros(n),
-        "job_origins": np.full((n, max(chains, 1)), math.nan),
+        "job_feed": np.full(graph["feed"].shape[0], -1, np.int64),
+        "job_read_at": np.zeros(n),
         "pool_ncores": np.zeros(pools, np.int64),
         "pool_cores": np.zeros((pools, cores), np.int64),
         "pool_fair": np.zeros(pools, np.bool_),
@@ -303,9 +303,8 @@ def run_fields(graph: Fields, chains: int, subchains: int, policy: int) -> Field
         "finished": np.zeros(n, np.int64),
         "sort_buf": np.zeros(n, np.int64),
         "stack": np.zeros(n + int(graph["succ"].shape[0]) + 1, np.int64),
-        "has_latest": np.zeros(n, np.bool_),
+        "latest_id": np.full(n, -1, np.int64),
         "latest_at": np.zeros(n),
-        "latest_origins": np.full((n, max(chains, 1)), math.nan),
         "busy_seq": np.full(n, k.NO_SEQ, np.int64),
         "wait": np.zeros((n, FIRST_RING), np.int64),
         "wait_head": np.zeros(n, np.int64),
@@ -326,14 +325,12 @@ def run_fields(graph: Fields, chains: int, subchains: int, policy: int) -> Field
         "done_n": 0,
         "done_node": np.zeros(FIRST_RECORDS, np.int64),
         "done_at": np.zeros(FIRST_RECORDS),
+        "done_read": np.zeros(FIRST_RECORDS),
+        "feeds_n": 0,
+        "done_feeds": np.zeros(FIRST_RECORDS, np.int64),
         "stale_n": 0,
         "stale_node": np.zeros(FIRST_RECORDS, np.int64),
         "stale_ms": np.zeros(FIRST_RECORDS),
-        "newest_origin": np.full(max(chains, 1), -math.inf),
-        "arrivals_n": 0,
-        "arrival_chain": np.zeros(FIRST_RECORDS, np.int64),
-        "arrival_origin": np.zeros(FIRST_RECORDS),
-        "arrival_done": np.zeros(FIRST_RECORDS),
         "measured_n": 0,
         "measured_node": np.zeros(FIRST_RECORDS, np.int64),
         "measured_ms": np.zeros(FIRST_RECORDS),
@@ -364,9 +361,9 @@ def run_compiled(sim: k.Sim, table: ScheduleTable | None, draws: DrawTable, end_
         assert table is not None
         assert reoptimiser is not None
         nodes, times = k.take_measured(sim)
-        for name, measured in zip(table.nodes, _grouped(nodes, [times], len(table.nodes)), strict=True):
-            if len(measured):  # each node's times in the order they were measured
-                reoptimiser.measurements.record_many(name, measured)
+        for name, where in zip(table.nodes, _group_indices(nodes, len(table.nodes)), strict=True):
+            if len(where):  # each node's times in the order they were measured
+                reoptimiser.measurements.record_many(name, times[where])
         now, current = k.clock_of(sim)
         after, reinstall, next_ms = reoptimiser.step(now, table.versions[current])
         version = table.add(after)
@@ -377,26 +374,64 @@ def run_compiled(sim: k.Sim, table: ScheduleTable | None, draws: DrawTable, end_
         k.schedule_reoptimise(sim, next_ms)
 
 
-def records_of(sim: k.Sim, spec: Spec, chains: int, replans: list[Replan], schedule: RuntimeSchedule | None) -> Records:
+def records_of(
+    sim: k.Sim,
+    spec: Spec,
+    chains: Sequence[tuple[str, ...]],
+    replans: list[Replan],
+    schedule: RuntimeSchedule | None,
+) -> Records:
     """The run's records, grouped as the Python engine keeps them (as arrays: per node, per chain (n, 2))."""
-    done_node, done_at, stale_node, stale_ms, arrival_chain, arrival_origin, arrival_done = k.records(sim)
+    done_node, done_at, done_read, done_feeds, stale_node, stale_ms = k.records(sim)
     names = list(spec.nodes)
-    done = dict(zip(names, _grouped(done_node, [done_at], len(names)), strict=True))
-    stale = dict(zip(names, _grouped(stale_node, [stale_ms], len(names)), strict=True))
-    arrivals = [pairs.reshape(-1, 2) for pairs in _grouped(arrival_chain, [arrival_origin, arrival_done], chains)]
+    by_chain, origin, arrived = k.chain_arrivals(
+        done_node, done_at, done_read, done_feeds, *chain_tables(names, chains)
+    )
+    done = dict(zip(names, (done_at[where] for where in _group_indices(done_node, len(names))), strict=True))
+    stale = dict(zip(names, (stale_ms[where] for where in _group_indices(stale_node, len(names))), strict=True))
+    arrivals = [np.column_stack((origin[where], arrived[where])) for where in _group_indices(by_chain, len(chains))]
     return Records(done, stale, arrivals, {}, replans, schedule)
 
 
-def _grouped(keys: k.IntArray, columns: Sequence[k.FloatArray], groups: int) -> list[k.FloatArray]:
-    """The rows of ``columns`` split by ``keys`` (0..groups-1), each group in its original order.
+def chain_tables(names: Sequence[str], chains: Sequence[tuple[str, ...]]) -> tuple[Any, ...]:
+    """The chains as :func:`kernel.chain_arrivals` follows them: ``feed_ptr`` (as :func:`topology`),
+    ``root``, ``trie_feed``, ``child_ptr/child``, ``head_ptr/head_chain`` and the number of chains.
 
-    One column gives each group's values; several give each group's rows as a flat array, row by row.
+    The trie's places are the chains' suffixes, each once, numbered as first met; a suffix's children
+    are the suffixes one node longer.
     """
+    index = {name: i for i, name in enumerate(names)}
+    feeds = _feeds(names, chains)
+    place_of: dict[tuple[str, ...], int] = {}
+    feed_of: list[int] = []  # per place: which of the feeds of the node after it its node is (-1 at a root)
+    children: list[list[int]] = []
+    heads: list[list[int]] = []
+    root = np.full(len(names), -1, np.int64)
+    for c, chain in enumerate(chains):
+        parent = -1
+        for start in range(len(chain) - 1, -1, -1):
+            suffix = chain[start:]
+            if suffix not in place_of:
+                place_of[suffix] = len(feed_of)
+                after = suffix[1:]
+                feed_of.append(feeds[index[after[0]]].index(index[suffix[0]]) if after else -1)
+                children.append([])
+                heads.append([])
+                if parent >= 0:
+                    children[parent].append(place_of[suffix])
+                else:
+                    root[index[suffix[0]]] = place_of[suffix]
+            parent = place_of[suffix]
+        heads[parent].append(c)
+    return (_csr(feeds)[0], root, np.array(feed_of, np.int64), *_csr(children), *_csr(heads), len(chains))
+
+
+def _group_indices(keys: k.IntArray, groups: int) -> list[k.IntArray]:
+    """The positions of each key (0..groups-1) in ``keys``, in order."""
     small = keys.astype(np.min_scalar_type(max(groups - 1, 0)))  # numpy sorts 8- and 16-bit keys by radix
     order = np.argsort(small, kind="stable")
     bounds = np.searchsorted(small[order], np.arange(groups + 1))
-    ordered = columns[0][order] if len(columns) == 1 else np.column_stack([column[order] for column in columns])
-    return [ordered[bounds[g] : bounds[g + 1]].ravel() for g in range(groups)]
+    return [order[bounds[g] : bounds[g + 1]] for g in range(groups)]
 
 
 def no_schedules() -> Fields:

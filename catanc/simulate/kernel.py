@@ -81,12 +81,12 @@ class SimProxy(structref.StructRefProxy):  # type: ignore[misc]
     value, flattened into every call's arguments, which cost microseconds per
     call (measured: 3 us for a loop over 12 nodes).  Fields, by group (CSR
     means ``x_ptr[i]:x_ptr[i+1]`` indexes ``x``; nodes are numbered in spec
-    order, subchains in sorted name order, chains as reported):
+    order, subchains in sorted name order):
 
     The graph (fixed): ``scheduled``, ``pass_through`` (unscheduled without a
-    rate), ``pred_ptr/pred``, ``succ_ptr/succ``, ``pos_ptr/pos_chain/pos_before``
-    (a node's places on the measured chains; the node before it, -1 at the
-    head), ``sink_ptr/sink_chain``, ``sub_of`` per node,
+    rate), ``pred_ptr/pred``, ``succ_ptr/succ``, ``feed_ptr/feed`` (the nodes
+    just before a node on the measured chains: a run notes which of their
+    outputs it read), ``sub_of`` per node,
     ``sub_ptr/sub_nodes``, ``sensor_period`` (NaN if not a sensor) and
     ``sensor_order`` (spec order), ``timer_period``/``timer_order``/``trig_ptr``/
     ``trig``/``priority`` (the baselines' wiring), ``cores``.
@@ -106,22 +106,22 @@ class SimProxy(structref.StructRefProxy):  # type: ignore[misc]
     The run: the counters ``now``, ``order``, ``arrival``, ``generation``,
     ``version``, ``policy``, ``pools``; the event heap (``heap_*``: time, order, kind and its fields); one job per
     node at most (``job_*``); pools of cores (``pool_*``, ``sub_pool``,
-    ``core_busy``); the data (``has_latest``, ``latest_at``, ``latest_origins``
-    with NaN for no origin on a chain, ``newest_origin`` per chain, -inf before
-    its first arrival); catanc's runs (``busy_seq``, the ``wait`` rings,
+    ``core_busy``); the data (``latest_id``: a node's newest output as its
+    completion record, -1 before its first; ``latest_at``; ``job_feed`` by feed,
+    ``job_read_at``: what a run read and when); catanc's runs (``busy_seq``, the ``wait`` rings,
     ``sub_*`` counters, ``heads_in_flight``, the ``flight_*`` rings by seq,
     ``raised`` per core); the baselines' ``timer_busy`` and ``timer_pending``;
     scratch (``finished``, ``sort_buf``, ``stack``); and the records with their
-    counts (``done_*``, ``stale_*``, ``arrival_*``, ``measured_*``), grown here
-    as they fill.
+    counts (``done_*`` with ``done_feeds``/``feeds_n``, ``stale_*``,
+    ``measured_*``), grown here as they fill.
     """
 
 
 FIELDS = (
     # the graph
-    "scheduled", "pass_through", "pred_ptr", "pred", "succ_ptr", "succ", "pos_ptr", "pos_chain", "pos_before",
-    "sink_ptr", "sink_chain", "sub_of", "sub_ptr", "sub_nodes", "sensor_period", "sensor_order",
-    "timer_period", "timer_order", "trig_ptr", "trig", "priority", "cores",
+    "scheduled", "pass_through", "pred_ptr", "pred", "succ_ptr", "succ", "feed_ptr", "feed", "sub_of", "sub_ptr",
+    "sub_nodes", "sensor_period", "sensor_order", "timer_period", "timer_order", "trig_ptr", "trig", "priority",
+    "cores",
     # the schedules
     "sub_ncores", "sub_cores", "sub_shared", "sub_period", "sub_latency", "sub_runs", "sub_priority",
     "node_threads", "node_speedup", "clocked", "n_shared", "core_id", "core_period", "core_switch", "core_nslots",
@@ -132,12 +132,12 @@ FIELDS = (
     "now", "order", "arrival", "generation", "version", "policy", "pools",
     "heap_n", "heap_time", "heap_order", "heap_ints", "heap_f",
     "job_pool", "job_remaining", "job_threads", "job_priority", "job_since", "job_speed", "job_seq", "job_compute",
-    "job_origins", "pool_ncores", "pool_cores", "pool_fair", "pool_jobs", "pool_njobs", "pool_busy", "pool_dirty",
-    "sub_pool", "core_busy", "finished", "sort_buf", "stack", "has_latest", "latest_at", "latest_origins",
+    "job_feed", "job_read_at", "pool_ncores", "pool_cores", "pool_fair", "pool_jobs", "pool_njobs", "pool_busy",
+    "pool_dirty", "sub_pool", "core_busy", "finished", "sort_buf", "stack", "latest_id", "latest_at",
     "busy_seq", "wait", "wait_head", "wait_tail", "sub_seq", "sub_pending", "sub_late", "sub_steals", "sub_skipped",
     "heads_in_flight", "flight_index", "flight_at", "flight_live", "flight_low", "raised", "timer_busy",
-    "timer_pending", "done_n", "done_node", "done_at", "stale_n", "stale_node", "stale_ms", "newest_origin",
-    "arrivals_n", "arrival_chain", "arrival_origin", "arrival_done", "measured_n", "measured_node", "measured_ms",
+    "timer_pending", "done_n", "done_node", "done_at", "done_read", "feeds_n", "done_feeds", "stale_n", "stale_node",
+    "stale_ms", "measured_n", "measured_node", "measured_ms",
 )  # fmt: skip
 structref.define_constructor(SimProxy, SimType, FIELDS)
 structref.define_boxing(SimType, SimProxy)
@@ -353,10 +353,19 @@ def draws_short(sim: Sim) -> bool:
 
 @compiled
 def produced_per_turn(sim: Sim) -> int:
-    """Completions a loop turn records at most (staleness samples twice as many; arrivals as many per chain)."""
+    """Completions a loop turn records at most (staleness samples twice as many)."""
     n: int = sim.scheduled.shape[0]
     produced: int = n * (sim.succ.shape[0] + n + 1)  # every node finishing, each passing data on to every node
     return produced
+
+
+@compiled
+def feeds_per_record(sim: Sim) -> int:
+    """The most feeds a completion record notes (at least 1, so that it can divide)."""
+    widest = 1
+    for node in range(sim.scheduled.shape[0]):
+        widest = max(widest, sim.feed_ptr[node + 1] - sim.feed_ptr[node])
+    return widest
 
 
 @compiled
@@ -372,14 +381,13 @@ def make_room(sim: Sim) -> None:
     if sim.done_n + room > sim.done_at.shape[0]:
         sim.done_node = longer_ints(sim.done_node, sim.done_n + room)
         sim.done_at = longer_floats(sim.done_at, sim.done_n + room)
+        sim.done_read = longer_floats(sim.done_read, sim.done_n + room)
+    feeds = room * feeds_per_record(sim)
+    if sim.feeds_n + feeds > sim.done_feeds.shape[0]:
+        sim.done_feeds = longer_ints(sim.done_feeds, sim.feeds_n + feeds)
     if sim.stale_n + 2 * room > sim.stale_ms.shape[0]:
         sim.stale_node = longer_ints(sim.stale_node, sim.stale_n + 2 * room)
         sim.stale_ms = longer_floats(sim.stale_ms, sim.stale_n + 2 * room)
-    arrivals = room * sim.latest_origins.shape[1]
-    if sim.arrivals_n + arrivals > sim.arrival_done.shape[0]:
-        sim.arrival_chain = longer_ints(sim.arrival_chain, sim.arrivals_n + arrivals)
-        sim.arrival_origin = longer_floats(sim.arrival_origin, sim.arrivals_n + arrivals)
-        sim.arrival_done = longer_floats(sim.arrival_done, sim.arrivals_n + arrivals)
     if sim.measured_n + ROOM_TURNS * n > sim.measured_ms.shape[0]:
         sim.measured_node = longer_ints(sim.measured_node, sim.measured_n + ROOM_TURNS * n)
         sim.measured_ms = longer_floats(sim.measured_ms, sim.measured_n + ROOM_TURNS * n)
@@ -408,7 +416,7 @@ def turns_with_room(sim: Sim) -> int:
     produced = produced_per_turn(sim)
     turns: int = (sim.done_at.shape[0] - sim.done_n) // produced
     turns = min(turns, (sim.stale_ms.shape[0] - sim.stale_n) // (2 * produced))
-    turns = min(turns, (sim.arrival_done.shape[0] - sim.arrivals_n) // (produced * sim.latest_origins.shape[1]))
+    turns = min(turns, (sim.done_feeds.shape[0] - sim.feeds_n) // (produced * feeds_per_record(sim)))
     turns = min(turns, (sim.measured_ms.shape[0] - sim.measured_n) // n)
     for node in range(n):
         if sim.scheduled[node]:
@@ -519,37 +527,23 @@ def dispatch(sim: Sim, event: Any) -> None:
 
 
 @compiled
-def copy_row(source: FloatArray, target: FloatArray, row: int) -> None:
-    """``target[row] = source[row]``, element by element: numba's slice assignment checks shapes and overlap."""
-    for column in range(source.shape[1]):
-        target[row, column] = source[row, column]
+def read_inputs(sim: Sim, node: int, now: float) -> None:
+    """:meth:`Dataflow.read_inputs` by reference: ``node``'s run reads now the newest output of each feed.
 
-
-@compiled
-def read_inputs(sim: Sim, node: int, now: float, into: FloatArray) -> None:
-    """:meth:`Dataflow.read_inputs`: the origins of what ``node`` reads now go to row ``node`` of ``into``.
-
-    Only the entries of ``node``'s chains are written.  The others are NaN from the start (fast.py
-    fills ``latest_origins`` and ``job_origins`` with NaN) and stay so: nothing writes a node's row
-    off its chains (:func:`copy_row` copies NaN there).  A row by index, not as a view: a view costs a
-    reference count, and this runs once or more per run.
+    A chain's origins are not carried from output to output (that was O(chains) per run, half the
+    kernel's instructions on nav2d): a run notes which completion record of each feed it read (-1:
+    none yet) and when, and :func:`catanc.simulate.fast.chain_arrivals` follows the notes back along
+    each chain afterwards.  Staleness is the age of the oldest input, over every predecessor.
     """
-    has_latest, latest_origins = sim.has_latest, sim.latest_origins
-    pos_chain, pos_before = sim.pos_chain, sim.pos_before
-    for k in range(sim.pos_ptr[node], sim.pos_ptr[node + 1]):
-        chain = pos_chain[k]
-        before = pos_before[k]
-        if before < 0:
-            into[node, chain] = now
-        elif has_latest[before]:
-            into[node, chain] = latest_origins[before, chain]  # NaN when it had none on this chain
-        else:
-            into[node, chain] = math.nan
+    latest_id, feed, job_feed = sim.latest_id, sim.feed, sim.job_feed
+    for k in range(sim.feed_ptr[node], sim.feed_ptr[node + 1]):
+        job_feed[k] = latest_id[feed[k]]
+    sim.job_read_at[node] = now
     age = -math.inf
     pred, latest_at = sim.pred, sim.latest_at
     for k in range(sim.pred_ptr[node], sim.pred_ptr[node + 1]):
         before = pred[k]
-        if has_latest[before]:
+        if latest_id[before] >= 0:
             age = max(age, now - latest_at[before])
     if age > -math.inf:
         n = sim.stale_n
@@ -560,10 +554,10 @@ def read_inputs(sim: Sim, node: int, now: float, into: FloatArray) -> None:
 
 @compiled
 def produce(sim: Sim, node: int) -> None:
-    """:meth:`Dataflow.produce`, ``node``'s origins already in ``latest_origins``; depth first, as recursion."""
+    """:meth:`Dataflow.produce`, what ``node`` read already noted (``job_feed``); depth first, as recursion."""
     now = sim.now
     stack = sim.stack
-    sink_ptr, sink_chain, latest_origins, newest = sim.sink_ptr, sim.sink_chain, sim.latest_origins, sim.newest_origin
+    feed_ptr, job_feed, latest_id, latest_at = sim.feed_ptr, sim.job_feed, sim.latest_id, sim.latest_at
     succ_ptr, succ, pass_through = sim.succ_ptr, sim.succ, sim.pass_through
     stack[0] = node
     top = 1
@@ -572,24 +566,21 @@ def produce(sim: Sim, node: int) -> None:
         top -= 1
         current = stack[top]
         if not first:  # a pass-through node reads its inputs as it is reached
-            read_inputs(sim, current, now, latest_origins)
+            read_inputs(sim, current, now)
         first = False
-        sim.has_latest[current] = True
-        sim.latest_at[current] = now
         n = sim.done_n
         sim.done_node[n] = current
         sim.done_at[n] = now
+        sim.done_read[n] = sim.job_read_at[current]
+        m = sim.feeds_n
+        done_feeds = sim.done_feeds
+        for k in range(feed_ptr[current], feed_ptr[current + 1]):
+            done_feeds[m] = job_feed[k]
+            m += 1
+        sim.feeds_n = m
         sim.done_n = n + 1
-        for k in range(sink_ptr[current], sink_ptr[current + 1]):
-            chain = sink_chain[k]
-            origin = latest_origins[current, chain]
-            if origin > newest[chain]:  # False for NaN (no origin on this chain)
-                newest[chain] = origin
-                m = sim.arrivals_n
-                sim.arrival_chain[m] = chain
-                sim.arrival_origin[m] = origin
-                sim.arrival_done[m] = now
-                sim.arrivals_n = m + 1
+        latest_id[current] = n
+        latest_at[current] = now
         if sim.policy >= TIMER_FAIR:  # the baselines listen to every output
             for k in range(sim.trig_ptr[current], sim.trig_ptr[current + 1]):
                 timer_trigger(sim, sim.trig[k])
@@ -602,7 +593,7 @@ def produce(sim: Sim, node: int) -> None:
 
 @compiled
 def tick(sim: Sim, node: int) -> None:
-    read_inputs(sim, node, sim.now, sim.latest_origins)
+    read_inputs(sim, node, sim.now)
     produce(sim, node)
 
 
@@ -842,7 +833,7 @@ def catan_trigger(sim: Sim, node: int, seq: int) -> None:
     version = sim.version
     sim.busy_seq[node] = seq
     now = sim.now
-    read_inputs(sim, node, now, sim.job_origins)
+    read_inputs(sim, node, now)
     compute = sample(sim, node, now / 1000.0)
     if not sim.sub_shared[version, sub]:
         priority = DEDICATED
@@ -862,7 +853,6 @@ def catan_done(sim: Sim, node: int) -> None:
         sim.measured_node[m] = node
         sim.measured_ms[m] = sim.job_compute[node]
         sim.measured_n = m + 1
-    copy_row(sim.job_origins, sim.latest_origins, node)
     produce(sim, node)
     sub = sim.sub_of[node]
     sim.busy_seq[node] = NO_SEQ  # free: the next waiting run of this node starts
@@ -899,14 +889,13 @@ def timer_trigger(sim: Sim, node: int) -> None:
         return
     sim.timer_busy[node] = True
     now = sim.now
-    read_inputs(sim, node, now, sim.job_origins)
+    read_inputs(sim, node, now)
     compute = sample(sim, node, now / 1000.0)
     submit(sim, 0, node, compute, 1, sim.priority[node])
 
 
 @compiled
 def timer_done(sim: Sim, node: int) -> None:
-    copy_row(sim.job_origins, sim.latest_origins, node)
     produce(sim, node)
     sim.timer_busy[node] = False
     if sim.timer_pending[node]:
@@ -945,21 +934,84 @@ def set_version(sim: Sim, version: int) -> None:
 
 
 @compiled
-def records(sim: Sim) -> tuple[IntArray, FloatArray, IntArray, FloatArray, IntArray, FloatArray, FloatArray]:
-    """Completions (node, time), staleness (node, ms) and chain arrivals (chain, origin, done), in order.
-
-    A chain's arrivals are those with an origin newer than any before, as
-    :class:`~catanc.simulate.dataflow.Dataflow` keeps them.
-    """
+def records(sim: Sim) -> tuple[IntArray, FloatArray, FloatArray, IntArray, IntArray, FloatArray]:
+    """Completions (node, time, when the run read its inputs), what each read (its feeds' completion
+    records, -1 for none, record after record) and staleness (node, ms), in order."""
     return (
         sim.done_node[: sim.done_n],
         sim.done_at[: sim.done_n],
+        sim.done_read[: sim.done_n],
+        sim.done_feeds[: sim.feeds_n],
         sim.stale_node[: sim.stale_n],
         sim.stale_ms[: sim.stale_n],
-        sim.arrival_chain[: sim.arrivals_n],
-        sim.arrival_origin[: sim.arrivals_n],
-        sim.arrival_done[: sim.arrivals_n],
     )
+
+
+@compiled
+def chain_arrivals(
+    done_node: IntArray, done_at: FloatArray, done_read: FloatArray, done_feeds: IntArray, feed_ptr: IntArray,
+    root: IntArray, trie_feed: IntArray, child_ptr: IntArray, child: IntArray, head_ptr: IntArray,
+    head_chain: IntArray, chains: int,
+) -> tuple[IntArray, FloatArray, FloatArray]:  # fmt: skip
+    """Chain arrivals (chain, origin, done) from the completion records (:func:`records`).
+
+    Each output of a chain's last node is followed back, through what each run read, to a run of the
+    chain's head: its origin is when that run read its inputs.  An output arrives if its origin is
+    newer than any before, as :class:`~catanc.simulate.dataflow.Dataflow` keeps them.
+
+    The chains are followed together, in a trie of their suffixes (:func:`catanc.simulate.fast.chain_tables`):
+    ``root[node]`` is the trie place of a last node (-1: none), a place's children are the nodes that
+    can come before it (``child_ptr/child``; ``trie_feed``: which of the node's feeds it is), and the
+    chains whose head it is are ``head_ptr/head_chain``.  A place reached with the record it was last
+    reached with leads to the origins it led to then, none newer: the chains below it are skipped (a
+    1 Hz node feeding a 600 Hz chain is followed once a second, not 600 times).
+    """
+    records = done_node.shape[0]
+    first_feed = np.empty(records, np.int64)
+    wanted = 0
+    f = 0
+    for d in range(records):
+        node = done_node[d]
+        first_feed[d] = f
+        f += feed_ptr[node + 1] - feed_ptr[node]
+        if root[node] >= 0:
+            wanted += head_ptr[-1]
+    newest = np.full(chains, -math.inf)
+    last_record = np.full(trie_feed.shape[0], -1, np.int64)
+    stack_place = np.empty(trie_feed.shape[0], np.int64)
+    stack_record = np.empty(trie_feed.shape[0], np.int64)
+    out_chain = np.empty(wanted, np.int64)
+    out_origin = np.empty(wanted)
+    out_done = np.empty(wanted)
+    n = 0
+    for d in range(records):
+        if root[done_node[d]] < 0:
+            continue
+        stack_place[0] = root[done_node[d]]
+        stack_record[0] = d
+        top = 1
+        while top > 0:
+            top -= 1
+            place, record = stack_place[top], stack_record[top]
+            last_record[place] = record
+            origin = done_read[record]
+            for k in range(head_ptr[place], head_ptr[place + 1]):
+                chain = head_chain[k]
+                if origin > newest[chain]:
+                    newest[chain] = origin
+                    out_chain[n] = chain
+                    out_origin[n] = origin
+                    out_done[n] = done_at[d]
+                    n += 1
+            for k in range(child_ptr[place], child_ptr[place + 1]):
+                before = child[k]
+                read = done_feeds[first_feed[record] + trie_feed[before]]
+                # -1: read before that node had any output, no origin that way; last_record: as last time
+                if read >= 0 and read != last_record[before]:
+                    stack_place[top] = before
+                    stack_record[top] = read
+                    top += 1
+    return out_chain[:n], out_origin[:n], out_done[:n]
 
 
 @compiled

@@ -243,12 +243,12 @@ def _run_compiled(setup: Setup, prepared: Prepared) -> Records:
     end_ms = setup.duration_s * 1000.0
     if prepared.schedule is None:  # the baselines: one pool of every core, timers
         kind = kernel.TIMER_FAIR if prepared.discipline == "fair" else kernel.TIMER_FIFO
-        state = fast.run_fields(graph, len(chains), 0, kind)
+        state = fast.run_fields(graph, 0, kind)
         sim = fast.new_sim(graph, fast.no_schedules(), draws.arrays, state)
         kernel.start_sensors(sim)
         kernel.start_timers(sim, prepared.discipline == "fair")
         fast.run_compiled(sim, None, draws, end_ms, None)
-        records = fast.records_of(sim, spec, len(chains), [], None)
+        records = fast.records_of(sim, spec, chains, [], None)
         records.busy_by_core = dict.fromkeys(range(cores), float(state["pool_busy"][0]) / cores)
         return records
     reoptimiser = Reoptimiser(spec, prepared.replanner) if prepared.replanner is not None else None
@@ -257,7 +257,7 @@ def _run_compiled(setup: Setup, prepared: Prepared) -> Records:
     resolves = math.ceil(duration / runtime.stage2_every_s) + math.ceil(duration / runtime.stage1_every_s)
     table = fast.ScheduleTable(spec, prepared.schedule, cores, 2 + (resolves if reoptimiser else 0))
     kind = kernel.CATAN_MEASURED if reoptimiser is not None else kernel.CATAN
-    state = fast.run_fields(graph, len(chains), len(table.names), kind)
+    state = fast.run_fields(graph, len(table.names), kind)
     sim = fast.new_sim(graph, table.arrays, draws.arrays, state)
     kernel.start_sensors(sim)
     kernel.install(sim, 0)
@@ -265,7 +265,7 @@ def _run_compiled(setup: Setup, prepared: Prepared) -> Records:
         kernel.schedule_reoptimise(sim, reoptimiser.first_ms)
     fast.run_compiled(sim, table, draws, end_ms, reoptimiser)
     kernel.fold_busy(sim)
-    records = fast.records_of(sim, spec, len(chains), reoptimiser.replans if reoptimiser else [], None)
+    records = fast.records_of(sim, spec, chains, reoptimiser.replans if reoptimiser else [], None)
     records.busy_by_core = {core: float(state["core_busy"][core]) for core in range(cores)}
     records.schedule = table.versions[kernel.clock_of(sim)[1]]
     return records
