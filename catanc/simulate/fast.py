@@ -393,7 +393,10 @@ def records_of(
     return Records(done, stale, arrivals, {}, replans, schedule)
 
 
-def chain_tables(names: Sequence[str], chains: Sequence[tuple[str, ...]]) -> tuple[Any, ...]:
+ChainTables = tuple[k.IntArray, k.IntArray, k.IntArray, k.IntArray, k.IntArray, k.IntArray, k.IntArray, int]
+
+
+def chain_tables(names: Sequence[str], chains: Sequence[tuple[str, ...]]) -> ChainTables:
     """The chains as :func:`kernel.chain_arrivals` follows them: ``feed_ptr`` (as :func:`topology`),
     ``root``, ``trie_feed``, ``child_ptr/child``, ``head_ptr/head_chain`` and the number of chains.
 

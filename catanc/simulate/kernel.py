@@ -11,7 +11,10 @@ Keep them in step: a change to one is a change to both.
 Every function here mirrors one Python method, named alike.  The same
 operations in the same order give the same floating-point results, and
 events at one time run in the order they were scheduled, as in
-:class:`~catanc.simulate.engine.Engine`.
+:class:`~catanc.simulate.engine.Engine`.  One thing is done differently,
+with the same result: the Python outputs carry their chains' origins, the
+kernel's runs note what they read and :func:`chain_arrivals` follows the
+notes back after the run.
 
 The kernel runs until the end time, or returns early when the policy must
 re-solve (``REOPTIMISE_NOW``: Python plans, then resumes it) or a node is
@@ -530,10 +533,10 @@ def dispatch(sim: Sim, event: Any) -> None:
 def read_inputs(sim: Sim, node: int, now: float) -> None:
     """:meth:`Dataflow.read_inputs` by reference: ``node``'s run reads now the newest output of each feed.
 
-    A chain's origins are not carried from output to output (that was O(chains) per run, half the
-    kernel's instructions on nav2d): a run notes which completion record of each feed it read (-1:
-    none yet) and when, and :func:`catanc.simulate.fast.chain_arrivals` follows the notes back along
-    each chain afterwards.  Staleness is the age of the oldest input, over every predecessor.
+    A chain's origins are not carried from output to output (that was O(chains) per run, a sixth of
+    the kernel's instructions on nav2d): a run notes which completion record of each feed it read
+    (-1: none yet) and when, and :func:`chain_arrivals` follows the notes back along each chain after
+    the run.  Staleness is the age of the oldest input, over every predecessor.
     """
     latest_id, feed, job_feed = sim.latest_id, sim.feed, sim.job_feed
     for k in range(sim.feed_ptr[node], sim.feed_ptr[node + 1]):
