@@ -978,7 +978,7 @@ def chain_arrivals(
         first_feed[d] = f
         f += feed_ptr[node + 1] - feed_ptr[node]
         if root[node] >= 0:
-            wanted += head_ptr[-1]
+            wanted += chains  # at most every chain arrives at once
     newest = np.full(chains, -math.inf)
     last_record = np.full(trie_feed.shape[0], -1, np.int64)
     stack_place = np.empty(trie_feed.shape[0], np.int64)
