@@ -757,26 +757,29 @@ def oldest_in_flight(sim: Sim, sub: int) -> float:
 
 @compiled
 def switch(sim: Sim, old_version: int, c: int, s: int, generation: int, index: int) -> None:
-    """:meth:`CatanPolicy._switcher`: the core's slots as they were scheduled, the subchains as they are now."""
+    """:meth:`CatanPolicy._switcher`: the core's slots as they were scheduled, the subchains as they are now.
+
+    Only a late subchain of higher priority than the slot's owner takes the slot, so only those that
+    could be the best such thief are checked for lateness (the same owner as checking them all).
+    """
     if generation != sim.generation:
         return
     version = sim.version
     now = sim.now
-    owner = sim.slot_sub[old_version, c, s]
+    slot_sub, priority = sim.slot_sub, sim.sub_priority
+    owner = slot_sub[old_version, c, s]
     best = -1
     for i in range(sim.core_nslots[old_version, c]):
-        other = sim.slot_sub[old_version, c, i]
+        other = slot_sub[old_version, c, i]
+        rank = priority[version, other]
+        if rank <= priority[version, owner] or other == owner:
+            continue
+        if best >= 0 and (rank < priority[version, best] or (rank == priority[version, best] and other <= best)):
+            continue  # ties go to the greater name, as max() over (priority, name)
         oldest = oldest_in_flight(sim, other)
-        late = not math.isnan(oldest) and now - oldest > sim.sub_latency[version, other]
-        if late and other != owner:
-            better = best < 0 or sim.sub_priority[version, other] > sim.sub_priority[version, best]
-            if not better and sim.sub_priority[version, other] == sim.sub_priority[version, best]:
-                better = other > best  # ties go to the greater name, as max() over (priority, name)
-            if better:
-                best = other
-    chosen = owner
-    if best >= 0 and sim.sub_priority[version, best] > sim.sub_priority[version, owner]:
-        chosen = best
+        if not math.isnan(oldest) and now - oldest > sim.sub_latency[version, other]:
+            best = other
+    chosen = owner if best < 0 else best
     if chosen != owner:
         sim.sub_steals[chosen] += 1
     raise_owner(sim, sim.core_id[old_version, c], chosen)
