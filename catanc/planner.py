@@ -156,8 +156,15 @@ def plan_problem(
     runners_up: bool = True,
     backend: Backend = "cvxpy",
     models: dict[Layout, Stage2Model] | None = None,
+    gap: float = 0.0,
+    start: tuple[Layout, dict[str, int]] | None = None,
 ) -> Plan:
-    """:func:`plan` for a built problem; ``models`` caches Stage II models by layout (re-planning)."""
+    """:func:`plan` for a built problem; ``models`` caches Stage II models by layout (re-planning).
+
+    Re-planning may also accept each allocation's integer plan within ``gap`` of its optimum (see
+    :func:`~catanc.stage2.solve.solve_layout`; 0: exact) and start the search of ``start``'s layout
+    from its runs (the current plan's).
+    """
     if backend not in BACKENDS:
         raise UsageError(f"unknown Stage II backend {backend!r}; choose one of {', '.join(BACKENDS)}")
     first = allocate(problem, cores, method=stage1_method, solver=solver, time_limit_s=time_limit_s)
@@ -193,6 +200,8 @@ def plan_problem(
                 schedule,
                 conic_model(cache, problem, layout, schedule),
                 beat=beat,
+                start=start[1] if start is not None and start[0] == layout else None,
+                gap=gap,
                 node_limit=limit,
                 effort=effort,
             )

@@ -9,7 +9,10 @@ keeps its problem and every Stage II model it built:
   the branch and bound's first incumbent.
 - :meth:`Replanner.reallocate` runs Stage I and the runners-up again (every
   20 s, or when the number of cores changes), reusing the models of layouts
-  it has seen.
+  it has seen; the current layout's search starts from the current runs.
+
+Both stop at a plan within :data:`RUNTIME_GAP` of the optimum; the first plan
+is exact, as ``catanc compile``'s.
 
 Both use the direct conic model (:mod:`catanc.stage2.conic`), which the
 tests hold to the cvxpy model's optimum.
@@ -45,9 +48,9 @@ class Replanner:
         time_limit_s: float | None = None,
         gap: float = RUNTIME_GAP,
     ) -> None:
-        """``gap``: :meth:`resolve` may stop at an integer plan proven within this relative distance
-        of Stage II's optimum, ``(plan - optimum) / plan <= gap`` (0: exact, as :func:`catanc.plan`
-        always is)."""
+        """``gap``: re-plans may stop at an integer plan proven within this relative distance of
+        Stage II's optimum, ``(plan - optimum) / plan <= gap`` (0: exact, as :func:`catanc.plan`
+        and the first plan always are)."""
         if not (0.0 <= gap < 1.0):
             raise UsageError(f"gap must be in [0, 1), got {gap!r}")
         self.gap = gap
@@ -57,7 +60,7 @@ class Replanner:
         self._problem = self.spec_problem
         self._importance = self._problem.importance()
         self._models: dict[Layout, Stage2Model] = {}
-        self.plan: Plan = self._allocate(cores)
+        self.plan: Plan = self._allocate(cores, first=True)
 
     @property
     def cores(self) -> int:
@@ -121,7 +124,7 @@ class Replanner:
         self.plan = self._allocate(self.plan.cores if cores is None else cores)
         return self.plan
 
-    def _allocate(self, cores: int) -> Plan:
+    def _allocate(self, cores: int, *, first: bool = False) -> Plan:
         return plan_problem(
             self._problem,
             self.spec.schedule,
@@ -131,4 +134,6 @@ class Replanner:
             time_limit_s=self._time_limit_s,
             backend="conic",
             models=self._models,
+            gap=0.0 if first else self.gap,
+            start=None if first else (self.layout, self.plan.runs),
         )
