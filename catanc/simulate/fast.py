@@ -209,6 +209,7 @@ class DrawTable:
     def __init__(self, spec: Spec, sampler: ComputeSampler, end_s: float) -> None:
         names = list(spec.nodes)
         n = len(names)
+        self.end_ms = end_s * 1000.0
         self.streams: dict[int, NodeStream] = {
             i: sampler.stream(name) for i, name in enumerate(names) if spec.nodes[name].scheduled
         }
@@ -240,7 +241,8 @@ class DrawTable:
     def grow(self, sim: k.Sim | None = None) -> None:
         """Draw more for every node that is short: each node's row is a ring of draws (run ``j`` at
         ``j % width``), refilled past the runs taken; the rings widen (doubling) up to :data:`RING_DRAWS`
-        while a node has taken more than its ring holds. Each stream's values come in its own order."""
+        while a node has taken more than its ring holds. Each stream's values come in its own order,
+        so how many are drawn at a time changes no value."""
         a = self.arrays
         used, filled = a["used"], a["filled"]
         short = [i for i in self.streams if used[i] + 4 > filled[i]] if sim is not None else list(self.streams)
@@ -254,14 +256,23 @@ class DrawTable:
                     ring[i, kept % wanted] = a[name][i, kept % width]
             a.update(wider)
             width = wanted
+        now_ms = 0.0 if sim is None else k.clock_of(sim)[0]
         for i in short:
-            places = np.arange(filled[i], used[i] + width) % width
+            ahead = min(width, self._still_wanted(int(used[i]), now_ms))
+            places = np.arange(filled[i], used[i] + ahead) % width
             modes, factors = self.streams[i].bases(len(places))
             a["mode"][i, places] = modes
             a["factor"][i, places] = factors
-            filled[i] = used[i] + width
+            filled[i] = used[i] + ahead
         if sim is not None:
             k.set_draws(sim, a["mode"], a["factor"])
+
+    def _still_wanted(self, used: int, now_ms: float) -> int:
+        """Draws a node that took ``used`` by ``now_ms`` may take to the end at that rate, with a margin:
+        a ring's whole width drawn near the end went unused (nav2d: half of all draws)."""
+        if now_ms <= 0.0:
+            return FIRST_DRAWS
+        return math.ceil(1.25 * used * max(self.end_ms - now_ms, 0.0) / now_ms) + FIRST_DRAWS
 
 
 def run_fields(graph: Fields, subchains: int, policy: int) -> Fields:
