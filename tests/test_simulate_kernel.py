@@ -145,3 +145,15 @@ def test_random_apps_run_the_same_in_both_engines(document: dict[str, Any], core
     except CatancError:  # an app the planner finds infeasible: the planner's tests cover those
         return
     assert_same_run(simulate(setup, policy, engine="compiled"), python)
+
+
+@settings(deadline=None, max_examples=60)
+@given(keys=st.lists(st.integers(0, 5), max_size=200), width=st.sampled_from([1, 2]))
+def test_grouping_records_keeps_each_keys_rows_in_order(keys: list[int], width: int) -> None:
+    # The oracle: a stable argsort, then each key's rows picked out one key at a time.
+    values = np.arange(len(keys) * width, dtype=np.float64).reshape(len(keys), width)
+    groups = fast._grouped(values if width == 2 else values[:, 0], np.array(keys, np.int64), 7)
+    assert len(groups) == 7
+    for key, group in enumerate(groups):
+        expected = values[[i for i, other in enumerate(keys) if other == key]]
+        assert np.array_equal(group, expected if width == 2 else expected[:, 0])

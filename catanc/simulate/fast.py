@@ -17,6 +17,7 @@ from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from catanc.runtime.schedule import RuntimeSchedule
 from catanc.simulate import kernel as k
@@ -372,9 +373,9 @@ def run_compiled(sim: k.Sim, table: ScheduleTable | None, draws: DrawTable, end_
         assert table is not None
         assert reoptimiser is not None
         nodes, times = k.take_measured(sim)
-        for name, where in zip(table.nodes, _group_indices(nodes, len(table.nodes)), strict=True):
-            if len(where):  # each node's times in the order they were measured
-                reoptimiser.measurements.record_many(name, times[where])
+        for name, measured in zip(table.nodes, _grouped(times, nodes, len(table.nodes)), strict=True):
+            if len(measured):  # each node's times in the order they were measured
+                reoptimiser.measurements.record_many(name, measured)
         now, current = k.clock_of(sim)
         after, reinstall, next_ms = reoptimiser.step(now, table.versions[current])
         version = table.add(after)
@@ -398,9 +399,9 @@ def records_of(
     by_chain, origin, arrived = k.chain_arrivals(
         done_node, done_at, done_read, done_feeds, *chain_tables(names, chains)
     )
-    done = dict(zip(names, (done_at[where] for where in _group_indices(done_node, len(names))), strict=True))
-    stale = dict(zip(names, (stale_ms[where] for where in _group_indices(stale_node, len(names))), strict=True))
-    arrivals = [np.column_stack((origin[where], arrived[where])) for where in _group_indices(by_chain, len(chains))]
+    done = dict(zip(names, _grouped(done_at, done_node, len(names)), strict=True))
+    stale = dict(zip(names, _grouped(stale_ms, stale_node, len(names)), strict=True))
+    arrivals = _grouped(np.column_stack((origin, arrived)), by_chain, len(chains))
     return Records(done, stale, arrivals, {}, replans, schedule)
 
 
@@ -440,12 +441,13 @@ def chain_tables(names: Sequence[str], chains: Sequence[tuple[str, ...]]) -> Cha
     return (_csr(feeds)[0], root, np.array(feed_of, np.int64), *_csr(children), *_csr(heads), len(chains))
 
 
-def _group_indices(keys: k.IntArray, groups: int) -> list[k.IntArray]:
-    """The positions of each key (0..groups-1) in ``keys``, in order."""
-    small = keys.astype(np.min_scalar_type(max(groups - 1, 0)))  # numpy sorts 8- and 16-bit keys by radix
-    order = np.argsort(small, kind="stable")
-    bounds = np.searchsorted(small[order], np.arange(groups + 1))
-    return [order[bounds[g] : bounds[g + 1]] for g in range(groups)]
+def _grouped(values: npt.NDArray[np.float64], keys: k.IntArray, groups: int) -> list[npt.NDArray[np.float64]]:
+    """``values`` (or their rows, if 2-D) by key (0..groups-1), each group in order: views of one sorted copy."""
+    rows = values[:, np.newaxis] if values.ndim == 1 else values
+    ordered, ptr = k.group_rows(np.ascontiguousarray(rows), keys, groups)
+    if values.ndim == 1:
+        ordered = ordered[:, 0]
+    return [ordered[ptr[g] : ptr[g + 1]] for g in range(groups)]
 
 
 def no_schedules() -> Fields:

@@ -1021,6 +1021,25 @@ def chain_arrivals(
 
 
 @compiled
+def group_rows(values: FloatArray, keys: IntArray, groups: int) -> tuple[FloatArray, IntArray]:
+    """The rows of ``values`` (2-D) by key (each in ``0..groups-1``), in order within a key (a stable
+    counting sort), and where each key's rows start: key ``g`` has rows ``ptr[g]:ptr[g + 1]``."""
+    ptr = np.zeros(groups + 1, np.int64)
+    for key in keys:
+        ptr[key + 1] += 1
+    for g in range(groups):
+        ptr[g + 1] += ptr[g]
+    fill = ptr[:-1].copy()
+    ordered = np.empty_like(values)
+    for i in range(keys.shape[0]):
+        place = fill[keys[i]]
+        fill[keys[i]] = place + 1
+        for j in range(values.shape[1]):
+            ordered[place, j] = values[i, j]
+    return ordered, ptr
+
+
+@compiled
 def take_measured(sim: Sim) -> tuple[IntArray, FloatArray]:
     """The compute times measured since the last call (node, ms), in order."""
     n = sim.measured_n

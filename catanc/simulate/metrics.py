@@ -68,8 +68,8 @@ class Summary:
         """The count, mean, p95 and maximum of ``values`` (no NaN); None for none."""
         if not len(values):
             return None
-        listed: list[float] = values.tolist()
-        return cls(len(listed), math.fsum(listed) / len(listed), percentile_of(values, 95), max(listed))
+        listed: list[float] = values.tolist()  # fsum over a list: over an array it reads element by element
+        return cls(len(listed), math.fsum(listed) / len(listed), percentile_of(values, 95), float(values.max()))
 
     def as_dict(self) -> dict[str, float]:
         return {"mean": round(self.mean, 3), "p95": round(self.p95, 3), "max": round(self.max, 3)}
