@@ -115,3 +115,32 @@ def test_record_many_for_an_unmeasured_node_is_an_error() -> None:
     measurements = Measurements.for_spec(load_spec(NAV2D))
     with pytest.raises(UsageError, match=r"'odom': not a scheduled node"):
         measurements.record_many("odom", np.array([1.0]))
+
+
+@untimed
+@given(
+    earlier=st.lists(st.floats(0.0, 1e6), min_size=1, max_size=50),
+    later=st.lists(st.one_of(any_floats, edge_floats), max_size=120),
+    size=st.integers(1, 40),
+    as_array=st.booleans(),
+)
+def test_earlier_samples_count_as_if_added_first(
+    earlier: list[float], later: list[float], size: int, as_array: bool
+) -> None:
+    # The oracle adds the earlier (valid) samples too; the window cannot tell them apart from nothing,
+    # so long as at least a window's worth of valid samples follow them.
+    oracle, told = ComputeWindow(window=size), ComputeWindow(window=size)
+    accepted = sum(oracle.add(x) for x in [*earlier, *later])
+    given_later = np.array(later, dtype=np.float64) if as_array else later
+    if sum(math.isfinite(x) and x >= 0 for x in later) < size:
+        with pytest.raises(ValueError, match="would have kept some"):
+            told.extend(given_later, earlier=len(earlier))
+        assert state(told) == state(ComputeWindow(window=size))  # nothing taken in
+        return
+    assert told.extend(given_later, earlier=len(earlier)) == accepted
+    assert state(told) == state(oracle)
+
+
+def test_a_negative_earlier_count_is_an_error() -> None:
+    with pytest.raises(ValueError, match="a count >= 0"):
+        ComputeWindow(window=1).extend(np.array([1.0]), earlier=-1)

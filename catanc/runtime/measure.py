@@ -243,25 +243,45 @@ class ComputeWindow:
         self.total += 1
         return True
 
-    def extend(self, compute_ms: Iterable[float] | npt.NDArray[np.float64]) -> int:
+    def extend(self, compute_ms: Iterable[float] | npt.NDArray[np.float64], *, earlier: int = 0) -> int:
         """:meth:`add` each of ``compute_ms`` in order, at once; how many were kept (the rest rejected and counted).
 
         A float64 array is checked in one numpy pass and only its last ``window`` valid
         samples are copied in: the window, ``total`` and ``rejected`` end as adding one by
         one leaves them.  Anything else is added one by one.
+
+        ``earlier`` counts valid samples that came before these and that the window could not
+        keep anyway (at least ``window`` valid ones follow them): they count in ``total`` and in
+        what is returned (the simulator keeps only each node's last ``window``).
         """
         # Imported here: the enforcer's process never calls this and must not load numpy, whose
         # OpenBLAS starts a thread at import (the enforcer's threads are all its own, by policy).
         import numpy as np  # noqa: PLC0415
 
         if not (isinstance(compute_ms, np.ndarray) and compute_ms.dtype == np.float64 and compute_ms.ndim == 1):
-            return sum(self.add(value) for value in compute_ms)
+            values = list(compute_ms)
+            self._check_earlier(earlier, sum(valid_sample(value) for value in values))
+            return sum(self.add(value) for value in values) + self._count_earlier(earlier)
         valid = compute_ms[np.isfinite(compute_ms) & (compute_ms >= 0.0)]
         kept = len(valid)
+        self._check_earlier(earlier, kept)
         self.rejected += len(compute_ms) - kept
         self.total += kept
         self._samples.extend(valid[-self.window :].tolist())
-        return kept
+        return kept + self._count_earlier(earlier)
+
+    def _check_earlier(self, earlier: int, kept: int) -> None:
+        if earlier < 0:
+            raise ValueError(f"earlier must be a count >= 0, got {earlier}")
+        if earlier and kept < self.window:
+            raise ValueError(
+                f"{earlier} earlier samples with {kept} valid ones after them: the window of {self.window} "
+                "would have kept some of them"
+            )
+
+    def _count_earlier(self, earlier: int) -> int:
+        self.total += earlier
+        return earlier
 
     @property
     def samples(self) -> tuple[float, ...]:
@@ -335,14 +355,15 @@ class Measurements:
         with self._lock:
             return window.add(compute_ms)
 
-    def record_many(self, node: str, compute_ms: Iterable[float] | npt.NDArray[np.float64]) -> int:
+    def record_many(self, node: str, compute_ms: Iterable[float] | npt.NDArray[np.float64], *, earlier: int = 0) -> int:
         """:meth:`record` each of ``compute_ms`` for ``node``, in order, under one lock; how many were kept.
 
-        The same as recording them one by one (:meth:`ComputeWindow.extend`), in one call.
+        The same as recording them one by one (:meth:`ComputeWindow.extend`, which says what
+        ``earlier`` counts), in one call.
         """
         window = self._window(node)
         with self._lock:
-            return window.extend(compute_ms)
+            return window.extend(compute_ms, earlier=earlier)
 
     def _window(self, node: str) -> ComputeWindow:
         window = self._windows.get(node)

@@ -276,8 +276,9 @@ class DrawTable:
         return math.ceil(1.25 * used * max(self.end_ms - now_ms, 0.0) / now_ms) + FIRST_DRAWS
 
 
-def run_fields(graph: Fields, subchains: int, policy: int) -> Fields:
-    """The run's state at time 0: nothing running, nothing produced, empty records."""
+def run_fields(graph: Fields, subchains: int, policy: int, measured_window: int = 1) -> Fields:
+    """The run's state at time 0: nothing running, nothing produced, empty records; each node's
+    measured compute times are kept ``measured_window`` deep (the re-solving policy's window)."""
     n, cores = graph["scheduled"].shape[0], graph["cores"]
     pools = max(subchains, 1)
     return {
@@ -343,9 +344,9 @@ def run_fields(graph: Fields, subchains: int, policy: int) -> Fields:
         "stale_n": 0,
         "stale_node": np.zeros(FIRST_RECORDS, np.int64),
         "stale_ms": np.zeros(FIRST_RECORDS),
-        "measured_n": 0,
-        "measured_node": np.zeros(FIRST_RECORDS, np.int64),
-        "measured_ms": np.zeros(FIRST_RECORDS),
+        "measured_ring": np.zeros((n, measured_window)),
+        "measured_total": np.zeros(n, np.int64),
+        "measured_taken": np.zeros(n, np.int64),
     }
 
 
@@ -372,10 +373,12 @@ def run_compiled(sim: k.Sim, table: ScheduleTable | None, draws: DrawTable, end_
             continue
         assert table is not None
         assert reoptimiser is not None
-        nodes, times = k.take_measured(sim)
-        for name, measured in zip(table.nodes, _grouped(times, nodes, len(table.nodes)), strict=True):
-            if len(measured):  # each node's times in the order they were measured
-                reoptimiser.measurements.record_many(name, measured)
+        runs, last = k.take_measured(sim)
+        window = last.shape[1]
+        for name, count, times in zip(table.nodes, runs.tolist(), last, strict=True):
+            if count:  # the last of each node's times, in the order they were measured; the rest only counted
+                kept = min(count, window)
+                reoptimiser.measurements.record_many(name, times[:kept], earlier=count - kept)
         now, current = k.clock_of(sim)
         after, reinstall, next_ms = reoptimiser.step(now, table.versions[current])
         version = table.add(after)

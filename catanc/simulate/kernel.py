@@ -116,7 +116,8 @@ class SimProxy(structref.StructRefProxy):  # type: ignore[misc]
     ``raised`` per core); the baselines' ``timer_busy`` and ``timer_pending``;
     scratch (``finished``, ``sort_buf``, ``stack``); and the records with their
     counts (``done_*`` with ``done_feeds``/``feeds_n``, ``stale_*``,
-    ``measured_*``), grown here as they fill.
+    ``measured_*``: per node a ring of its last ``window`` measured compute times, with the
+    runs measured ever and at the last :func:`take_measured`), grown here as they fill.
     """
 
 
@@ -140,7 +141,7 @@ FIELDS = (
     "busy_seq", "wait", "wait_head", "wait_tail", "sub_seq", "sub_pending", "sub_late", "sub_steals", "sub_skipped",
     "heads_in_flight", "flight_index", "flight_at", "flight_live", "flight_low", "raised", "timer_busy",
     "timer_pending", "done_n", "done_node", "done_at", "done_read", "feeds_n", "done_feeds", "stale_n", "stale_node",
-    "stale_ms", "measured_n", "measured_node", "measured_ms",
+    "stale_ms", "measured_ring", "measured_total", "measured_taken",
 )  # fmt: skip
 structref.define_constructor(SimProxy, SimType, FIELDS)
 structref.define_boxing(SimType, SimProxy)
@@ -391,9 +392,6 @@ def make_room(sim: Sim) -> None:
     if sim.stale_n + 2 * room > sim.stale_ms.shape[0]:
         sim.stale_node = longer_ints(sim.stale_node, sim.stale_n + 2 * room)
         sim.stale_ms = longer_floats(sim.stale_ms, sim.stale_n + 2 * room)
-    if sim.measured_n + ROOM_TURNS * n > sim.measured_ms.shape[0]:
-        sim.measured_node = longer_ints(sim.measured_node, sim.measured_n + ROOM_TURNS * n)
-        sim.measured_ms = longer_floats(sim.measured_ms, sim.measured_n + ROOM_TURNS * n)
     ring_room = 4 * ROOM_TURNS
     for node in range(n):
         while sim.wait_tail[node] - sim.wait_head[node] + ring_room > sim.wait.shape[1]:
@@ -420,7 +418,6 @@ def turns_with_room(sim: Sim) -> int:
     turns: int = (sim.done_at.shape[0] - sim.done_n) // produced
     turns = min(turns, (sim.stale_ms.shape[0] - sim.stale_n) // (2 * produced))
     turns = min(turns, (sim.done_feeds.shape[0] - sim.feeds_n) // (produced * feeds_per_record(sim)))
-    turns = min(turns, (sim.measured_ms.shape[0] - sim.measured_n) // n)
     for node in range(n):
         if sim.scheduled[node]:
             turns = min(turns, (sim.filled[node] - sim.used[node]) // 4)
@@ -855,10 +852,10 @@ def catan_trigger(sim: Sim, node: int, seq: int) -> None:
 def catan_done(sim: Sim, node: int) -> None:
     seq = sim.job_seq[node]
     if sim.policy == CATAN_MEASURED:
-        m = sim.measured_n
-        sim.measured_node[m] = node
-        sim.measured_ms[m] = sim.job_compute[node]
-        sim.measured_n = m + 1
+        ring = sim.measured_ring
+        runs = sim.measured_total[node]
+        ring[node, runs % ring.shape[1]] = sim.job_compute[node]
+        sim.measured_total[node] = runs + 1
     produce(sim, node)
     sub = sim.sub_of[node]
     sim.busy_seq[node] = NO_SEQ  # free: the next waiting run of this node starts
@@ -1041,10 +1038,20 @@ def group_rows(values: FloatArray, keys: IntArray, groups: int) -> tuple[FloatAr
 
 @compiled
 def take_measured(sim: Sim) -> tuple[IntArray, FloatArray]:
-    """The compute times measured since the last call (node, ms), in order."""
-    n = sim.measured_n
-    sim.measured_n = 0
-    return sim.measured_node[:n].copy(), sim.measured_ms[:n].copy()
+    """Per node, the runs measured since the last call, and the last ``window`` of their compute
+    times in order (row ``i``'s first ``min(runs, window)``): a measurement window keeps no more."""
+    ring = sim.measured_ring
+    nodes, window = ring.shape
+    runs = np.zeros(nodes, np.int64)
+    last = np.empty((nodes, window))
+    for node in range(nodes):
+        total = sim.measured_total[node]
+        runs[node] = total - sim.measured_taken[node]
+        sim.measured_taken[node] = total
+        kept = min(runs[node], window)
+        for j in range(kept):
+            last[node, j] = ring[node, (total - kept + j) % window]
+    return runs, last
 
 
 @compiled

@@ -257,7 +257,7 @@ def _run_compiled(setup: Setup, prepared: Prepared) -> Records:
     resolves = math.ceil(duration / runtime.stage2_every_s) + math.ceil(duration / runtime.stage1_every_s)
     table = fast.ScheduleTable(spec, prepared.schedule, cores, 2 + (resolves if reoptimiser else 0))
     kind = kernel.CATAN_MEASURED if reoptimiser is not None else kernel.CATAN
-    state = fast.run_fields(graph, len(table.names), kind)
+    state = fast.run_fields(graph, len(table.names), kind, spec.runtime.window)
     sim = fast.new_sim(graph, table.arrays, draws.arrays, state)
     kernel.start_sensors(sim)
     kernel.install(sim, 0)
