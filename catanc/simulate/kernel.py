@@ -114,10 +114,11 @@ class SimProxy(structref.StructRefProxy):  # type: ignore[misc]
     ``job_read_at``: what a run read and when); catanc's runs (``busy_seq``, the ``wait`` rings,
     ``sub_*`` counters, ``heads_in_flight``, the ``flight_*`` rings by seq,
     ``raised`` per core); the baselines' ``timer_busy`` and ``timer_pending``;
-    scratch (``finished``, ``sort_buf``, ``stack``); and the records with their
-    counts (``done_*`` with ``done_feeds``/``feeds_n``, ``stale_*``,
-    ``measured_*``: per node a ring of its last ``window`` measured compute times, with the
-    runs measured ever and at the last :func:`take_measured`), grown here as they fill.
+    scratch (``finished``, ``sort_buf``, ``stack``); the records with their
+    counts (``done_*`` with ``done_feeds``/``feeds_n``, ``stale_*``), grown here
+    as they fill; and ``measured_*``: per node a ring of its last ``window``
+    measured compute times, with the runs measured ever and at the last
+    :func:`take_measured`.
     """
 
 
