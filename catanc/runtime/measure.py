@@ -258,30 +258,31 @@ class ComputeWindow:
         # OpenBLAS starts a thread at import (the enforcer's threads are all its own, by policy).
         import numpy as np  # noqa: PLC0415
 
-        if not (isinstance(compute_ms, np.ndarray) and compute_ms.dtype == np.float64 and compute_ms.ndim == 1):
-            values = list(compute_ms)
-            self._check_earlier(earlier, sum(valid_sample(value) for value in values))
-            return sum(self.add(value) for value in values) + self._count_earlier(earlier)
-        valid = compute_ms[np.isfinite(compute_ms) & (compute_ms >= 0.0)]
-        kept = len(valid)
-        self._check_earlier(earlier, kept)
-        self.rejected += len(compute_ms) - kept
-        self.total += kept
-        self._samples.extend(valid[-self.window :].tolist())
-        return kept + self._count_earlier(earlier)
-
-    def _check_earlier(self, earlier: int, kept: int) -> None:
         if earlier < 0:
             raise ValueError(f"earlier must be a count >= 0, got {earlier}")
-        if earlier and kept < self.window:
+        if not (isinstance(compute_ms, np.ndarray) and compute_ms.dtype == np.float64 and compute_ms.ndim == 1):
+            values = list(compute_ms)
+            if earlier:
+                self._check_earlier(earlier, sum(valid_sample(value) for value in values))
+            kept = sum(self.add(value) for value in values)
+        else:
+            valid = compute_ms[np.isfinite(compute_ms) & (compute_ms >= 0.0)]
+            kept = len(valid)
+            if earlier:
+                self._check_earlier(earlier, kept)
+            self.rejected += len(compute_ms) - kept
+            self.total += kept
+            self._samples.extend(valid[-self.window :].tolist())
+        self.total += earlier
+        return kept + earlier
+
+    def _check_earlier(self, earlier: int, kept: int) -> None:
+        """Raise unless ``kept`` valid samples after ``earlier`` ones leave the window no room for those."""
+        if kept < self.window:
             raise ValueError(
                 f"{earlier} earlier samples with {kept} valid ones after them: the window of {self.window} "
                 "would have kept some of them"
             )
-
-    def _count_earlier(self, earlier: int) -> int:
-        self.total += earlier
-        return earlier
 
     @property
     def samples(self) -> tuple[float, ...]:
