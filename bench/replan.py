@@ -140,9 +140,11 @@ def commands(repeats: int) -> dict[str, float]:
     }
     rows = {}
     for label, command in cases.items():
-        rows[label] = round(
-            median_ms(lambda c=command: subprocess.run(c, check=True, capture_output=True, cwd=ROOT), repeats), 0
-        )
+
+        def run_command(command: list[str] = command) -> None:
+            subprocess.run(command, check=True, capture_output=True, cwd=ROOT)
+
+        rows[label] = round(median_ms(run_command, repeats), 0)
     return rows
 
 
