@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from catanc.problem import Problem
 from catanc.spec import Schedule
 from catanc.stage2.base import RelaxedSolution, Stage2Model
+from catanc.stage2.onebatch import OPEN, OneBatchRuns, Open
 from catanc.stage2.whole import ENUMERATE_UP_TO, WholeRuns
 
 INTEGRAL_TOLERANCE = 1e-6
@@ -89,7 +90,8 @@ def solve_integer(
     Without batch subchains the answer for fixed runs has a closed form
     (:mod:`catanc.stage2.whole`): small boxes are then enumerated outright,
     and the search's leaves need no solver (``enumerate_up_to=0`` forces the
-    search, as the tests do).
+    search, as the tests do).  With one batch subchain the leaves are solved
+    exactly in its one free fraction (:mod:`catanc.stage2.onebatch`).
 
     ``node_limit`` stops the search after that many relaxations once it has a
     plan; the result then carries its proven ``gap`` (a large group of
@@ -105,6 +107,10 @@ def solve_integer(
     nodes = 0
     tolerance = max(PRUNE_TOLERANCE, gap)
     whole = WholeRuns(model, problem) if WholeRuns.applies(model, problem) else None
+    # Fixed runs in closed form: with no batch subchain, or one (its fraction then solved for exactly).
+    fixed: WholeRuns | OneBatchRuns | None = whole
+    if whole is None and OneBatchRuns.applies(model, problem):
+        fixed = OneBatchRuns(model, problem)
     if whole is not None and WholeRuns.size(root) <= enumerate_up_to:
         found = whole.best(root, scale, least_scale=least_scale)
         if found is None or (cutoff is not None and found.solution.objective >= cutoff):
@@ -125,9 +131,10 @@ def solve_integer(
 
     def offer(box: Box) -> None:
         nonlocal best, threshold
-        if whole is not None:  # every n fixed and no batch subchain: no solver needed
-            exact = whole.solve({name: low for name, (low, _) in box.items()}, scale, least_scale=least_scale)
-        else:
+        exact: RelaxedSolution | Open | None = OPEN
+        if fixed is not None:  # every n fixed and at most one batch subchain: no solver needed
+            exact = fixed.solve({name: low for name, (low, _) in box.items()}, scale, least_scale=least_scale)
+        if isinstance(exact, Open):
             exact = relax(box)
         if exact is not None and exact.objective < min(threshold, best[0] if best else math.inf):
             best = (exact.objective, box, exact)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,7 +24,7 @@ import numpy.typing as npt
 
 from catanc.model import Timing, bound_scale, capped_dedicated, objective
 from catanc.problem import Problem
-from catanc.stage2.base import RelaxedSolution, Stage2Model, schedule_length
+from catanc.stage2.base import RelaxedSolution, SharedCore, Stage2Model, schedule_length
 
 ENUMERATE_UP_TO = 4096
 """Evaluate every integer vector at once when a box holds at most this many (a few hundred µs)."""
@@ -59,15 +60,26 @@ class WholeRuns:
         """Closed forms hold when no shared subchain is batch (a batch ``f`` stays free)."""
         return not any(problem.subchain(name).batch for core in model.layout.shared for name in core.subchains)
 
-    def solve(self, runs: dict[str, int], scale: float, *, least_scale: bool) -> RelaxedSolution | None:
-        """The relaxation's optimum with these runs (None: they miss the scaled bounds)."""
+    def length(self, core: SharedCore, fractions: Mapping[str, float]) -> float:
+        """One shared core's schedule length ``T`` with these fractions."""
+        return schedule_length(core, fractions, self.by_name, self.schedule)
+
+    def solve(
+        self, runs: dict[str, int], scale: float, *, least_scale: bool, batch: Mapping[str, float] | None = None
+    ) -> RelaxedSolution | None:
+        """The relaxation's optimum with these runs (None: they miss the scaled bounds).
+
+        ``batch`` gives each batch subchain's fraction, chosen by the caller
+        (:mod:`catanc.stage2.onebatch`); without batch subchains it is empty.
+        """
+        batch = batch or {}
         timings = dict(self.dedicated)
         lengths: dict[int, float] = {}
-        fractions = {name: 1.0 / runs[name] for name in self.shared}
+        fractions = {name: batch[name] if name in batch else 1.0 / runs[name] for name in self.shared}
         for core in self.layout.shared:
-            lengths[core.core] = schedule_length(core, fractions, self.by_name, self.schedule)
+            lengths[core.core] = self.length(core, fractions)
             for name in core.subchains:
-                latency = lengths[core.core] * runs[name]
+                latency = lengths[core.core] / batch[name] if name in batch else lengths[core.core] * runs[name]
                 timings[name] = Timing(max(latency, self.by_name[name].min_period_ms), latency)
         needed = bound_scale(self.problem, timings)
         if least_scale:
