@@ -72,21 +72,30 @@ def grid_best(
     return best, least_scale
 
 
-def two_subchains(constraints: str = "[]", min_slice_ms: float = 0.0) -> tuple[Problem, OneBatchRuns]:
-    """``a`` (4 ms, one run per period) and batch ``b`` (8 ms) on one core; both periods weighted 1.
+ONE_CORE = Layout((), (SharedCore(0, ("A", "B")),))
 
-    No slack or switch cost: ``T = 4 + 8x``, ``p_a = T``, ``p_b = T / x = 4 / x + 8``.
+
+def two_subchains(
+    *,
+    objective: str = "[{node: a, weight: 1}, {node: b, weight: 1}]",
+    constraints: str = "[]",
+    min_slice_ms: float = 0.0,
+    switch_ms: float = 0.0,
+    layout: Layout = ONE_CORE,
+) -> tuple[Problem, ConicStage2, OneBatchRuns]:
+    """``a`` (4 ms, one run per period) and batch ``b`` (8 ms), by default on one core with both periods weighted 1.
+
+    No slack and by default no switch cost: ``T = 4 + 8x``, ``p_a = T``, ``p_b = T / x = 4 / x + 8``.
     """
     spec = parse_spec(
         "catan: 1\napp: two\nnodes: {a: {compute_ms: 4}, b: {compute_ms: 8, batch: true}}\n"
         "subchains: {A: [a], B: [b]}\n"
-        "objective: [{node: a, weight: 1}, {node: b, weight: 1}]\n"
-        f"constraints: {constraints}\n"
-        f"schedule: {{slack: 0, switch_ms: 0, min_slice_ms: {min_slice_ms}}}\n"
+        f"objective: {objective}\nconstraints: {constraints}\n"
+        f"schedule: {{slack: 0, switch_ms: {switch_ms}, min_slice_ms: {min_slice_ms}}}\n"
     )
     problem = build_problem(spec)
-    model = ConicStage2(problem, Layout((), (SharedCore(0, ("A", "B")),)), spec.schedule)
-    return problem, OneBatchRuns(model, problem)
+    model = ConicStage2(problem, layout, spec.schedule)
+    return problem, model, OneBatchRuns(model, problem)
 
 
 def solved(found: RelaxedSolution | object) -> RelaxedSolution:
@@ -96,24 +105,24 @@ def solved(found: RelaxedSolution | object) -> RelaxedSolution:
 
 def test_worked_cases() -> None:
     # Objective 4 + 8x + 4/x + 8: least at x = 1/sqrt(2), 12 + 8 sqrt(2).
-    _, free = two_subchains()
+    *_, free = two_subchains()
     plan = solved(free.solve({"A": 1}, 1.0, least_scale=False))
     assert plan.fraction["B"] == pytest.approx(1 / math.sqrt(2), rel=1e-12)
     assert plan.objective == pytest.approx(12 + 8 * math.sqrt(2), rel=1e-12)
     assert plan.core_period_ms[0] == pytest.approx(4 + 8 / math.sqrt(2), rel=1e-12)
     # A minimum slice of 8 ms makes b's slice whole: x >= 1, so x = 1 and 12 + 12.
-    _, sliced = two_subchains(min_slice_ms=8)
+    *_, sliced = two_subchains(min_slice_ms=8)
     plan = solved(sliced.solve({"A": 1}, 1.0, least_scale=False))
     assert plan.fraction["B"] == pytest.approx(1.0, rel=1e-12)
     assert plan.objective == pytest.approx(24, rel=1e-12)
     # b at least 100 Hz: 4/x + 8 <= 10, so x >= 2: 20 + 10 (up to the bounds' tolerance, 1e-9).
-    _, floored = two_subchains("[{node: b, min_rate_hz: 100}]")
+    *_, floored = two_subchains(constraints="[{node: b, min_rate_hz: 100}]")
     plan = solved(floored.solve({"A": 1}, 1.0, least_scale=False))
     assert plan.fraction["B"] == pytest.approx(2.0, rel=1e-8)
     assert plan.objective == pytest.approx(30, rel=1e-8)
     # ... and a at least 62.5 Hz too: 4 + 8x <= 16 needs x <= 1.5, so no plan at scale 1. The least
     # scale s balances (4/x + 8)/10 = (4 + 8x)/16: 10x^2 - 11x - 8 = 0, x = 1.6, s = 16.8/16 = 1.05.
-    _, both = two_subchains("[{node: b, min_rate_hz: 100}, {node: a, min_rate_hz: 62.5}]")
+    *_, both = two_subchains(constraints="[{node: b, min_rate_hz: 100}, {node: a, min_rate_hz: 62.5}]")
     assert both.solve({"A": 1}, 1.0, least_scale=False) is None
     least = solved(both.solve({"A": 1}, 1.0, least_scale=True))
     assert least.objective == pytest.approx(1.05, rel=1e-12)
@@ -124,26 +133,19 @@ def test_worked_cases() -> None:
 
 def test_no_unique_optimum_is_left_to_the_solver() -> None:
     # Only b's period is weighted: 4/x + 8 keeps falling, the optimum is at x = inf.
-    spec = parse_spec(
-        "catan: 1\napp: two\nnodes: {a: {compute_ms: 4}, b: {compute_ms: 8, batch: true}}\n"
-        "subchains: {A: [a], B: [b]}\nobjective: [{node: b, weight: 1}]\n"
-        "schedule: {slack: 0, switch_ms: 0, min_slice_ms: 0}\n"
-    )
-    problem = build_problem(spec)
-    model = ConicStage2(problem, Layout((), (SharedCore(0, ("A", "B")),)), spec.schedule)
-    assert OneBatchRuns(model, problem).solve({"A": 1}, 1.0, least_scale=False) is OPEN
+    problem, model, closed = two_subchains(objective="[{node: b, weight: 1}]")
+    assert closed.solve({"A": 1}, 1.0, least_scale=False) is OPEN
     found = solve_integer(model, problem)  # the search falls back on the conic solver
     assert found is not None
     assert found.objective == pytest.approx(8, rel=1e-3)
-    # With a and b on cores of their own nothing weighted depends on x: flat, also left open.
-    flat = Layout((), (SharedCore(0, ("A",)), SharedCore(1, ("B",))))
-    spec_a = parse_spec(
-        "catan: 1\napp: two\nnodes: {a: {compute_ms: 4}, b: {compute_ms: 8, batch: true}}\n"
-        "subchains: {A: [a], B: [b]}\nobjective: [{node: a, weight: 1}]\n"
+    # With a and b on cores of their own nothing weighted depends on x: flat, also left open
+    # (the switch cost gives b's core a T that depends on x: 0.12 + 8x).
+    *_, apart = two_subchains(
+        objective="[{node: a, weight: 1}]",
+        switch_ms=0.12,
+        layout=Layout((), (SharedCore(0, ("A",)), SharedCore(1, ("B",)))),
     )
-    problem_a = build_problem(spec_a)
-    model_a = ConicStage2(problem_a, flat, spec_a.schedule)
-    assert OneBatchRuns(model_a, problem_a).solve({"A": 1}, 1.0, least_scale=False) is OPEN
+    assert apart.solve({"A": 1}, 1.0, least_scale=False) is OPEN
 
 
 @st.composite
