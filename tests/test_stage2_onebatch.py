@@ -131,6 +131,17 @@ def test_worked_cases() -> None:
     assert plan.fraction["B"] == pytest.approx(1.6, rel=1e-6)
 
 
+def test_no_weighted_term_means_the_shortest_schedule() -> None:
+    # The objective is then T = 4 + 8x: least at b's least slice, 2 ms of 8 (x = 1/4), T = 6.
+    *_, sliced = two_subchains(objective="[]", min_slice_ms=2)
+    plan = solved(sliced.solve({"A": 1}, 1.0, least_scale=False))
+    assert plan.fraction["B"] == pytest.approx(0.25, rel=1e-12)
+    assert plan.objective == pytest.approx(6.0, rel=1e-12)
+    # With no minimum slice T only approaches 4, at x = 0: not attained, left to the solver.
+    *_, free = two_subchains(objective="[]")
+    assert free.solve({"A": 1}, 1.0, least_scale=False) is OPEN
+
+
 def test_no_unique_optimum_is_left_to_the_solver() -> None:
     # Only b's period is weighted: 4/x + 8 keeps falling, the optimum is at x = inf.
     problem, model, closed = two_subchains(objective="[{node: b, weight: 1}]")
