@@ -257,6 +257,32 @@ def test_local_search_allocations_are_valid() -> None:
             assert used == cores
 
 
+def test_milp_prints_nothing_to_stdout() -> None:
+    # HiGHS prints a banner at its first call unless output_flag is off by then (highspy 1.16 made one in
+    # its constructor): stdout must stay the JSON alone. C stdio flushes at exit: a fresh process sees it.
+    import json
+    import subprocess
+    import sys
+
+    result = subprocess.run(
+        [sys.executable, "-m", "catanc", "allocate", "specs/nav2d_yolo.yaml", "-k", "3", "--stage1", "milp", "--json"],
+        capture_output=True,
+        text=True,
+        check=True,
+        cwd=Path(__file__).parent.parent,
+    )
+    assert "HiGHS" not in result.stdout
+    assert json.loads(result.stdout)["cores"] == 3
+
+
+def test_highs_is_silent_from_construction() -> None:
+    from catanc.stage1.milp import _SilentHighs
+
+    highs = _SilentHighs()
+    _status, flag = highs.getOptionValue("output_flag")
+    assert flag is False
+
+
 def test_same_allocation_in_fresh_processes() -> None:
     # Determinism across runs: two separate processes, MILP and enumerator, same bytes.
     import subprocess

@@ -200,7 +200,7 @@ def _relaxation(model: _Model, solver: str) -> _Relaxation | None:
     """
     if solver != "highs":
         return None
-    model.prob.solve(_DeadlineHiGHS(None, time.monotonic() + LP_TIME_LIMIT_S, msg=False, mip=False, threads=1))
+    model.prob.solve(_DeadlineHiGHS(None, time.monotonic() + LP_TIME_LIMIT_S, mip=False, threads=1))
     if model.prob.status != pulp.LpStatusOptimal:
         return None  # bounds that cannot all hold: the search starts from scratch
     weights: dict[str, dict[Option, float]] = {}
@@ -311,13 +311,44 @@ def _solve(prob: pulp.LpProblem, solver: str, deadline: float, start: dict[str, 
     return _solve_cbc(prob, deadline, start)
 
 
+class _SilentHighs(highspy.Highs):
+    """highspy's solver with its output off from its first call on.
+
+    highspy 1.16's constructor calls ``enableCallbacks``, and HiGHS prints its
+    banner to stdout at the first call made while ``output_flag`` is on: pulp
+    sets the flag only after construction, so the banner went into
+    ``catanc allocate --json``.  Setting options prints nothing.
+    """
+
+    def __init__(self) -> None:
+        super().__init__()  # type: ignore[no-untyped-call]  # highspy's constructor has no annotations
+
+    def enableCallbacks(self) -> Any:
+        self.silent()
+        return super().enableCallbacks()  # type: ignore[no-untyped-call]
+
+
 class _DeadlineHiGHS(pulp.HiGHS):  # type: ignore[misc]
-    """pulp's HiGHS, handed a starting solution and the time left once the model is built."""
+    """pulp's HiGHS, silent, handed a starting solution and the time left once the model is built."""
 
     def __init__(self, start: dict[str, float] | None, deadline: float, **options: Any) -> None:
-        super().__init__(**options)
+        super().__init__(msg=False, **options)
         self.start = start
         self.deadline = deadline
+
+    def createAndConfigureSolver(self, lp: pulp.LpProblem) -> None:
+        # pulp's own makes a highspy.Highs, which prints before the options can silence it
+        highs = _SilentHighs()
+        settings = {
+            "mip_rel_gap": self.gapRel,
+            "mip_abs_gap": self.gapAbs,
+            "threads": self.threads,
+            "time_limit": self.timeLimit,
+        }
+        for key, value in {**settings, **self.optionsDict}.items():
+            if value is not None:
+                highs.setOptionValue(key, value)
+        lp.solverModel = highs
 
     def callSolver(self, lp: pulp.LpProblem) -> None:
         highs: Any = lp.solverModel
@@ -334,11 +365,7 @@ class _DeadlineHiGHS(pulp.HiGHS):  # type: ignore[misc]
 
 
 def _solve_highs(prob: pulp.LpProblem, deadline: float, start: dict[str, float] | None) -> _Outcome:
-    prob.solve(
-        _DeadlineHiGHS(
-            start, deadline, msg=False, gapRel=RELATIVE_GAP, gapAbs=ABSOLUTE_GAP, threads=1, random_seed=SEED
-        )
-    )
+    prob.solve(_DeadlineHiGHS(start, deadline, gapRel=RELATIVE_GAP, gapAbs=ABSOLUTE_GAP, threads=1, random_seed=SEED))
     highs: Any = prob.solverModel
     status = highs.getModelStatus()
     kinds = highspy.HighsModelStatus
