@@ -257,22 +257,26 @@ def test_local_search_allocations_are_valid() -> None:
             assert used == cores
 
 
+def allocate_in_fresh_process(method: str) -> str:
+    """``catanc allocate specs/nav2d_yolo.yaml -k 3 --stage1 METHOD --json``'s stdout, from a new process."""
+    import subprocess
+    import sys
+
+    command = [sys.executable, "-m", "catanc", "allocate", "specs/nav2d_yolo.yaml", "-k", "3", "--stage1", method]
+    result = subprocess.run(
+        [*command, "--json"], capture_output=True, text=True, check=True, cwd=Path(__file__).parent.parent
+    )
+    return result.stdout
+
+
 def test_milp_prints_nothing_to_stdout() -> None:
     # HiGHS prints a banner at its first call unless output_flag is off by then (highspy 1.16 made one in
     # its constructor): stdout must stay the JSON alone. C stdio flushes at exit: a fresh process sees it.
     import json
-    import subprocess
-    import sys
 
-    result = subprocess.run(
-        [sys.executable, "-m", "catanc", "allocate", "specs/nav2d_yolo.yaml", "-k", "3", "--stage1", "milp", "--json"],
-        capture_output=True,
-        text=True,
-        check=True,
-        cwd=Path(__file__).parent.parent,
-    )
-    assert "HiGHS" not in result.stdout
-    assert json.loads(result.stdout)["cores"] == 3
+    stdout = allocate_in_fresh_process("milp")
+    assert "HiGHS" not in stdout
+    assert json.loads(stdout)["cores"] == 3
 
 
 def test_highs_is_silent_from_construction() -> None:
@@ -285,31 +289,10 @@ def test_highs_is_silent_from_construction() -> None:
 
 def test_same_allocation_in_fresh_processes() -> None:
     # Determinism across runs: two separate processes, MILP and enumerator, same bytes.
-    import subprocess
-    import sys
-
     outputs = set()
     for method in ("milp", "milp", "exhaustive"):
-        result = subprocess.run(
-            [
-                sys.executable,
-                "-m",
-                "catanc",
-                "allocate",
-                "specs/nav2d_yolo.yaml",
-                "-k",
-                "3",
-                "--stage1",
-                method,
-                "--json",
-            ],
-            capture_output=True,
-            text=True,
-            check=True,
-            cwd=Path(__file__).parent.parent,
-        )
-        payload = result.stdout.replace('"method": "milp/highs"', "").replace('"method": "exhaustive"', "")
-        outputs.add(payload)
+        stdout = allocate_in_fresh_process(method)
+        outputs.add(stdout.replace('"method": "milp/highs"', "").replace('"method": "exhaustive"', ""))
     assert len(outputs) == 1
 
 

@@ -339,12 +339,7 @@ class _DeadlineHiGHS(pulp.HiGHS):  # type: ignore[misc]
     def createAndConfigureSolver(self, lp: pulp.LpProblem) -> None:
         # pulp's own makes a highspy.Highs, which prints before the options can silence it
         highs = _SilentHighs()
-        settings = {
-            "mip_rel_gap": self.gapRel,
-            "mip_abs_gap": self.gapAbs,
-            "threads": self.threads,
-            "time_limit": self.timeLimit,
-        }
+        settings = {"mip_rel_gap": self.gapRel, "mip_abs_gap": self.gapAbs, "threads": self.threads}  # time: callSolver
         for key, value in {**settings, **self.optionsDict}.items():
             if value is not None:
                 highs.setOptionValue(key, value)
