@@ -180,35 +180,47 @@ class NodeStream:
     def _draw_blocks(self, blocks: int) -> None:
         """``blocks`` more BLOCKs of runs after the ones still to be taken, joined once (not once a block:
         a million draws at once took 3,000 copies of a growing array)."""
-        drawn = [self._block() for _ in range(blocks)]
-        self._modes = np.concatenate([self._modes[self._next :], *(modes for modes, _ in drawn)])
-        self._factors = np.concatenate([self._factors[self._next :], *(factors for _, factors in drawn)])
+        modes, factors = self._blocks(blocks)
+        self._modes = np.concatenate([self._modes[self._next :], modes])
+        self._factors = np.concatenate([self._factors[self._next :], factors])
         self._next = 0
 
-    def _block(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-        """The next BLOCK runs' modes and jitter multipliers."""
+    def _blocks(self, blocks: int) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        """The next ``blocks`` BLOCKs of runs' modes and jitter multipliers.
+
+        Drawn in one call per generator where the values do not depend on the block: a generator's
+        ``random(n)`` and ``standard_normal(n)`` give the values of ``n`` calls of one, and the block
+        matters only for the normal jitter's redraws.  A call per 1,024 values cost as much as the values.
+        """
+        count = blocks * BLOCK
         if self._mode_thresholds:
-            picks = np.searchsorted(self._mode_thresholds, self._mode_draws.random(BLOCK), side="right")
+            picks = np.searchsorted(self._mode_thresholds, self._mode_draws.random(count), side="right")
             modes = np.asarray(self._mode_ms)[picks]
         else:
-            modes = np.full(BLOCK, self._mode_ms[0])
+            modes = np.full(count, self._mode_ms[0])
         kind, a, b = self._jitter, self._jitter_a, self._jitter_b
         if kind == "lognormal":
-            factors = np.exp(a + b * self._jitter_draws.standard_normal(BLOCK))
+            factors = np.exp(a + b * self._jitter_draws.standard_normal(count))
         elif kind == "uniform":
-            factors = a + b * self._jitter_draws.random(BLOCK)
-        elif kind == "normal":  # redrawn until positive: the next positive values, in order
-            kept: list[npt.NDArray[np.float64]] = []
-            have = 0
-            while have < BLOCK:
-                values = a + b * self._jitter_draws.standard_normal(BLOCK)
-                values = values[values > 0.0]
-                kept.append(values)
-                have += len(values)
-            factors = np.concatenate(kept)[:BLOCK]  # positives past the block are dropped: blocks never vary
+            factors = a + b * self._jitter_draws.random(count)
+        elif kind == "normal":
+            factors = np.concatenate([self._normal_block() for _ in range(blocks)])
         else:
-            factors = np.ones(BLOCK)
+            factors = np.ones(count)
         return modes, factors
+
+    def _normal_block(self) -> npt.NDArray[np.float64]:
+        """The next BLOCK normal jitter multipliers, redrawn until positive: the next positive values, in
+        order; positives past the block are dropped, so a stream is defined block by block."""
+        a, b = self._jitter_a, self._jitter_b
+        kept: list[npt.NDArray[np.float64]] = []
+        have = 0
+        while have < BLOCK:
+            values = a + b * self._jitter_draws.standard_normal(BLOCK)
+            values = values[values > 0.0]
+            kept.append(values)
+            have += len(values)
+        return np.concatenate(kept)[:BLOCK]
 
     def spikes_until(self, end_s: float) -> list[float]:
         """The spike arrivals still to come, up to the first one after ``end_s`` (consumes them)."""
