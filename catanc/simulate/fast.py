@@ -241,14 +241,18 @@ class DrawTable:
 
     def grow(self, sim: k.Sim | None = None) -> None:
         """Draw more for every node that is short: each node's row is a ring of draws (run ``j`` at
-        ``j % width``), refilled past the runs taken; the rings widen (doubling) up to :data:`RING_DRAWS`
-        while a node has taken more than its ring holds. Each stream's values come in its own order,
-        so how many are drawn at a time changes no value."""
+        ``j % width``), refilled past the runs taken with what the node may still take to the end
+        (:meth:`_still_wanted`).  The rings share one width, widened at once to what the short node
+        wanting most still wants, up to :data:`RING_DRAWS` (doubling them took seven widenings, and as
+        many returns from the kernel, in nav2d's first minute).  Each stream's values come in its own
+        order, so how many are drawn at a time changes no value."""
         a = self.arrays
         used, filled = a["used"], a["filled"]
         short = [i for i in self.streams if used[i] + 4 > filled[i]] if sim is not None else list(self.streams)
+        now_ms = 0.0 if sim is None else k.clock_of(sim)[0]
+        still = {i: self._still_wanted(int(used[i]), now_ms) for i in short}
         width = a["mode"].shape[1]
-        wanted = max([width, *(min(2 * int(filled[i]), RING_DRAWS) for i in short)])
+        wanted = max([width, *(min(ahead, RING_DRAWS) for ahead in still.values())])
         if wanted > width:
             wider = {name: np.zeros((a[name].shape[0], wanted)) for name in ("mode", "factor")}
             for i in self.streams:  # the runs drawn but not taken keep their places modulo the new width
@@ -257,13 +261,11 @@ class DrawTable:
                     ring[i, kept % wanted] = a[name][i, kept % width]
             a.update(wider)
             width = wanted
-        now_ms = 0.0 if sim is None else k.clock_of(sim)[0]
         for i in short:
-            ahead = min(width, self._still_wanted(int(used[i]), now_ms))
-            places = np.arange(filled[i], used[i] + ahead) % width
-            modes, factors = self.streams[i].bases(len(places))
-            a["mode"][i, places] = modes
-            a["factor"][i, places] = factors
+            ahead = min(width, still[i])
+            modes, factors = self.streams[i].bases(int(used[i]) + ahead - int(filled[i]))
+            _into_ring(a["mode"][i], int(filled[i]), modes)
+            _into_ring(a["factor"][i], int(filled[i]), factors)
             filled[i] = used[i] + ahead
         if sim is not None:
             k.set_draws(sim, a["mode"], a["factor"])
@@ -274,6 +276,14 @@ class DrawTable:
         if now_ms <= 0.0:
             return FIRST_DRAWS
         return math.ceil(1.25 * used * max(self.end_ms - now_ms, 0.0) / now_ms) + FIRST_DRAWS
+
+
+def _into_ring(ring: npt.NDArray[np.float64], first: int, values: npt.NDArray[np.float64]) -> None:
+    """``values`` into ``ring`` as runs ``first, first + 1, ...``: run ``j`` at ``j % len(ring)``, len(ring) at most."""
+    start = first % len(ring)
+    head = min(len(values), len(ring) - start)
+    ring[start : start + head] = values[:head]
+    ring[: len(values) - head] = values[head:]
 
 
 def run_fields(graph: Fields, subchains: int, policy: int, measured_window: int = 1) -> Fields:
