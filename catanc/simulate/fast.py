@@ -30,7 +30,7 @@ Fields = dict[str, Any]
 """Kernel fields by name (:data:`kernel.FIELDS`)."""
 
 FIRST_DRAWS = 256
-"""Compute times drawn per node before the run; more as it asks (doubling)."""
+"""Compute times drawn per node before the run; then, as it asks, what each may still take (:meth:`DrawTable.grow`)."""
 RING_DRAWS = 1 << 15
 """At most this many drawn compute times per node at once: long runs refill a ring instead of growing
 (one hour of nav2d on 2 cores kept 2.4M draws of the local chain's nodes, and as many of every other)."""
