@@ -41,7 +41,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from catanc.priorities import APP_FIFO_LEVELS, ENFORCER_FIFO, RUNNING_FIFO
-from catanc.runtime import protocol
+from catanc.runtime import flights, protocol
 from catanc.runtime.log import RunLog
 from catanc.runtime.measure import Measurements, OpenCpuClocks, cpu_ms, percentile, reconcile
 from catanc.runtime.planning import Answer, PlannerProcess, Request
@@ -103,28 +103,22 @@ class Endpoint:
 
 
 @dataclass
-class Flight:
-    """One run of a subchain in flight."""
+class Flight(flights.Flight):
+    """One run of a subchain in flight, with what measures its running node."""
 
-    index: int  # the node running now
-    triggered_ms: float
     cpu_ns: int | None  # the running node thread's CPU time when it was triggered (schedstat)
     speedup: float = 1.0  # the running node's speedup with the threads its trigger gave it
 
 
 @dataclass
-class SubchainState:
-    """Runs of one subchain in flight, and what was seen of them."""
+class SubchainState(flights.Flights[Flight]):
+    """Runs of one subchain in flight, and what was seen of them (``skipped`` also counts the triggers not
+    sent because a node of the subchain is not registered yet)."""
 
-    seq: int = 0
-    in_flight: dict[int, Flight] = field(default_factory=dict)  # by seq
     last_trigger_ms: float | None = None
     periods_ms: deque[float] = field(default_factory=lambda: deque(maxlen=RATE_WINDOW))  # trigger to trigger
-    late: int = 0
     lost: int = 0
     steals: int = 0
-    skipped: int = 0  # triggers not sent: a node of the subchain not registered yet, or the head still busy
-    pending: bool = False  # a trigger came while the head was busy: trigger it as soon as the head is done
 
 
 class Enforcer:
@@ -168,8 +162,7 @@ class Enforcer:
         self.raised: dict[int, str | None] = {}  # core -> subchain raised to FIFO 2 now
         self.core_threads: list[threading.Thread] = []
         self.switches: dict[int, deque[float]] = {}  # core -> recent switch latencies (ms)
-        self.busy: dict[str, int | None] = {}  # node -> the run it was triggered for and has not finished
-        self.waiting: dict[str, deque[int]] = {}  # node -> runs that reached it while it was busy
+        self.nodes = flights.NodeQueues()  # the run each node was triggered for and has not finished
         self.stopping = threading.Event()
         self.requested_cores: int | None = None
         self.last_resolve_s: float | None = None
@@ -280,12 +273,12 @@ class Enforcer:
         deadline = time.monotonic() + grace_s
         while (remaining := deadline - time.monotonic()) > 0:
             with self.lock:
-                if not any(seq is not None for seq in self.busy.values()):
+                if not self.nodes.any_busy():
                     return
             got = self.sock.receive(min(remaining, RECEIVE_TIMEOUT_S))
             if got is not None and isinstance(got[0], protocol.Done | protocol.Bye):
                 with self.lock:
-                    self.busy[got[0].node] = None
+                    self.nodes.free(got[0].node)  # what waited for it is not triggered: the run is over
 
     # ------------------------------------------------------------------ registration and completion
 
@@ -392,19 +385,16 @@ class Enforcer:
             return  # an unscheduled node, a run given up as lost, or one from before a re-plan
         with self.lock:
             self._free(done.node)
-            head_done = flight.index == 0
-            if flight.index + 1 < len(run.nodes):
-                flight.index += 1
-                self._trigger(run.nodes[flight.index], done.seq)
-            else:
-                del state.in_flight[done.seq]
-            if head_done and state.pending:  # its trigger came while it ran: the next run starts now
+            handoff = state.node_done(done.seq, len(run.nodes))
+            if handoff is None:
+                return  # given up as lost while the lock was free
+            if handoff.next_index is not None:
+                self._trigger(run.nodes[handoff.next_index], done.seq)
+            if handoff.head_done and state.pending:  # its trigger came while it ran: the next run starts now
                 self._trigger_head(run)
-            if done.seq in state.in_flight:
+            if handoff.next_index is not None:
                 return
-            latency = self.clock() - flight.triggered_ms
-            if latency > run.latency_ms:
-                state.late += 1
+            latency = state.over(handoff.flight, self.clock(), run.latency_ms)
         self._sample("run", run.name, (done.seq, latency))
 
     def _cpu_ns(self, node: str) -> int | None:
@@ -437,7 +427,7 @@ class Enforcer:
                         del state.in_flight[seq]
                         state.lost += 1
                         node = run.nodes[flight.index] if run else "?"
-                        if self.busy.get(node) == seq:
+                        if self.nodes.busy_with(node) == seq:
                             self._free(node)
                         self._note(f"{name}: run {seq} lost at {node} (no answer in {limit / 1000:.1f} s)")
                         self._log("lost", subchain=name, seq=seq, node=node)
@@ -448,23 +438,19 @@ class Enforcer:
         now = self.clock()
         with self.lock:
             state = self.states[run.name]
-            head_busy = any(flight.index == 0 for flight in state.in_flight.values())
             # A run starts only when every node of it can be triggered: one started while a later
             # node is still starting up would stall there and be given up as lost.
             if any(self._speaker(node) is None for node in run.nodes):
                 state.skipped += 1
                 return
-            if head_busy:  # never queue triggers on a busy node (they would pile up in its socket): defer
-                state.skipped += not state.pending
-                state.pending = True
+            # Never queue triggers on a busy head (they would pile up in its socket): defer.
+            seq = state.start(Flight(0, now, None))
+            if seq is None:
                 return
-            state.pending = False
             if state.last_trigger_ms is not None:
                 state.periods_ms.append(now - state.last_trigger_ms)
             state.last_trigger_ms = now
-            state.seq += 1
-            state.in_flight[state.seq] = Flight(0, now, None)
-            self._trigger(run.nodes[0], state.seq)
+            self._trigger(run.nodes[0], seq)
 
     def _speaker(self, node: str) -> Endpoint | None:
         """``node``'s first thread registered through the client (attached ones run on their own timers)."""
@@ -476,8 +462,7 @@ class Enforcer:
         A node is never sent a second trigger while it runs: a pipelined subchain's runs
         queue here, one per stage at most, instead of piling up in the node's socket.
         """
-        if self.busy.get(node) is not None:
-            self.waiting.setdefault(node, deque()).append(seq)
+        if self.nodes.queued(node, seq):
             return
         endpoint = self._speaker(node)
         if endpoint is None:
@@ -490,16 +475,15 @@ class Enforcer:
             if seq % KERNEL_CHECK_EVERY == 0:
                 flight.cpu_ns = self._cpu_ns(node)
         if self.sock.send_bytes(protocol.trigger_datagram(node, seq, threads), endpoint.address):
-            self.busy[node] = seq
+            self.nodes.started(node, seq)
         else:
             self._gone(endpoint)
 
     def _free(self, node: str) -> None:
         """``node`` finished its run: start the next one queued for it, if any."""
-        self.busy[node] = None
-        queue = self.waiting.get(node)
-        if queue:
-            self._trigger(node, queue.popleft())
+        waiting = self.nodes.free(node)
+        if waiting is not None:
+            self._trigger(node, waiting)
 
     def attach(self, node: str, pid: int, tids: list[int]) -> None:
         """Pin and prioritise the threads of a process that does not speak the protocol, as ``node``'s."""
@@ -588,9 +572,7 @@ class Enforcer:
         late = set()
         with self.lock:
             for slot in core.slots:
-                state = self.states[slot.subchain]
-                oldest = min((flight.triggered_ms for flight in state.in_flight.values()), default=None)
-                if is_late(oldest, now, runs[slot.subchain]):
+                if is_late(self.states[slot.subchain].oldest_ms(), now, runs[slot.subchain]):
                     late.add(slot.subchain)
         return late
 

@@ -18,12 +18,12 @@ Unscheduled nodes with a rate tick on their own clock under every policy.
 
 from __future__ import annotations
 
-from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from catanc.errors import UsageError
 from catanc.replan import Replanner
+from catanc.runtime.flights import Flight, Flights, NodeQueues
 from catanc.runtime.measure import Measurements
 from catanc.runtime.schedule import (
     CoreSchedule,
@@ -63,19 +63,8 @@ def _tick_every(engine: Engine, flow: Dataflow, node: str, period_ms: float, due
 
 
 @dataclass
-class Flight:
-    index: int  # the node of the subchain running now
-    triggered_ms: float
-
-
-@dataclass
-class SubchainState:
-    seq: int = 0
-    in_flight: dict[int, Flight] = field(default_factory=dict)
-    pending: bool = False  # triggered while its head was busy: trigger again once the head is done
-    late: int = 0
+class SubchainState(Flights[Flight]):
     steals: int = 0
-    skipped: int = 0
 
 
 @dataclass(frozen=True)
@@ -105,8 +94,7 @@ class CatanPolicy:
         self.reoptimiser = Reoptimiser(spec, replanner) if replanner is not None else None
         self.measurements = self.reoptimiser.measurements if self.reoptimiser is not None else None
         self.states = {name: SubchainState() for name in schedule.subchains}
-        self.busy: dict[str, int | None] = {}
-        self.waiting: dict[str, deque[int]] = {}
+        self.nodes = NodeQueues()
         self.raised: dict[int, str | None] = {}
         self.pools: dict[str, Pool] = {}  # subchain -> the pool its nodes run on
         self.core_busy_ms: dict[int, float] = {}  # from pools of earlier allocations
@@ -200,9 +188,7 @@ class CatanPolicy:
             now = self.engine.now
             late = set()
             for other in core.slots:
-                flights = self.states[other.subchain].in_flight.values()
-                oldest = min((f.triggered_ms for f in flights), default=None)
-                if is_late(oldest, now, runs[other.subchain]):
+                if is_late(self.states[other.subchain].oldest_ms(), now, runs[other.subchain]):
                     late.add(other.subchain)
             owner = slot_owner(slot, core, runs, late)
             if owner != slot.subchain:
@@ -242,24 +228,17 @@ class CatanPolicy:
     # -------------------------------------------------------------- runs
 
     def _trigger_head(self, run: SubchainRun) -> None:
-        state = self.states[run.name]
-        if any(flight.index == 0 for flight in state.in_flight.values()):
-            state.skipped += not state.pending
-            state.pending = True
-            return
-        state.pending = False
-        state.seq += 1
-        state.in_flight[state.seq] = Flight(0, self.engine.now)
-        self._trigger(run.nodes[0], state.seq)
+        seq = self.states[run.name].start(Flight(0, self.engine.now))
+        if seq is not None:
+            self._trigger(run.nodes[0], seq)
 
     def _trigger(self, node: str, seq: int) -> None:
-        if self.busy.get(node) is not None:
-            self.waiting.setdefault(node, deque()).append(seq)
+        if self.nodes.queued(node, seq):
             return
         run = self.schedule.subchain_of(node)
         if run is None:  # pragma: no cover - every scheduled node is in a subchain
             return
-        self.busy[node] = seq
+        self.nodes.started(node, seq)
         flight = self.states[run.name].in_flight.get(seq)
         index = flight.index if flight is not None else run.nodes.index(node)
         threads, speedup = run.threads_of(index)
@@ -286,25 +265,20 @@ class CatanPolicy:
         if run is None:  # pragma: no cover
             return
         state = self.states[run.name]
-        flight = state.in_flight.get(seq)
-        if flight is None:
+        handoff = state.node_done(seq, len(run.nodes))
+        if handoff is None:
             return
-        head_done = flight.index == 0
-        if flight.index + 1 < len(run.nodes):
-            flight.index += 1
-            self._trigger(run.nodes[flight.index], seq)
+        if handoff.next_index is not None:
+            self._trigger(run.nodes[handoff.next_index], seq)
         else:
-            del state.in_flight[seq]
-            if self.engine.now - flight.triggered_ms > run.latency_ms:
-                state.late += 1
-        if head_done and state.pending:
+            state.over(handoff.flight, self.engine.now, run.latency_ms)
+        if handoff.head_done and state.pending:
             self._trigger_head(run)
 
     def _free(self, node: str) -> None:
-        self.busy[node] = None
-        queue = self.waiting.get(node)
-        if queue:
-            self._trigger(node, queue.popleft())
+        waiting = self.nodes.free(node)
+        if waiting is not None:
+            self._trigger(node, waiting)
 
     # -------------------------------------------------------------- re-solving
 
