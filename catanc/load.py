@@ -212,7 +212,7 @@ def _allowed_fields(loc: tuple[Hashable, ...]) -> list[str]:
         annotation = _step(annotation, part)
         if annotation is None:
             return []
-    model = _model_in(annotation)
+    model = _model_in(annotation) or _optional_model(annotation)
     if model is None:
         return []
     return [info.alias or name for name, info in model.model_fields.items()]
@@ -229,6 +229,15 @@ def _model_in(annotation: Any) -> type[BaseModel] | None:
     if isinstance(annotation, type) and issubclass(annotation, BaseModel):
         return annotation
     return None
+
+
+def _optional_model(annotation: Any) -> type[BaseModel] | None:
+    """The model of an optional field (``Workload | None``), whose errors' locations name no union member."""
+    bare = _unwrap(annotation)
+    if get_origin(bare) not in (Union, types.UnionType):
+        return None
+    members = [member for member in get_args(bare) if member is not type(None)]
+    return _model_in(members[0]) if len(members) == 1 else None
 
 
 def _step(annotation: Any, part: Hashable) -> Any:
