@@ -54,6 +54,38 @@ def spec(text: str) -> Problem:
     return build_problem(parse_spec("catan: 1\napp: t\n" + text))
 
 
+# Found by test_milp_highs_matches_enumeration: bounds no allocation meets (both chains <= 5 ms), so
+# the MILP first minimises their common scale, started from the local search's allocation (45.6).
+# highspy 1.16.0 misread that start's objective as 9.6 and called it optimal; 45.2 exists.
+SCALED_BOUNDS = """nodes:
+  clock: {scheduled: false, rate_hz: 10}
+  s0n0: {compute_ms: 1}
+  s1n0: {compute_ms: 1}
+  s2n0: {compute_ms: 1}
+  s3n0: {compute_ms: 1}
+  s4n0: {compute_ms: 1}
+  s4n1: {compute_ms: 1}
+  s4n2: {compute_ms: 5}
+  s5n0: {compute_ms: 1}
+  s6n0: {compute_ms: 1}
+  sink: {scheduled: false}
+edges: [[s4n0, s4n1], [s4n1, s4n2], [s4n2, s6n0], [clock, s0n0], [s0n0, s2n0], [s2n0, s5n0], [s5n0, s6n0],
+        [s6n0, sink], [s1n0, sink], [s3n0, sink]]
+subchains: {s0: [s0n0], s1: [s1n0], s2: [s2n0], s3: [s3n0], s4: [s4n0, s4n1, s4n2], s5: [s5n0], s6: [s6n0]}
+objective:
+  - {chain: [s4n0, s4n1, s4n2, s6n0, sink], weight: 1}
+  - {chain: [clock, s0n0, s2n0, s5n0, s6n0, sink], weight: 1}
+constraints:
+  - {chain: [s4n0, s4n1, s4n2, s6n0, sink], max_response_ms: 5}
+  - {chain: [clock, s0n0, s2n0, s5n0, s6n0, sink], max_response_ms: 5}
+"""
+
+
+@pytest.mark.parametrize("solver", ["highs", "cbc"])
+def test_milp_from_a_start_finds_the_smallest_scale(solver: str) -> None:
+    check_against_enumeration(spec(SCALED_BOUNDS), 2, solver)
+
+
 # Three one-node subchains a (10 ms) -> b (20 ms) -> c (30 ms) -> sink, on 2 cores; the chain's
 # response is the objective. Every core is used, so one subchain is alone (1 core) and two share:
 #   a alone: b, c share (m = 2): p = (10, 40, 60), L = 10 + (40 + 40) + (60 + 60) = 210, R = 270

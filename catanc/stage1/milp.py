@@ -359,7 +359,31 @@ class _DeadlineHiGHS(pulp.HiGHS):  # type: ignore[misc]
         highs.run()
 
 
+OBJECTIVE_AGREEMENT = 1e-7
+"""How closely (relative) HiGHS's reported objective must match the one of the solution it returns."""
+
+
 def _solve_highs(prob: pulp.LpProblem, deadline: float, start: dict[str, float] | None) -> _Outcome:
+    outcome = _run_highs(prob, deadline, start)
+    if start is not None and outcome.status == "solved" and not _objective_agrees(prob.solverModel):
+        # highspy 1.16.0 (presolve on, a start given) can misread the start's objective, dropping
+        # presolve's offset: a start costing 45.6 read as 9.6, below the optimum, so the search
+        # stopped at once and returned the start as "optimal" (45.2 exists).  Its own search is right.
+        outcome = _run_highs(prob, deadline, None)
+    return outcome
+
+
+def _objective_agrees(highs: Any) -> bool:
+    """Whether the objective HiGHS reports is that of the solution it returns, as its own model prices it."""
+    model = highs.getLp()
+    costs: list[float] = [float(cost) for cost in model.col_cost_]
+    values: list[float] = [float(value) for value in highs.getSolution().col_value]
+    priced = math.fsum([float(model.offset_), *(cost * value for cost, value in zip(costs, values, strict=True))])
+    reported = float(highs.getInfo().objective_function_value)
+    return abs(priced - reported) <= OBJECTIVE_AGREEMENT * max(1.0, abs(priced))
+
+
+def _run_highs(prob: pulp.LpProblem, deadline: float, start: dict[str, float] | None) -> _Outcome:
     prob.solve(_DeadlineHiGHS(start, deadline, gapRel=RELATIVE_GAP, gapAbs=ABSOLUTE_GAP, threads=1, random_seed=SEED))
     highs: Any = prob.solverModel
     status = highs.getModelStatus()
