@@ -190,7 +190,7 @@ class NodeStream:
 
         Drawn in one call per generator where the values do not depend on the block: a generator's
         ``random(n)`` and ``standard_normal(n)`` give the values of ``n`` calls of one, and the block
-        matters only for the normal jitter's redraws.  A call per 1,024 values cost as much as the values.
+        matters only for the normal jitter's redraws.
         """
         count = blocks * BLOCK
         if self._mode_thresholds:
