@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -11,7 +12,7 @@ from hypothesis import strategies as st
 
 from catanc.load import parse_spec
 from catanc.problem import Problem, build_problem
-from catanc.stage1 import Allocation, Option, allocate
+from catanc.stage1 import Allocation, Option, allocate, milp
 from catanc.stage1.estimate import option_timing
 from catanc.stage1.exhaustive import allocations, set_partitions
 from tests.strategies import problems
@@ -84,6 +85,26 @@ constraints:
 @pytest.mark.parametrize("solver", ["highs", "cbc"])
 def test_milp_from_a_start_finds_the_smallest_scale(solver: str) -> None:
     check_against_enumeration(spec(SCALED_BOUNDS), 2, solver)
+
+
+def test_a_highs_answer_that_misprices_its_solution_is_solved_again_without_the_start(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Whatever highspy is installed: an answer found untrustworthy is replaced by a solve from scratch."""
+    started: list[bool] = []
+    run_highs = milp._run_highs
+
+    def recording(prob: Any, deadline: float, start: dict[str, float] | None) -> Any:
+        started.append(start is not None)
+        return run_highs(prob, deadline, start)
+
+    monkeypatch.setattr(milp, "_run_highs", recording)
+    monkeypatch.setattr(milp, "_objective_agrees", lambda _highs: False)
+    check_against_enumeration(spec(SCALED_BOUNDS), 2, "highs")
+    assert True in started
+    for i, with_start in enumerate(started):  # each solve from a start is followed by one without
+        if with_start:
+            assert started[i + 1] is False
 
 
 # Three one-node subchains a (10 ms) -> b (20 ms) -> c (30 ms) -> sink, on 2 cores; the chain's
