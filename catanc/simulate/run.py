@@ -33,6 +33,7 @@ from catanc.runtime.schedule import RuntimeSchedule, runtime_schedule
 from catanc.simulate.cpu import Discipline
 from catanc.simulate.dataflow import Dataflow
 from catanc.simulate.engine import Engine
+from catanc.simulate.memory import keep_freed_memory
 from catanc.simulate.metrics import PolicyResult, chain_result, node_result
 from catanc.simulate.policies import CatanPolicy, Reoptimiser, Sampler, TimerPolicy, start_sensors
 from catanc.simulate.records import Records
@@ -188,7 +189,8 @@ def simulate(
     """Run ``policy`` on ``setup`` for its duration; the same arguments give the same result.
 
     ``engine``: ``compiled`` (:mod:`catanc.simulate.kernel`, the spec's workload only), ``python``
-    (the readable engine, any sampler), or ``auto``: compiled for the spec's workload.
+    (the readable engine, any sampler), or ``auto``: compiled for the spec's workload.  A compiled
+    run makes the process keep the memory it frees (:mod:`catanc.simulate.memory`).
     """
     prepared = prepare(setup, policy, sampler_for)
     compiled = engine == "compiled" or (engine == "auto" and sampler_for is workload_sampler)
@@ -236,6 +238,7 @@ def _run_python(setup: Setup, prepared: Prepared, sampler_for: SamplerFactory) -
 def _run_compiled(setup: Setup, prepared: Prepared) -> Records:
     from catanc.simulate import fast, kernel  # noqa: PLC0415 (numba loads only when a compiled run is asked for)
 
+    keep_freed_memory()  # the arrays below fault their pages in once per process, not once per run
     spec, cores = setup.spec, setup.cores
     chains = [nodes for nodes, _ in prepared.chains]
     graph = fast.topology(spec, chains, prepared.schedule, cores, prepared.priorities)
