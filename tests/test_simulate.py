@@ -10,6 +10,7 @@ constant compute times, the model's worst-case response time ``R``
 from __future__ import annotations
 
 import json
+import math
 from typing import Any
 
 import numpy as np
@@ -22,7 +23,7 @@ from catanc.load import load_spec
 from catanc.runtime.measure import percentile
 from catanc.simulate.cpu import Job, Pool
 from catanc.simulate.engine import Engine
-from catanc.simulate.metrics import percentile_of, response_arrays
+from catanc.simulate.metrics import SMALL_SUM, exact_sum, percentile_of, response_arrays, sum_by_exponent
 from catanc.simulate.report import comparison_payload
 from catanc.simulate.run import POLICIES, Setup, check_policies, simulate, simulate_policies
 from catanc.spec import Spec
@@ -119,6 +120,50 @@ def test_response_arrays_hand_worked() -> None:
 )
 def test_percentile_of_an_array_is_the_sorting_percentile_to_the_last_bit(values: list[float], q: float) -> None:
     assert percentile_of(np.array(values), q) == percentile(values, q)
+
+
+def _fsum_or_none(values: list[float]) -> float | None:
+    try:
+        return math.fsum(values)
+    except OverflowError:  # an intermediate sum beyond the largest float: fsum gives up
+        return None
+
+
+@given(
+    st.lists(
+        st.floats(allow_nan=False, allow_infinity=False, allow_subnormal=True)
+        | st.floats(-1e4, 1e4)
+        | st.sampled_from([0.0, -0.0, 5e-324, 1.0, 0.1, 1e16, -1e16, 2.0**-1074 * 3]),
+        max_size=200,
+    ),
+    st.integers(0, 3),
+)
+@settings(max_examples=400)
+def test_the_sum_by_exponent_is_fsum_to_the_last_bit(values: list[float], repeats: int) -> None:
+    """Against Python's correctly rounded sum, on any finite values, with cancellations and repeats."""
+    values = values * (1 + repeats)
+    expected = _fsum_or_none(values)
+    if expected is not None:
+        assert sum_by_exponent(np.array(values, np.float64)) == expected
+
+
+def test_the_sum_by_exponent_hand_worked_cases() -> None:
+    assert sum_by_exponent(np.array([0.1] * 10)) == 1.0  # plain addition: 0.9999999999999999
+    assert sum_by_exponent(np.array([1e100, 1.0, -1e100])) == 1.0
+    assert sum_by_exponent(np.array([2.0**53, 1.0, 1.0])) == 2.0**53 + 2  # a tie at the first 1.0, exact at the end
+    assert sum_by_exponent(np.array([5e-324] * 3)) == 1.5e-323  # subnormal
+    assert sum_by_exponent(np.array([])) == 0.0
+    with pytest.raises(ValueError, match="inf"):  # as math.fsum
+        sum_by_exponent(np.array([1.0, math.inf, -math.inf]))
+    assert sum_by_exponent(np.array([1.0, math.inf])) == math.inf
+
+
+@given(st.integers(0, 2**32), st.floats(1e-3, 1e3), st.integers(0, 3 * SMALL_SUM))
+@settings(max_examples=40)
+def test_exact_sum_of_response_times_is_fsum(seed: int, scale: float, extra: int) -> None:
+    """Both ways :func:`exact_sum` goes (fsum itself below :data:`SMALL_SUM` values), on response-time-like values."""
+    values = np.random.default_rng(seed).exponential(scale, SMALL_SUM - 2 + extra)
+    assert exact_sum(values) == math.fsum(values.tolist())
 
 
 ONE_SUBCHAIN = {

@@ -56,6 +56,55 @@ def percentile_of(values: Sequence[float] | FloatArray, q: float) -> float:
     return float(chosen[0]) if t == 0.0 else between(chosen[0], chosen[1], t)
 
 
+SMALL_SUM = 1024
+"""Below this many values, :func:`exact_sum` is ``math.fsum``: its per-call cost wins over the per-value one."""
+
+
+def exact_sum(values: FloatArray) -> float:
+    """``math.fsum(values)``, the correctly rounded sum, to the last bit (for finite values fsum can sum).
+
+    fsum walks a Python list at ~30 ns a value, which made the exact means of nav2d's ~200k response
+    times of a 250 s run 2% of its simulation; :func:`sum_by_exponent` does it in array passes.
+    """
+    if len(values) < SMALL_SUM:
+        return math.fsum(values.tolist())
+    return sum_by_exponent(values)
+
+
+def sum_by_exponent(values: FloatArray) -> float:
+    """The exact sum of ``values``, rounded once (non-finite values: ``math.fsum``'s answer).
+
+    Each value is ``m 2**e`` with ``0.5 <= |m| < 1``, so ``m 2**53`` is a whole number of 53 bits,
+    cut exactly into three pieces of at most 18 bits (scaling by powers of two and taking off a
+    whole part are exact in floating point).  Per exponent, ``np.bincount`` adds each piece in
+    float64 without rounding: fewer than ``2**35`` values of under ``2**18`` stay below ``2**53``.
+    Python integers then add the per-exponent sums in place, and the one division at the end is
+    correctly rounded, as fsum's result is.
+    """
+    if len(values) >= 1 << 35:  # pragma: no cover - a bincount sum could round
+        return math.fsum(values.tolist())
+    fraction, exponent = np.frexp(values)
+    if not np.isfinite(fraction).all():
+        return math.fsum(values.tolist())
+    if not len(values):
+        return 0.0
+    lowest = int(exponent.min())
+    place = exponent - lowest
+    length = int(place.max()) + 1
+    whole = fraction * 2.0**17
+    high = np.trunc(whole)
+    rest = (whole - high) * 2.0**18
+    middle = np.trunc(rest)
+    low = (rest - middle) * 2.0**18
+    total = 0
+    for piece, shift in ((high, 36), (middle, 18), (low, 0)):
+        sums = np.bincount(place, weights=piece, minlength=length)
+        for at in np.flatnonzero(sums).tolist():
+            total += int(sums[at]) << (shift + at)
+    scale = lowest - 53  # the sum is total * 2**scale
+    return float(total << scale) if scale >= 0 else total / (1 << -scale)
+
+
 @dataclass(frozen=True)
 class Summary:
     count: int
@@ -68,8 +117,7 @@ class Summary:
         """The count, mean, p95 and maximum of ``values`` (no NaN); None for none."""
         if not len(values):
             return None
-        listed: list[float] = values.tolist()  # fsum over a list: over an array it reads element by element
-        return cls(len(listed), math.fsum(listed) / len(listed), percentile_of(values, 95), float(values.max()))
+        return cls(len(values), exact_sum(values) / len(values), percentile_of(values, 95), float(values.max()))
 
     def as_dict(self) -> dict[str, float]:
         return {"mean": round(self.mean, 3), "p95": round(self.p95, 3), "max": round(self.max, 3)}
