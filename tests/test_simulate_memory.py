@@ -17,16 +17,12 @@ BLOCK_MIB = 64  # above glibc's largest dynamic mmap threshold (32 MiB): without
 
 CHILD = textwrap.dedent(
     f"""
-    import resource, sys
+    import ctypes, resource, sys
     import numpy as np
     from catanc.simulate.memory import keep_freed_memory
 
-    for name in ("numpy._core.multiarray", "numpy.core.multiarray"):  # 4 KiB pages, as the kernel's arrays
-        try:
-            __import__(name, fromlist=["_"])._set_madvise_hugepage(False)
-            break
-        except (ImportError, AttributeError):
-            continue
+    PR_SET_THP_DISABLE = 41  # 4 KiB pages whatever the machine's transparent huge page setting: one fault each
+    ctypes.CDLL(None).prctl(PR_SET_THP_DISABLE, 1, 0, 0, 0)
     applied = keep_freed_memory() if sys.argv[1] == "keep" else None
     faults = []
     for _ in range(3):
