@@ -81,13 +81,13 @@ def sum_by_exponent(values: FloatArray) -> float:
     Python integers then add the per-exponent sums in place, and the one division at the end is
     correctly rounded, as fsum's result is.
     """
+    if not len(values):
+        return 0.0
     if len(values) >= 1 << 35:  # pragma: no cover - a bincount sum could round
         return math.fsum(values.tolist())
     fraction, exponent = np.frexp(values)
     if not np.isfinite(fraction).all():
         return math.fsum(values.tolist())
-    if not len(values):
-        return 0.0
     lowest = int(exponent.min())
     place = exponent - lowest
     length = int(place.max()) + 1
