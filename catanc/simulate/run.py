@@ -167,16 +167,16 @@ def prepare(setup: Setup, policy: str, sampler_for: SamplerFactory) -> Prepared:
     """Plan what ``policy`` needs (nothing for the baselines, one plan for a static policy)."""
     check_policies([policy])
     spec, cores = setup.spec, setup.cores
+    if policy == "catan":
+        replanner = Replanner(spec, cores)
+        schedule = runtime_schedule(replanner.plan, replanner.problem, spec.schedule)
+        return Prepared(reported_chains(spec, replanner.spec_problem), schedule, replanner, None, None, "fifo")
     problem = build_problem(spec)
     chains = reported_chains(spec, problem)
     if policy in ("baseline", "fifo-static"):  # no plan: the hand-tuned rates
         by_subchain = priorities(problem, spec.schedule, problem.importance())
         by_node = {node: by_subchain[sub.name] for sub in problem.subchains for node in sub.nodes}
         return Prepared(chains, None, None, None, by_node, "fair" if policy == "baseline" else "fifo")
-    if policy == "catan":
-        replanner = Replanner(spec, cores)
-        schedule = runtime_schedule(replanner.plan, replanner.problem, spec.schedule)
-        return Prepared(chains, schedule, replanner, None, None, "fifo")
     # One plan, as the Replanner's Stage I would make it, from the tail compute times.
     profiled = problem.with_compute(static_profile(setup, policy, sampler_for))
     plan = plan_problem(profiled, spec.schedule, cores, backend="conic")
