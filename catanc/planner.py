@@ -171,17 +171,18 @@ def plan_problem(
     importance = problem.importance()
     cache: dict[Layout, Stage2Model] = {} if models is None else models
 
-    def layout_of(allocation: Allocation) -> Layout:
-        return ordered_layout(Layout.from_allocation(allocation), schedule, importance, problem)
-
     candidates = candidate_allocations(problem, cores, first, solver=solver) if runners_up else [first.allocation]
+    layouts = {
+        allocation: ordered_layout(Layout.from_allocation(allocation), schedule, importance, problem)
+        for allocation in candidates
+    }
     best: Stage2Result | None = None
     chosen = first.allocation
     two_stage: Stage2Result | None = None
     planned = 0
     complete = True
     budget = RUNNERS_UP_RELAXATIONS
-    bounds = {allocation: lower_bound(problem, layout_of(allocation), schedule) for allocation in candidates[1:]}
+    bounds = {allocation: lower_bound(problem, layouts[allocation], schedule) for allocation in candidates[1:]}
     ranked = candidates[:1] + sorted(candidates[1:], key=lambda allocation: bounds[allocation])
     for allocation in ranked:
         if best is not None and not _could_beat(bounds[allocation], best):
@@ -189,7 +190,7 @@ def plan_problem(
         if planned >= PLAN_AT_MOST or budget <= 0:
             complete = False
             break
-        layout = layout_of(allocation)
+        layout = layouts[allocation]
         beat = None if best is None else (best.scale, best.objective)
         limit = STAGE2_RELAXATIONS if best is None else min(RUNNER_UP_RELAXATIONS, budget)
         effort = Effort()
