@@ -48,9 +48,9 @@ class Subchain:
     min_period_ms: float = 0.0  # from max_rate_hz / rate_hz
     max_period_ms: float = math.inf  # from min_rate_hz / rate_hz
 
-    @property
+    @cached_property
     def compute_ms(self) -> float:
-        """``c(S)``: the subchain's total compute per run."""
+        """``c(S)``: the subchain's total compute per run (summed once: the planner asks thousands of times)."""
         return math.fsum(self.node_compute_ms)
 
     def compute_by_threads(self, cores: int) -> list[list[float]]:
@@ -190,10 +190,11 @@ class Problem:
         return tuple(chain_form(self, chain) for chain in self.chains)
 
     def subchain(self, name: str) -> Subchain:
-        for sub in self.subchains:
-            if sub.name == name:
-                return sub
-        raise KeyError(name)
+        return self._subchain_by_name[name]
+
+    @cached_property
+    def _subchain_by_name(self) -> dict[str, Subchain]:
+        return {sub.name: sub for sub in self.subchains}
 
     def with_compute(self, compute_ms: Mapping[str, float]) -> Problem:
         """The same problem with new planning compute times (ms, one thread) for some scheduled nodes.
