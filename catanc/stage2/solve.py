@@ -83,7 +83,7 @@ def lower_bound(problem: Problem, layout: Layout, schedule: Schedule) -> tuple[f
     )
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class _Member:
     """One shared subchain in :func:`load_bound`: the objective charges ``a l + b max(l, p_min)`` on its
     latency ``l >= least``, and its core's load ``load / l``."""
@@ -100,11 +100,6 @@ class _Member:
             return _toward(self.a + self.b, price * self.load, self.least, math.inf)
         below = _toward(self.a, price * self.load, self.least, self.p_min)
         return below if below < self.p_min else _toward(self.a + self.b, price * self.load, self.p_min, math.inf)
-
-    def value(self, price: float, latency: float) -> float:
-        if math.isinf(latency):  # only where a + b = 0: nothing charged, no load
-            return 0.0
-        return self.a * latency + self.b * max(latency, self.p_min) + price * self.load / latency
 
 
 def _toward(slope: float, pull: float, low: float, high: float) -> float:
@@ -173,29 +168,32 @@ def load_bound(problem: Problem, layout: Layout, schedule: Schedule, least: dict
 def _priced_core(members: list[_Member], usable: float) -> float:
     """``max over price >= 0`` of ``sum_i min_l [a l + b max(l, p_min) + price c / l] - price * usable``, nearly."""
 
-    def dual(price: float, latencies: list[float]) -> float:
-        return (
-            math.fsum(member.value(price, latency) for member, latency in zip(members, latencies, strict=True))
-            - price * usable
-        )
+    def at(price: float) -> tuple[float, float, float]:
+        """At the members' best latencies for ``price``: the dual's value, the load of the members held
+        at an edge (``least``, ``p_min``, or no pull), and ``sum sqrt(c slope)`` over the others."""
+        values = []
+        fixed = interior = 0.0
+        for member in members:
+            latency = member.best_latency(price)
+            if math.isinf(latency):  # only where a + b = 0: nothing charged, no load
+                values.append(0.0)
+                continue
+            p_min, load = member.p_min, member.load
+            values.append(member.a * latency + member.b * max(latency, p_min) + price * load / latency)
+            slope = member.a if latency < p_min else member.a + member.b
+            if latency in (member.least, p_min) or slope <= 0.0:
+                fixed += load / latency
+            else:
+                interior += math.sqrt(load * slope)
+        return math.fsum(values) - price * usable, fixed, interior
 
-    best = dual(0.0, [member.best_latency(0.0) for member in members])
+    best = at(0.0)[0]
     price = (math.fsum(math.sqrt(m.load * (m.a + m.b)) for m in members) / usable) ** 2
     for _ in range(8):  # where the load at the best latencies meets the core: sqrt(price) = S / (usable - C)
         if price <= 0.0:
             break
-        latencies = [member.best_latency(price) for member in members]
-        best = max(best, dual(price, latencies))
-        fixed = interior = 0.0
-        for member, latency in zip(members, latencies, strict=True):
-            if math.isinf(latency):
-                continue
-            slope = member.a if latency < member.p_min else member.a + member.b
-            at_edge = latency in (member.least, member.p_min) or slope <= 0.0
-            if at_edge:
-                fixed += member.load / latency
-            else:
-                interior += math.sqrt(member.load * slope)
+        value, fixed, interior = at(price)
+        best = max(best, value)
         if interior <= 0.0 or fixed >= usable:
             break
         following = (interior / (usable - fixed)) ** 2
