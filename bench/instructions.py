@@ -36,9 +36,9 @@ from typing import NamedTuple
 
 import numba
 
-from catanc.load import load_spec
-from catanc.simulate import kernel
-from catanc.simulate.run import POLICIES, Setup, simulate
+from catanc.sim import kernel
+from catanc.sim.simulate import POLICIES, Setup, simulate
+from catanc.spec.load import load_spec
 
 CHILD_FLAG = "--child"
 

@@ -32,8 +32,8 @@ from pathlib import Path
 from typing import Any
 
 from bench.solvers import median_ms
-from catanc.load import load_spec
-from catanc.replan import RUNTIME_GAP
+from catanc.planning.replan import RUNTIME_GAP
+from catanc.spec.load import load_spec
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER_STAGE2_MS = {"nav2d": 25.0, "vr_illixr": 5.5}  # C++/Mosek, paper section 6 (24-26 ms, 5-6 ms)
@@ -43,8 +43,8 @@ DRIFT = 0.03
 
 
 def resolve_speed(name: str, cores: int, repeats: int, gap: float) -> dict[str, Any]:
-    from catanc.replan import Replanner  # noqa: PLC0415
-    from catanc.stage2.relaxed import RelaxedStage2  # noqa: PLC0415
+    from catanc.planning.replan import Replanner  # noqa: PLC0415
+    from catanc.planning.stage2.relaxed import RelaxedStage2  # noqa: PLC0415
 
     spec = load_spec(ROOT / "specs" / f"{name}.yaml")
     replanner = Replanner(spec, cores, gap=gap)
@@ -110,10 +110,10 @@ def cold(name: str, cores: int) -> dict[str, float]:
     script = f"""
 import json, time
 started = time.perf_counter()
-from catanc.replan import Replanner
+from catanc.planning.replan import Replanner
 from bench.solvers import median_ms
-from catanc.load import load_spec
-from catanc.replan import RUNTIME_GAP
+from catanc.spec.load import load_spec
+from catanc.planning.replan import RUNTIME_GAP
 imported = time.perf_counter()
 spec = load_spec({str(ROOT / "specs" / f"{name}.yaml")!r})
 loaded = time.perf_counter()
@@ -149,7 +149,7 @@ def commands(repeats: int) -> dict[str, float]:
 
 
 def runners_up() -> list[dict[str, Any]]:
-    from catanc.planner import plan  # noqa: PLC0415
+    from catanc.planning.planner import plan  # noqa: PLC0415
 
     rows = []
     for path in sorted((ROOT / "specs").glob("*.yaml")):

@@ -5,7 +5,7 @@
     python -m bench.scenarios --only vr     # one scenario (face, nav2d, yolo, vr)
 
 Each scenario runs catanc's policies and the paper's baselines through
-:func:`catanc.simulate.run.simulate` or :func:`catanc.bench.run.bench_policies`
+:func:`catanc.sim.simulate.simulate` or :func:`catanc.realbench.bench.bench_policies`
 (same policies, same result shape), on 1 and 2 cores, and keeps the numbers
 docs/results.md quotes (a JSON file per source) and one figure per scenario.
 Variants of an example spec (another hand-tuned rate, a faster growth) are
@@ -33,10 +33,10 @@ import yaml
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
-from catanc.load import load_spec
-from catanc.simulate.metrics import ChainResult, PolicyResult
-from catanc.simulate.plots import panel_figure, png_bytes, write_files
-from catanc.simulate.run import Setup, simulate
+from catanc.sim.metrics import ChainResult, PolicyResult
+from catanc.sim.plots import panel_figure, png_bytes, write_files
+from catanc.sim.simulate import Setup, simulate
+from catanc.spec.load import load_spec
 
 SPECS = Path(__file__).resolve().parent.parent / "specs"
 OUT = Path(__file__).resolve().parent.parent / "docs" / "results"
@@ -70,7 +70,7 @@ class Source:
             if self.name == "sim":
                 result = simulate(Setup(spec, cores, duration_s, SEED), policy)
             else:
-                from catanc.bench.run import BenchSetup, bench_policies  # noqa: PLC0415 - root only
+                from catanc.realbench.bench import BenchSetup, bench_policies  # noqa: PLC0415 - root only
 
                 result = bench_policies(BenchSetup(path, spec, cores, duration_s, SEED), [policy])[0]
         print(

@@ -5,7 +5,7 @@
     python -m bench.simulate --duration 20 --spec specs/vr_illixr.yaml
     python -m bench.simulate --cli --duration 3600  # whole `catanc simulate` processes, start-up included
 
-Wall time of :func:`catanc.simulate.run.simulate` per policy (planning
+Wall time of :func:`catanc.sim.simulate.simulate` per policy (planning
 included: the static plans and ``catan``'s first plan and re-solves are part
 of a run), and the speed-up ``simulated s / wall s``, for the compiled kernel
 (the default) and, with ``--python``, for the Python engine it is checked
@@ -37,10 +37,10 @@ import time
 from collections.abc import Callable, Iterator
 from typing import Any
 
-from catanc.load import load_spec
-from catanc.simulate import fast, kernel, policies
-from catanc.simulate import run as simulate_run
-from catanc.simulate.run import POLICIES, EngineChoice, Setup, simulate
+from catanc.sim import fast, kernel, policies
+from catanc.sim import simulate as simulate_run
+from catanc.sim.simulate import POLICIES, EngineChoice, Setup, simulate
+from catanc.spec.load import load_spec
 
 AIM = 1000.0
 

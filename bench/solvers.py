@@ -20,11 +20,11 @@ from pathlib import Path
 from typing import Any
 
 from bench.workloads import layered_spec
-from catanc.load import load_spec
-from catanc.problem import Problem, build_problem
-from catanc.spec import Spec
-from catanc.stage1 import allocate
-from catanc.stage1.milp import DEFAULT_TIME_LIMIT_S, relaxation_bound
+from catanc.core.problem import Problem, build_problem
+from catanc.planning.stage1 import allocate
+from catanc.planning.stage1.milp import DEFAULT_TIME_LIMIT_S, relaxation_bound
+from catanc.spec.language import Spec
+from catanc.spec.load import load_spec
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER_STAGE1_NAV2D_MS = 60.0  # C++/Mosek, nav on 2 cores (paper section 6)
@@ -66,9 +66,9 @@ def nav2d_stage1(repeats: int) -> dict[str, Any]:
 
 def stage2_examples(repeats: int) -> dict[str, Any]:
     """Stage II on the example specs: whole plans, and the GP's first and warm solves."""
-    from catanc.planner import ordered_layout, plan  # noqa: PLC0415 - cvxpy only for this section
-    from catanc.stage2.integer import solve_integer  # noqa: PLC0415
-    from catanc.stage2.relaxed import Layout, RelaxedStage2  # noqa: PLC0415
+    from catanc.planning.planner import ordered_layout, plan  # noqa: PLC0415 - cvxpy only for this section
+    from catanc.planning.stage2.integer import solve_integer  # noqa: PLC0415
+    from catanc.planning.stage2.relaxed import Layout, RelaxedStage2  # noqa: PLC0415
 
     rows: dict[str, Any] = {}
     for name, cores in [("nav2d", 1), ("nav2d", 2), ("vr_illixr", 1), ("nav2d_yolo", 1)]:

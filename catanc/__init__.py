@@ -1,7 +1,7 @@
 """catanc: compile semantic specs of sense-react task graphs into CPU schedules.
 
 The pipeline (``../shared/docs/style.md``): load a spec (:func:`load_spec`),
-build its planning problem (:func:`catanc.problem.build_problem`), plan it
+build its planning problem (:func:`catanc.core.problem.build_problem`), plan it
 (:func:`plan`: Stage I, then Stage II), emit.
 
 ``plan``, ``Plan`` and ``Replanner`` (re-planning as compute times drift)
@@ -13,10 +13,10 @@ from typing import TYPE_CHECKING, Any
 from catanc.errors import CatancError, SpecError
 
 if TYPE_CHECKING:
-    from catanc.load import load_spec, parse_spec
-    from catanc.planner import Plan, plan
-    from catanc.replan import Replanner
-    from catanc.spec import Spec
+    from catanc.planning.planner import Plan, plan
+    from catanc.planning.replan import Replanner
+    from catanc.spec.language import Spec
+    from catanc.spec.load import load_spec, parse_spec
 
 __version__ = "0.1.0"
 
@@ -36,19 +36,19 @@ __all__ = [
 def __getattr__(name: str) -> Any:
     # Everything loads on first use: `import catanc.client` in an app node must stay light.
     if name in ("load_spec", "parse_spec"):
-        from catanc import load  # noqa: PLC0415
+        from catanc.spec import load  # noqa: PLC0415
 
         return getattr(load, name)
     if name == "Spec":
-        from catanc.spec import Spec  # noqa: PLC0415
+        from catanc.spec.language import Spec  # noqa: PLC0415
 
         return Spec
     if name in ("plan", "Plan"):
-        from catanc import planner  # noqa: PLC0415 - the solvers load on first use
+        from catanc.planning import planner  # noqa: PLC0415 - the solvers load on first use
 
         return getattr(planner, name)
     if name == "Replanner":
-        from catanc.replan import Replanner  # noqa: PLC0415
+        from catanc.planning.replan import Replanner  # noqa: PLC0415
 
         return Replanner
     raise AttributeError(f"module 'catanc' has no attribute {name!r}")

@@ -18,8 +18,8 @@ from typing import Any
 
 import pytest
 
-from catanc.compiler import compile_spec
-from catanc.output import write
+from catanc.artifacts.compile import compile_spec
+from catanc.artifacts.output import write
 from catanc.runtime.log import read_log
 from tests.kernel import WAIT_S, poll
 

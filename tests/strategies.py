@@ -7,9 +7,9 @@ from typing import Any
 
 from hypothesis import strategies as st
 
-from catanc.load import parse_spec
-from catanc.problem import Problem, build_problem
-from catanc.spec import Spec
+from catanc.core.problem import Problem, build_problem
+from catanc.spec.language import Spec
+from catanc.spec.load import parse_spec
 
 
 @st.composite

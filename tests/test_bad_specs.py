@@ -31,7 +31,7 @@ from typing import Any
 import pytest
 
 from catanc.errors import Diagnostic, SpecError
-from catanc.load import load_spec
+from catanc.spec.load import load_spec
 
 CASES_DIR = Path(__file__).parent / "bad_specs"
 

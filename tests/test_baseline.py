@@ -6,9 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from catanc.baseline import BaselineEvaluation, BaselineGap, evaluate_baseline
-from catanc.load import load_spec, parse_spec
-from catanc.problem import build_problem
+from catanc.core.problem import build_problem
+from catanc.planning.baseline import BaselineEvaluation, BaselineGap, evaluate_baseline
+from catanc.spec.load import load_spec, parse_spec
 
 SPECS = Path(__file__).parent.parent / "specs"
 

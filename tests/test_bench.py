@@ -26,20 +26,20 @@ from typing import Any
 
 import pytest
 
-from catanc.bench import run as bench_run
-from catanc.bench.driver import BenchError, Driver
-from catanc.bench.replay import measured_result, replay, utilisation
-from catanc.bench.triggers import TICK, TIMER, Clock, Triggers, fifo_levels, trigger_rules
+from catanc.core.problem import build_problem
 from catanc.errors import ExitCode, UsageError
-from catanc.load import load_spec
-from catanc.planner import plan
-from catanc.problem import build_problem
+from catanc.planning.planner import plan
+from catanc.realbench import bench as bench_run
+from catanc.realbench.driver import BenchError, Driver
+from catanc.realbench.replay import measured_result, replay, utilisation
+from catanc.realbench.triggers import TICK, TIMER, Clock, Triggers, fifo_levels, trigger_rules
 from catanc.runtime import protocol
 from catanc.runtime.protocol import Address
 from catanc.runtime.sched import read_policy
 from catanc.runtime.worker import RunRecord
-from catanc.simulate.run import Setup, prepare, reported_chains, simulate_policies, workload_sampler
-from catanc.spec import Spec
+from catanc.sim.simulate import Setup, prepare, reported_chains, simulate_policies, workload_sampler
+from catanc.spec.language import Spec
+from catanc.spec.load import load_spec
 from tests.kernel import WAIT_S, nobody_ids, poll, require_fifo
 
 T0 = 5_000_000_000  # a window's start on CLOCK_MONOTONIC (ns): replayed times are relative to it

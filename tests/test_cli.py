@@ -105,12 +105,12 @@ def test_missing_file_is_a_bad_input(tmp_path: Path) -> None:
 
 
 def test_bugs_get_their_own_exit_code(good: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    import catanc.load
+    import catanc.spec.load
 
     def broken(path: object) -> None:
         raise RuntimeError("boom")
 
-    monkeypatch.setattr(catanc.load, "load_spec", broken)
+    monkeypatch.setattr(catanc.spec.load, "load_spec", broken)
     monkeypatch.delenv("CATANC_DEBUG", raising=False)
     result = runner.invoke(app, ["chains", str(good)])
     assert result.exit_code == ExitCode.INTERNAL

@@ -24,7 +24,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from catanc.client import ClientError, Node
-from catanc.load import load_spec
+from catanc.core.workload import ComputeSampler
 from catanc.runtime.protocol import (
     MAX_DATAGRAM,
     MAX_NAME,
@@ -58,7 +58,7 @@ from catanc.runtime.worker import (
     workload_worker_command,
     write_records,
 )
-from catanc.workload import ComputeSampler
+from catanc.spec.load import load_spec
 
 TIMEOUT_S = 30.0
 """The bound on every wait: generous, since nothing here is timed."""
@@ -822,10 +822,10 @@ def client_imports() -> set[str]:
         "scipy",
         "highspy",
         "clarabel",
-        "catanc.planner",
-        "catanc.stage1",
-        "catanc.stage2",
-        "catanc.replan",
+        "catanc.planning.planner",
+        "catanc.planning.stage1",
+        "catanc.planning.stage2",
+        "catanc.planning.replan",
         "pydantic",
         "yaml",
         "networkx",

@@ -26,15 +26,15 @@ import yaml
 from typer.testing import CliRunner
 
 from catanc import __version__
+from catanc.artifacts.compile import Target, compile_spec
+from catanc.artifacts.deploy import processes
+from catanc.artifacts.emit import FILES, RUNTIME_FORMAT
 from catanc.cli import app
-from catanc.compiler import Target, compile_spec
-from catanc.deploy import processes
-from catanc.emit import FILES, RUNTIME_FORMAT
+from catanc.core.problem import build_problem
 from catanc.errors import ExitCode
-from catanc.load import load_spec
-from catanc.planner import plan
-from catanc.problem import build_problem
-from catanc.spec import Spec
+from catanc.planning.planner import plan
+from catanc.spec.language import Spec
+from catanc.spec.load import load_spec
 
 ROOT = Path(__file__).parent.parent
 SPECS = sorted((ROOT / "specs").glob("*.yaml"))
@@ -153,7 +153,7 @@ def test_runtime_table_spec_is_enough_to_plan_again(compiled: dict[tuple[str, in
         assert again.model_dump() == original.model_dump()
         assert build_problem(again) == build_problem(original)
         if cores == 1:  # one re-plan per spec is enough to show the table is complete
-            from catanc.table import plan_payload
+            from catanc.artifacts.runtime_table import plan_payload
 
             assert plan_payload(plan(again, cores), build_problem(again)) == table["plan"]
 

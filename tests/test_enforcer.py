@@ -38,8 +38,8 @@ from typing import Any
 
 import pytest
 
+from catanc.core.priorities import ENFORCER_FIFO, RUNNING_FIFO, SHARED_FIFO, UNSCHEDULED_FIFO
 from catanc.errors import ExitCode
-from catanc.priorities import ENFORCER_FIFO, RUNNING_FIFO, SHARED_FIFO, UNSCHEDULED_FIFO
 from catanc.runtime.log import read_log
 from catanc.runtime.watchdog import WATCHDOG_PRIORITY
 from catanc.runtime.worker import Profile, worker_command

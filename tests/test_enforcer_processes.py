@@ -42,8 +42,8 @@ from typing import Any
 
 import pytest
 
+from catanc.core.priorities import RUNNING_FIFO, SHARED_FIFO, UNSCHEDULED_FIFO
 from catanc.errors import ExitCode
-from catanc.priorities import RUNNING_FIFO, SHARED_FIFO, UNSCHEDULED_FIFO
 from catanc.runtime.protocol import SOCKET_ENV
 from catanc.runtime.watchdog import WATCHDOG_PRIORITY
 from catanc.runtime.worker import worker_command

@@ -18,8 +18,9 @@ from rich.console import Console
 from typer.testing import CliRunner
 
 from catanc.cli import app
+from catanc.core.problem import Problem, build_problem
 from catanc.errors import ExitCode, InfeasibleError
-from catanc.explain import (
+from catanc.explain.analysis import (
     Block,
     Bullets,
     Column,
@@ -35,9 +36,8 @@ from catanc.explain import (
     render_markdown,
     timeline_bar,
 )
-from catanc.load import load_spec, parse_spec
-from catanc.planner import Plan, plan
-from catanc.problem import Problem, build_problem
+from catanc.planning.planner import Plan, plan
+from catanc.spec.load import load_spec, parse_spec
 
 ROOT = Path(__file__).parent.parent
 SPECS = ROOT / "specs"
@@ -233,7 +233,7 @@ def test_timeline_segments_add_up_to_the_period() -> None:
 
 
 def test_bar_gives_tiny_slices_a_character() -> None:
-    from catanc.explain import Segment
+    from catanc.explain.analysis import Segment
 
     view = SharedCoreView(
         0,
@@ -281,12 +281,12 @@ def test_bad_spec_exits_2_with_the_place(tmp_path: Path) -> None:
 
 
 def test_infeasible_exits_with_its_code(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    import catanc.planner
+    import catanc.planning.planner
 
     def infeasible(*args: object, **kwargs: object) -> Plan:
         raise InfeasibleError("near: no schedule exists for the shared cores, whatever the bounds")
 
-    monkeypatch.setattr(catanc.planner, "plan", infeasible)
+    monkeypatch.setattr(catanc.planning.planner, "plan", infeasible)
     path = tmp_path / "near.yaml"
     path.write_text(NEAR)
     for extra in ([], ["--json"]):
@@ -306,7 +306,7 @@ def test_stage1_options_pass_through() -> None:
 
 def test_the_explain_modules_load_no_solver() -> None:
     code = (
-        "import sys, catanc.explain, catanc.table, catanc.baseline\n"
+        "import sys, catanc.explain.analysis, catanc.artifacts.runtime_table, catanc.planning.baseline\n"
         "heavy = sorted(m for m in ('cvxpy', 'pulp') if m in sys.modules)\n"
         "assert not heavy, heavy\n"
     )

@@ -1,4 +1,4 @@
-"""The triggering rules shared by the enforcer and the simulator (catanc.runtime.flights), worked by hand,
+"""The triggering rules shared by the enforcer and the simulator (catanc.control.flights), worked by hand,
 and a random walk of triggers and completions against a plain list of runs."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 from hypothesis import given
 from hypothesis import strategies as st
 
-from catanc.runtime.flights import Flight, Flights, NodeQueues
+from catanc.control.flights import Flight, Flights, NodeQueues
 
 
 def test_a_head_trigger_while_the_head_runs_is_deferred_once() -> None:

@@ -8,7 +8,7 @@ import networkx as nx
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from catanc import graph
+from catanc.core import graph
 
 Edges = list[tuple[str, str]]
 

@@ -5,7 +5,7 @@ dedicated core (SCHED_FIFO 2 on CPU 0), the Mapper-like ``/slow`` hosts two
 nodes that share CPU 1 (FIFO 1), and the unscheduled ``sensor`` may use both
 CPUs (FIFO 3).  Each test writes the emitted files to a folder, runs ``bash
 launch.sh`` and reads every child's policy, priority and CPUs from /proc,
-comparing them with :func:`catanc.deploy.processes` (not with the script's
+comparing them with :func:`catanc.artifacts.deploy.processes` (not with the script's
 text).  The stand-ins are small Python programs that say they are ready,
 note every signal they get and linger a moment after the first, so a signal
 forwarded twice would show.
@@ -35,15 +35,15 @@ from typing import Any
 import pytest
 import yaml
 
-from catanc.compiler import compile_spec
-from catanc.deploy import Process, processes
-from catanc.emit import Provenance, emit
+from catanc.artifacts.compile import compile_spec
+from catanc.artifacts.deploy import Process, processes
+from catanc.artifacts.emit import Provenance, emit
+from catanc.core.priorities import RUNNING_FIFO, SHARED_FIFO, UNSCHEDULED_FIFO
+from catanc.core.problem import build_problem
 from catanc.errors import ExitCode
-from catanc.load import parse_spec
-from catanc.planner import Plan, plan
-from catanc.priorities import RUNNING_FIFO, SHARED_FIFO, UNSCHEDULED_FIFO
-from catanc.problem import build_problem
-from catanc.spec import Spec
+from catanc.planning.planner import Plan, plan
+from catanc.spec.language import Spec
+from catanc.spec.load import parse_spec
 from tests.kernel import as_user, cpu_set, missing_tools, nobody_ids, poll
 
 SPECS = sorted((Path(__file__).parent.parent / "specs").glob("*.yaml"))

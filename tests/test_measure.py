@@ -20,8 +20,7 @@ from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, invariant, rule
 
 from catanc.errors import UsageError
-from catanc.load import load_spec, parse_spec
-from catanc.replan import Replanner
+from catanc.planning.replan import Replanner
 from catanc.runtime.measure import (
     MIN_PLANNING_MS,
     ComputeWindow,
@@ -40,7 +39,8 @@ from catanc.runtime.measure import (
     split_modes,
     valid_sample,
 )
-from catanc.spec import Spec
+from catanc.spec.language import Spec
+from catanc.spec.load import load_spec, parse_spec
 
 untimed = settings(deadline=None)  # tests never time things
 

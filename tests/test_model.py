@@ -13,8 +13,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from catanc.load import load_spec, parse_spec
-from catanc.model import (
+from catanc.core.metrics import (
     Timing,
     chain_metrics,
     chain_metrics_of,
@@ -22,8 +21,9 @@ from catanc.model import (
     evaluate_chain,
     objective,
 )
-from catanc.problem import Problem, Subchain, build_problem
-from catanc.spec import Node
+from catanc.core.problem import Problem, Subchain, build_problem
+from catanc.spec.language import Node
+from catanc.spec.load import load_spec, parse_spec
 from tests.strategies import problems
 
 ROOT = Path(__file__).parent.parent

@@ -1,4 +1,4 @@
-"""Stale numba cache files are removed before numba can trip over them (catanc.simulate.numba_cache)."""
+"""Stale numba cache files are removed before numba can trip over them (catanc.sim.numba_cache)."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-import catanc.simulate
-from catanc.simulate.numba_cache import drop_stale_cache
+import catanc.sim
+from catanc.sim.numba_cache import drop_stale_cache
 
 HOUR_S = 3600.0
 
@@ -43,21 +43,21 @@ def test_a_missing_source_or_cache_folder_is_no_error(tmp_path: Path) -> None:
 
 
 def test_importing_the_kernel_drops_its_stale_cache_files() -> None:
-    package = Path(catanc.simulate.__file__).parent
+    package = Path(catanc.sim.__file__).parent
     (package / "__pycache__").mkdir(exist_ok=True)
     # A function's index from an older kernel, as numba names them; what it holds never matters.
     probe = touch(package / "__pycache__" / "kernel.zz_stale_probe-1.py311.nbi", 0.0)
     try:
-        subprocess.run([sys.executable, "-c", "import catanc.simulate.kernel"], check=True, timeout=120)
+        subprocess.run([sys.executable, "-c", "import catanc.sim.kernel"], check=True, timeout=120)
         assert not probe.exists()
     finally:
         probe.unlink(missing_ok=True)
 
 
 BUILD_A_SIM = """
-import catanc.simulate.kernel as k
-from catanc.load import load_spec
-from catanc.simulate.run import Setup, simulate
+import catanc.sim.kernel as k
+from catanc.spec.load import load_spec
+from catanc.sim.simulate import Setup, simulate
 
 simulate(Setup(load_spec("specs/nav2d.yaml"), 1, 0.1, 0), "baseline")
 print(len(k.new_sim.stats.cache_misses), hasattr(k.SimProxy, "_StructRefProxy__numba_ctor"))
@@ -66,7 +66,7 @@ print(len(k.new_sim.stats.cache_misses), hasattr(k.SimProxy, "_StructRefProxy__n
 
 def test_a_second_process_builds_its_simulation_from_the_cache_without_compiling() -> None:
     """numba's own ``SimProxy(...)`` constructor is never cached: it compiled for 7 s in every process."""
-    root = Path(catanc.simulate.__file__).parents[2]
+    root = Path(catanc.sim.__file__).parents[2]
     outputs = [
         subprocess.run(
             [sys.executable, "-c", BUILD_A_SIM], cwd=root, check=True, timeout=600, capture_output=True, text=True

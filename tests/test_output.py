@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from catanc import output
+from catanc.artifacts import output
+from catanc.artifacts.output import Status, compare, ensure_comparable, write
 from catanc.errors import ExitCode, NotCompiledError, OutputBlockedError, OutputError
-from catanc.output import Status, compare, ensure_comparable, write
 
 FILES = {
     "PLAN.md": "# plan\n",

@@ -10,12 +10,12 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from catanc.load import load_spec
-from catanc.model import Timing, bound_scale, objective
-from catanc.planner import Plan, plan
-from catanc.problem import Problem, build_problem
-from catanc.spec import Schedule
-from catanc.stage2.relaxed import Layout, SharedCore
+from catanc.core.metrics import Timing, bound_scale, objective
+from catanc.core.problem import Problem, build_problem
+from catanc.planning.planner import Plan, plan
+from catanc.planning.stage2.relaxed import Layout, SharedCore
+from catanc.spec.language import Schedule
+from catanc.spec.load import load_spec
 from tests.strategies import spec_documents, spec_of
 from tests.test_stage2_integer import closed_form, meets_bounds
 from tests.test_stage2_integer import enumerate_best as enumerate_integer_best
@@ -75,7 +75,7 @@ subchains: {A: [a], B: [b]}
 objective: [{chain: [a, b, out], weight: 1}]
 constraints: [{chain: [a, b, out], max_response_ms: 1}]
 """
-    from catanc.load import parse_spec
+    from catanc.spec.load import parse_spec
 
     result = plan(parse_spec(text), 1)
     assert result.constraint_scale > 1
@@ -123,7 +123,7 @@ def test_public_api() -> None:
 
 
 def every_layout(names: list[str], cores: int) -> set[Layout]:
-    """Every allocation, found independently of catanc.stage1: give each subchain a non-empty set of
+    """Every allocation, found independently of catanc.planning.stage1: give each subchain a non-empty set of
     cores; keep those where a subchain on several cores is alone on them and, with at least as many
     subchains as cores, no core is idle."""
     subsets = [frozenset(c for c in range(cores) if mask >> c & 1) for mask in range(1, 2**cores)]
@@ -221,8 +221,8 @@ def test_same_plan_in_fresh_processes() -> None:
     import sys
 
     script = (
-        "import json, sys; from catanc.load import load_spec; from catanc.planner import plan; "
-        "from catanc.problem import build_problem; from catanc.table import plan_payload; "
+        "import json, sys; from catanc.spec.load import load_spec; from catanc.planning.planner import plan; "
+        "from catanc.core.problem import build_problem; from catanc.artifacts.runtime_table import plan_payload; "
         "spec = load_spec(sys.argv[1]); "
         "print(json.dumps(plan_payload(plan(spec, 2), build_problem(spec)), sort_keys=True))"
     )
@@ -243,11 +243,11 @@ def test_same_plan_in_fresh_processes() -> None:
 def test_a_capped_integer_search_says_how_close_it_is(monkeypatch: pytest.MonkeyPatch) -> None:
     # nav2d on 1 core: GL is batch, so the integer search runs; allowed a single relaxation past its
     # first plan, it stops, and the plan says so and stays within its stated gap of the exact plan.
-    import catanc.planner
+    import catanc.planning.planner
 
     spec = load_spec(SPECS / "nav2d.yaml")
     exact = plan(spec, 1)
-    monkeypatch.setattr(catanc.planner, "STAGE2_RELAXATIONS", 1)
+    monkeypatch.setattr(catanc.planning.planner, "STAGE2_RELAXATIONS", 1)
     capped = plan(spec, 1)
     notes = [note for note in capped.warnings if "integer search stopped" in note]
     assert notes

@@ -7,9 +7,9 @@ import math
 
 import pytest
 
+from catanc.core.problem import Stage, build_problem
 from catanc.errors import SpecError
-from catanc.load import parse_spec
-from catanc.problem import Stage, build_problem
+from catanc.spec.load import parse_spec
 
 NAV = """
 catan: 1
@@ -124,7 +124,7 @@ def test_selector_matching_too_many_paths_is_an_error() -> None:
 
 
 def test_specs_built_in_python_report_fields_without_location() -> None:
-    from catanc.spec import Spec
+    from catanc.spec.language import Spec
 
     spec = Spec.model_validate({"catan": 1, "app": "x", "nodes": {"a": {"compute_ms": 1}}, "subchains": {"s": ["b"]}})
     with pytest.raises(SpecError) as info:

@@ -8,14 +8,14 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
+from catanc.core.metrics import Timing, bound_scale, objective
 from catanc.errors import UsageError
-from catanc.load import load_spec
-from catanc.model import Timing, bound_scale, objective
-from catanc.planner import Plan, plan, plan_problem
-from catanc.replan import RUNTIME_GAP, Replanner
-from catanc.stage2.base import Layout, SharedCore
-from catanc.stage2.relaxed import RelaxedStage2
-from catanc.stage2.solve import solve_layout
+from catanc.planning.planner import Plan, plan, plan_problem
+from catanc.planning.replan import RUNTIME_GAP, Replanner
+from catanc.planning.stage2.base import Layout, SharedCore
+from catanc.planning.stage2.relaxed import RelaxedStage2
+from catanc.planning.stage2.solve import solve_layout
+from catanc.spec.load import load_spec
 from tests.test_stage2_integer import enumerate_best
 
 SPECS = Path(__file__).parent.parent / "specs"

@@ -11,8 +11,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from catanc.errors import SpecError
-from catanc.load import parse_spec
-from catanc.spec import Spec
+from catanc.spec.language import Spec
+from catanc.spec.load import parse_spec
 
 SPECS = sorted((Path(__file__).parent.parent / "specs").glob("*.yaml"))
 

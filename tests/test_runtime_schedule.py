@@ -8,10 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from catanc.load import load_spec
-from catanc.planner import plan
-from catanc.problem import build_problem
-from catanc.runtime.schedule import (
+from catanc.control.schedule import (
     CoreSchedule,
     Slot,
     SubchainRun,
@@ -21,6 +18,9 @@ from catanc.runtime.schedule import (
     slot_owner,
     triggers_at_slot,
 )
+from catanc.core.problem import build_problem
+from catanc.planning.planner import plan
+from catanc.spec.load import load_spec
 
 ROOT = Path(__file__).parent.parent
 CASES = [(path, cores) for path in sorted((ROOT / "specs").glob("*.yaml")) for cores in (1, 2)]

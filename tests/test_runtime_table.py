@@ -8,10 +8,10 @@ from pathlib import Path
 
 import pytest
 
+from catanc.core.problem import build_problem
 from catanc.errors import SpecError
-from catanc.load import load_spec
-from catanc.problem import build_problem
 from catanc.runtime.table import load_table
+from catanc.spec.load import load_spec
 
 ROOT = Path(__file__).parent.parent
 TABLES = sorted((ROOT / "out").glob("*/cores-*/runtime.json"))

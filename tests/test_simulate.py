@@ -19,14 +19,14 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from catanc.errors import CatancError, UsageError
-from catanc.load import load_spec
 from catanc.runtime.measure import percentile
-from catanc.simulate.cpu import Job, Pool
-from catanc.simulate.engine import Engine
-from catanc.simulate.metrics import SMALL_SUM, exact_sum, percentile_of, response_arrays, sum_by_exponent
-from catanc.simulate.report import comparison_payload
-from catanc.simulate.run import POLICIES, Setup, check_policies, simulate, simulate_policies
-from catanc.spec import Spec
+from catanc.sim.comparison import comparison_payload
+from catanc.sim.cpu import Job, Pool
+from catanc.sim.engine import Engine
+from catanc.sim.metrics import SMALL_SUM, exact_sum, percentile_of, response_arrays, sum_by_exponent
+from catanc.sim.simulate import POLICIES, Setup, check_policies, simulate, simulate_policies
+from catanc.spec.language import Spec
+from catanc.spec.load import load_spec
 from tests.strategies import spec_documents, spec_of
 
 untimed = settings(deadline=None, suppress_health_check=[HealthCheck.too_slow])

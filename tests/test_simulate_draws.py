@@ -1,4 +1,4 @@
-"""A static plan's profiled tail times, drawn a block at a time (catanc.simulate.run.stream_draws).
+"""A static plan's profiled tail times, drawn a block at a time (catanc.sim.simulate.stream_draws).
 
 Oracle: the run-by-run sampler (ComputeSampler.compute_ms, what the Python engine
 calls), whose draws test_workload.py checks on their own.  The block draws must
@@ -14,8 +14,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from catanc.load import load_spec
-from catanc.simulate.run import (
+from catanc.core.workload import ComputeSampler
+from catanc.sim.simulate import (
     STATIC_20S,
     profile_times,
     stream_draws,
@@ -23,8 +23,8 @@ from catanc.simulate.run import (
     workload_sampler,
     workload_tail_compute,
 )
-from catanc.spec import Spec
-from catanc.workload import ComputeSampler
+from catanc.spec.language import Spec
+from catanc.spec.load import load_spec
 from tests.strategies import spec_of
 from tests.test_simulate_kernel import apps_with_workloads, untimed
 

@@ -18,13 +18,13 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from catanc.errors import CatancError
-from catanc.load import load_spec
-from catanc.simulate import fast
-from catanc.simulate import kernel as k
-from catanc.simulate.metrics import PolicyResult
-from catanc.simulate.report import comparison_payload
-from catanc.simulate.run import POLICIES, Setup, simulate
-from catanc.spec import Spec
+from catanc.sim import fast
+from catanc.sim import kernel as k
+from catanc.sim.comparison import comparison_payload
+from catanc.sim.metrics import PolicyResult
+from catanc.sim.simulate import POLICIES, Setup, simulate
+from catanc.spec.language import Spec
+from catanc.spec.load import load_spec
 from tests.strategies import spec_documents, spec_of
 
 untimed = settings(deadline=None, suppress_health_check=[HealthCheck.too_slow], max_examples=40)

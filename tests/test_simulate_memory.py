@@ -1,4 +1,4 @@
-"""catanc.simulate.memory: freed memory is reused without faulting its pages in again.
+"""catanc.sim.memory: freed memory is reused without faulting its pages in again.
 
 Each case runs in a fresh interpreter: the setting is process-wide and once.
 """
@@ -19,7 +19,7 @@ CHILD = textwrap.dedent(
     f"""
     import ctypes, resource, sys
     import numpy as np
-    from catanc.simulate.memory import keep_freed_memory
+    from catanc.sim.memory import keep_freed_memory
 
     PR_SET_THP_DISABLE = 41  # 4 KiB pages whatever the machine's transparent huge page setting: one fault each
     ctypes.CDLL(None).prctl(PR_SET_THP_DISABLE, 1, 0, 0, 0)

@@ -24,11 +24,11 @@ from PIL import Image
 from typer.testing import CliRunner
 
 from catanc.cli import app
+from catanc.control.schedule import CoreSchedule, RuntimeSchedule, Slot, SubchainRun
 from catanc.errors import OutputError
-from catanc.runtime.schedule import CoreSchedule, RuntimeSchedule, Slot, SubchainRun
-from catanc.simulate import plots
-from catanc.simulate.metrics import ChainResult, NodeResult, PolicyResult, Summary
-from catanc.simulate.plots import (
+from catanc.sim import plots
+from catanc.sim.metrics import ChainResult, NodeResult, PolicyResult, Summary
+from catanc.sim.plots import (
     FILES,
     RATES,
     RESPONSES,
@@ -306,7 +306,7 @@ def test_simulate_plot_writes_the_files_and_keeps_json_on_stdout_clean(tmp_path:
 def test_simulate_without_plot_never_imports_matplotlib() -> None:
     code = (
         "import sys\n"
-        "import catanc.cli, catanc.simulate.run, catanc.simulate.plots\n"
+        "import catanc.cli, catanc.sim.simulate, catanc.sim.plots\n"
         "assert 'matplotlib' not in sys.modules, 'matplotlib imported'\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)

@@ -5,11 +5,11 @@ from __future__ import annotations
 from hypothesis import given
 from hypothesis import strategies as st
 
-from catanc.load import parse_spec
-from catanc.planner import plan
-from catanc.problem import build_problem
-from catanc.runtime.schedule import runtime_schedule
-from catanc.speedup import best_speedup, threads_used
+from catanc.control.schedule import runtime_schedule
+from catanc.core.problem import build_problem
+from catanc.core.speedup import best_speedup, threads_used
+from catanc.planning.planner import plan
+from catanc.spec.load import parse_spec
 
 speedup_lists = st.lists(st.floats(0.2, 64, allow_nan=False), max_size=7).map(lambda rest: (1.0, *rest))
 

@@ -10,11 +10,11 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from catanc.load import parse_spec
-from catanc.problem import Problem, build_problem
-from catanc.stage1 import Allocation, Option, allocate, milp
-from catanc.stage1.estimate import option_timing
-from catanc.stage1.exhaustive import allocations, set_partitions
+from catanc.core.problem import Problem, build_problem
+from catanc.planning.stage1 import Allocation, Option, allocate, milp
+from catanc.planning.stage1.estimate import option_timing
+from catanc.planning.stage1.exhaustive import allocations, set_partitions
+from catanc.spec.load import parse_spec
 from tests.strategies import problems
 
 REL = 1e-6
@@ -291,8 +291,8 @@ def test_time_limit_returns_a_valid_allocation_with_its_gap() -> None:
 
 
 def test_local_search_allocations_are_valid() -> None:
-    from catanc.stage1.estimate import option_table
-    from catanc.stage1.search import local_search
+    from catanc.planning.stage1.estimate import option_table
+    from catanc.planning.stage1.search import local_search
 
     for size, cores in [(12, 2), (12, 5), (3, 8), (30, 16)]:
         problem = layered(size, 4)
@@ -333,7 +333,7 @@ def test_milp_prints_nothing_to_stdout() -> None:
 
 
 def test_highs_is_silent_from_construction() -> None:
-    from catanc.stage1.milp import _SilentHighs
+    from catanc.planning.stage1.milp import _SilentHighs
 
     highs = _SilentHighs()
     _status, flag = highs.getOptionValue("output_flag")
@@ -354,8 +354,8 @@ def test_same_allocation_in_fresh_processes() -> None:
 def test_next_best_is_the_runner_up_of_the_enumeration(problem: Problem, cores: int) -> None:
     # Oracle: every allocation's Stage I score; the runner-up is the best score among the option
     # vectors other than the winner's (the MILP's no-good cut excludes one option vector).
-    from catanc.stage1 import next_best
-    from catanc.stage1.estimate import evaluate, option_table
+    from catanc.planning.stage1 import next_best
+    from catanc.planning.stage1.estimate import evaluate, option_table
 
     table = option_table(problem, cores)
     scored = [evaluate(problem, table, options) for options in allocations(problem, cores)]
@@ -376,7 +376,7 @@ def test_next_best_is_the_runner_up_of_the_enumeration(problem: Problem, cores: 
 def test_every_allocation_counts_partners() -> None:
     # Four subchains on two cores, every core used: a group of three plus one alone (4 ways), or two
     # pairs ({AB|CD}, {AC|BD}, {AD|BC}). Stage I's options cannot tell the three pairings apart.
-    from catanc.stage1.exhaustive import every_allocation
+    from catanc.planning.stage1.exhaustive import every_allocation
 
     problem = spec(
         "nodes: {a: {compute_ms: 1}, b: {compute_ms: 2}, c: {compute_ms: 3}, d: {compute_ms: 4}}\n"

@@ -17,15 +17,15 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from catanc.core.metrics import Timing
+from catanc.core.problem import Problem, build_problem
 from catanc.errors import InfeasibleError
-from catanc.load import parse_spec
-from catanc.model import Timing
-from catanc.planner import conic_model, ordered_layout
-from catanc.problem import Problem, build_problem
-from catanc.spec import Schedule
-from catanc.stage1.exhaustive import every_allocation
-from catanc.stage2.base import Layout, SharedCore, Stage2Model
-from catanc.stage2.solve import SCALE_PRECISION, load_bound, lower_bound, solve_layout
+from catanc.planning.planner import conic_model, ordered_layout
+from catanc.planning.stage1.exhaustive import every_allocation
+from catanc.planning.stage2.base import Layout, SharedCore, Stage2Model
+from catanc.planning.stage2.solve import SCALE_PRECISION, load_bound, lower_bound, solve_layout
+from catanc.spec.language import Schedule
+from catanc.spec.load import parse_spec
 from tests.strategies import spec_documents, spec_of
 
 

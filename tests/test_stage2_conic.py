@@ -16,14 +16,14 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from catanc.load import load_spec
-from catanc.problem import Problem, build_problem
-from catanc.spec import Spec
-from catanc.stage1 import allocate
-from catanc.stage2.base import Layout, RelaxedSolution, SharedCore, Stage2Model
-from catanc.stage2.conic import ConicStage2
-from catanc.stage2.integer import most_runs, solve_integer
-from catanc.stage2.relaxed import RelaxedStage2
+from catanc.core.problem import Problem, build_problem
+from catanc.planning.stage1 import allocate
+from catanc.planning.stage2.base import Layout, RelaxedSolution, SharedCore, Stage2Model
+from catanc.planning.stage2.conic import ConicStage2
+from catanc.planning.stage2.integer import most_runs, solve_integer
+from catanc.planning.stage2.relaxed import RelaxedStage2
+from catanc.spec.language import Spec
+from catanc.spec.load import load_spec
 from tests.strategies import spec_documents, spec_of
 from tests.test_stage2_integer import enumerate_best
 
@@ -264,6 +264,6 @@ def test_a_re_solve_only_updates_b() -> None:
 
 
 def test_runtime_path_does_not_import_cvxpy() -> None:
-    code = "import sys, catanc.stage2.conic, catanc.stage2.integer; print('cvxpy' in sys.modules)"
+    code = "import sys, catanc.planning.stage2.conic, catanc.planning.stage2.integer; print('cvxpy' in sys.modules)"
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert result.stdout.strip() == "False"

@@ -19,15 +19,15 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from catanc.load import load_spec, parse_spec
-from catanc.model import Timing, bound_scale, capped_dedicated, objective
-from catanc.problem import Problem, build_problem
-from catanc.spec import Schedule, Spec
-from catanc.stage1 import allocate
-from catanc.stage2.base import Layout, RelaxedSolution, SharedCore
-from catanc.stage2.conic import ConicStage2
-from catanc.stage2.integer import most_runs, solve_integer
-from catanc.stage2.onebatch import OPEN, OneBatchRuns
+from catanc.core.metrics import Timing, bound_scale, capped_dedicated, objective
+from catanc.core.problem import Problem, build_problem
+from catanc.planning.stage1 import allocate
+from catanc.planning.stage2.base import Layout, RelaxedSolution, SharedCore
+from catanc.planning.stage2.conic import ConicStage2
+from catanc.planning.stage2.integer import most_runs, solve_integer
+from catanc.planning.stage2.onebatch import OPEN, OneBatchRuns
+from catanc.spec.language import Schedule, Spec
+from catanc.spec.load import load_spec, parse_spec
 from tests.test_stage2_conic import AGREE, apps
 
 SPECS = Path(__file__).parent.parent / "specs"

@@ -8,12 +8,12 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from catanc.load import parse_spec
-from catanc.model import Timing, capped_dedicated, objective
-from catanc.problem import Problem, build_problem
-from catanc.spec import Schedule
-from catanc.stage1 import allocate
-from catanc.stage2.relaxed import Layout, RelaxedStage2, SharedCore
+from catanc.core.metrics import Timing, capped_dedicated, objective
+from catanc.core.problem import Problem, build_problem
+from catanc.planning.stage1 import allocate
+from catanc.planning.stage2.relaxed import Layout, RelaxedStage2, SharedCore
+from catanc.spec.language import Schedule
+from catanc.spec.load import parse_spec
 from tests.strategies import spec_documents, spec_of
 
 # Two one-node subchains on one core, no slack, no switch cost, a negligible minimum slice,

@@ -12,11 +12,11 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from catanc.load import load_spec
-from catanc.planner import Plan, plan
-from catanc.problem import Problem, build_problem
-from catanc.spec import ChainsTerm, ChainTerm, NodeTerm, Spec
-from catanc.table import plan_json, plan_payload
+from catanc.artifacts.runtime_table import plan_json, plan_payload
+from catanc.core.problem import Problem, build_problem
+from catanc.planning.planner import Plan, plan
+from catanc.spec.language import ChainsTerm, ChainTerm, NodeTerm, Spec
+from catanc.spec.load import load_spec
 from tests.strategies import spec_documents, spec_of
 
 SPECS = Path(__file__).parent.parent / "specs"

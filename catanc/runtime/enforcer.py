@@ -40,8 +40,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-from catanc.priorities import APP_FIFO_LEVELS, ENFORCER_FIFO, RUNNING_FIFO
-from catanc.runtime import flights, protocol
+from catanc.control import flights
+from catanc.control.schedule import (
+    CoreSchedule,
+    RuntimeSchedule,
+    SubchainRun,
+    is_late,
+    node_priority,
+    slot_owner,
+    triggers_at_slot,
+)
+from catanc.core.priorities import APP_FIFO_LEVELS, ENFORCER_FIFO, RUNNING_FIFO
+from catanc.runtime import protocol
 from catanc.runtime.log import RunLog
 from catanc.runtime.measure import Measurements, OpenCpuClocks, cpu_ms, percentile, reconcile
 from catanc.runtime.planning import Answer, PlannerProcess, Request
@@ -55,15 +65,6 @@ from catanc.runtime.sched import (
     set_affinity,
     set_fifo,
     threads_of,
-)
-from catanc.runtime.schedule import (
-    CoreSchedule,
-    RuntimeSchedule,
-    SubchainRun,
-    is_late,
-    node_priority,
-    slot_owner,
-    triggers_at_slot,
 )
 from catanc.runtime.table import RuntimeTable
 

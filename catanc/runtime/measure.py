@@ -45,7 +45,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from catanc.errors import UsageError, did_you_mean
-from catanc.spec import ModalCompute, Node, Runtime, Spec
+from catanc.spec.language import ModalCompute, Node, Runtime, Spec
 
 if TYPE_CHECKING:
     import numpy as np
@@ -53,7 +53,7 @@ if TYPE_CHECKING:
 
 MIN_PLANNING_MS = 1e-3
 """Floor of :meth:`Measurements.estimates` (1 us): the planner takes only positive times
-(:meth:`catanc.problem.Problem.with_compute`), but a node may well measure 0 ms."""
+(:meth:`catanc.core.problem.Problem.with_compute`), but a node may well measure 0 ms."""
 
 RECONCILE_REL_TOL = 0.10
 """:func:`reconcile` keeps a client's figure within 10% of the kernel's ..."""
@@ -375,7 +375,7 @@ class Measurements:
         return window
 
     def estimates(self, *, measured_only: bool = False) -> dict[str, float]:
-        """Node -> planning compute time (ms), for :meth:`catanc.replan.Replanner.resolve`.
+        """Node -> planning compute time (ms), for :meth:`catanc.planning.replan.Replanner.resolve`.
 
         Every scheduled node (``bootstrap_ms`` for one without samples), or with
         ``measured_only`` only those with samples.  Floored at :data:`MIN_PLANNING_MS`.

@@ -1,4 +1,4 @@
-"""The re-optimiser as its own process: a warm :class:`~catanc.replan.Replanner` behind a pipe.
+"""The re-optimiser as its own process: a warm :class:`~catanc.planning.replan.Replanner` behind a pipe.
 
 The enforcer's trigger and scheduler threads are Python threads at
 SCHED_FIFO 4 and need the interpreter lock within microseconds of waking.
@@ -21,8 +21,8 @@ from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from typing import Any, Literal
 
+from catanc.control.schedule import RuntimeSchedule
 from catanc.errors import UsageError
-from catanc.runtime.schedule import RuntimeSchedule
 
 Kind = Literal["resolve", "reallocate"]
 
@@ -84,8 +84,8 @@ class PlannerProcess:
 
 def serve(conn: Connection) -> None:
     """The child: plan once (with every node at ``bootstrap_ms`` if given), then answer requests until None."""
-    from catanc.replan import Replanner  # noqa: PLC0415 - only the child loads the solvers
-    from catanc.spec import Spec  # noqa: PLC0415
+    from catanc.planning.replan import Replanner  # noqa: PLC0415 - only the child loads the solvers
+    from catanc.spec.language import Spec  # noqa: PLC0415
 
     spec_data, cores, bootstrap_ms = conn.recv()
     try:
@@ -119,7 +119,7 @@ def serve(conn: Connection) -> None:
 
 
 def _answer(replanner: Any, spec: Any, began: float, error: str | None = None) -> Answer:
-    from catanc.runtime.schedule import runtime_schedule  # noqa: PLC0415
+    from catanc.control.schedule import runtime_schedule  # noqa: PLC0415
 
     plan = replanner.plan
     return Answer(

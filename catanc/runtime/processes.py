@@ -25,7 +25,7 @@ from pathlib import Path
 from catanc.errors import UsageError
 from catanc.runtime.protocol import SOCKET_ENV
 from catanc.runtime.worker import Profile, worker_command
-from catanc.spec import ModalCompute, Spec
+from catanc.spec.language import ModalCompute, Spec
 
 STOP_GRACE_S = 2.0
 

@@ -12,12 +12,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from catanc.emit import RUNTIME_FORMAT
+from catanc.artifacts.emit import RUNTIME_FORMAT
+from catanc.core.problem import build_problem
 from catanc.errors import Diagnostic, FieldPath, Location, SpecError
-from catanc.load import validate_data
-from catanc.problem import build_problem
-from catanc.source import SourceMap, parse_yaml
-from catanc.spec import Spec
+from catanc.spec.language import Spec
+from catanc.spec.load import validate_data
+from catanc.spec.source import SourceMap, parse_yaml
 
 REQUIRED = {"format": str, "app": str, "cores": int, "spec": dict, "plan": dict, "processes": list}
 

@@ -18,7 +18,7 @@ compute time by 3 for every run that starts 5 s (wall time) or more after
 its node registered.  The socket defaults to ``$CATANC_SOCKET``.
 
 ``--workload SPEC`` draws every run's compute time from the spec's workload
-model instead (:class:`catanc.workload.ComputeSampler`, seeded with
+model instead (:class:`catanc.core.workload.ComputeSampler`, seeded with
 ``--seed``: jitter, growth over time, spikes; each node must be a scheduled
 node of SPEC), at ``at_s`` = seconds since ``--clock-start-ns``, an instant
 on ``CLOCK_MONOTONIC`` (``time.monotonic_ns()``), which every process of a
@@ -57,9 +57,9 @@ from types import FrameType
 from typing import NamedTuple
 
 from catanc.client import ClientError, Node
+from catanc.core.speedup import threads_and_speedup
 from catanc.errors import CatancError, ExitCode
 from catanc.runtime.protocol import ProtocolError, Welcome
-from catanc.speedup import threads_and_speedup
 
 MODULE = "catanc.runtime.worker"
 
@@ -370,8 +370,8 @@ def workload_draws(spec_path: Path, nodes: Iterable[str], seed: int) -> dict[str
     Raises :class:`~catanc.errors.CatancError` (a bad spec) or ValueError (a node the spec does
     not schedule).
     """
-    from catanc.load import load_spec  # noqa: PLC0415 - only --workload needs the spec language
-    from catanc.workload import ComputeSampler  # noqa: PLC0415
+    from catanc.core.workload import ComputeSampler  # noqa: PLC0415
+    from catanc.spec.load import load_spec  # noqa: PLC0415 - only --workload needs the spec language
 
     spec = load_spec(spec_path)
     for name in nodes:

@@ -1,0 +1,5 @@
+"""The command line, ``catanc`` (the console script is ``catanc.cli:main``)."""
+
+from catanc.cli.main import app, main
+
+__all__ = ["app", "main"]

@@ -1,0 +1,168 @@
+"""What the enforcer enforces, as plain data: a plan turned into triggers, slots and priorities.
+
+Pure: :func:`runtime_schedule` reads a :class:`~catanc.planning.planner.Plan` and
+the problem it was planned for (for ``c(S)``), and the loop decisions the
+enforcer's threads make each period are small functions here, so the
+tests can simulate them without threads or a kernel (catan-model.md
+sections 5 and 6):
+
+- a dedicated subchain's head is triggered every ``period_ms`` on its own
+  clock, and so is a shared subchain whose period is not a whole number of
+  schedule periods (a batch subchain, or one held back by a rate cap or a
+  fixed rate, like VR's timewarp at vsync);
+- every other shared subchain is triggered at the start of its slice every
+  ``n = 1/f`` periods, so its run falls into its slices;
+- in each period a shared core raises each subchain's threads for its slice
+  ``f * c(S)``, in order, after a switch; the rest of ``T`` is slack;
+- priority stealing: a slot goes to the highest-priority subchain on the
+  core whose output is late (triggered, not done, past its planned
+  latency), when that one outranks the slot's owner.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Set
+from dataclasses import dataclass
+from functools import cached_property
+from typing import TYPE_CHECKING
+
+from catanc.core.priorities import resting_fifo
+from catanc.core.problem import Problem
+from catanc.core.speedup import threads_and_speedup
+from catanc.spec.language import Schedule
+
+if TYPE_CHECKING:
+    from catanc.planning.planner import Plan
+
+CLOCK_TOLERANCE = 1e-6
+"""Relative: a shared subchain whose period is this close to ``n * T`` is triggered at its slices."""
+
+
+@dataclass(frozen=True)
+class SubchainRun:
+    """How one subchain is triggered and prioritised."""
+
+    name: str
+    nodes: tuple[str, ...]
+    cores: tuple[int, ...]
+    shared: bool
+    period_ms: float
+    latency_ms: float  # planned: a run is late once it takes longer
+    runs: int | None  # n: triggered at its slice every n periods; None: on its own clock
+    priority: int  # stealing priority: higher steals from lower
+    node_threads: tuple[tuple[int, float], ...] = ()  # per node, its threads (Eq. 1's q) and their speedup
+
+    def threads_of(self, index: int) -> tuple[int, float]:
+        """Node ``index``'s threads and the speedup they give (a measured run times it is one thread's time)."""
+        return self.node_threads[index] if self.node_threads else (1, 1.0)
+
+    @property
+    def on_clock(self) -> bool:
+        return self.runs is None
+
+
+@dataclass(frozen=True)
+class Slot:
+    """One subchain's slice in a shared core's period."""
+
+    subchain: str
+    start_ms: float  # offset from the period's start, after the switch to it
+    length_ms: float  # f * c(S)
+
+
+@dataclass(frozen=True)
+class CoreSchedule:
+    core: int
+    period_ms: float  # T
+    switch_ms: float
+    slots: tuple[Slot, ...]
+
+    @property
+    def busy_ms(self) -> float:
+        """Switches and slices: at most ``(1 - slack) * T``."""
+        return sum(self.switch_ms + slot.length_ms for slot in self.slots)
+
+
+@dataclass(frozen=True)
+class RuntimeSchedule:
+    cores: int
+    subchains: dict[str, SubchainRun]
+    shared: tuple[CoreSchedule, ...]
+
+    def subchain_of(self, node: str) -> SubchainRun | None:
+        return self._run_of_node.get(node)
+
+    @cached_property
+    def _run_of_node(self) -> dict[str, SubchainRun]:  # asked on every completion: built once per plan
+        return {node: run for run in self.subchains.values() for node in run.nodes}
+
+    @property
+    def clocked(self) -> tuple[SubchainRun, ...]:
+        """Subchains the clock thread triggers (dedicated ones, and shared ones on their own clock)."""
+        return tuple(run for run in self.subchains.values() if run.on_clock)
+
+
+def runtime_schedule(plan: Plan, problem: Problem, schedule: Schedule) -> RuntimeSchedule:
+    """The schedule the enforcer runs for ``plan`` (``problem`` gives each subchain's ``c(S)``)."""
+    compute = {sub.name: sub.compute_ms for sub in problem.subchains}
+    speedups = {sub.name: sub.node_speedups for sub in problem.subchains}
+    length = {core.core: core.period_ms for core in plan.shared_cores}
+    subchains = {}
+    for name, sub in plan.subchains.items():
+        runs = None
+        if sub.shared and name not in plan.runs:
+            runs = None  # batch: a continuous fraction, so its own clock
+        elif sub.shared:
+            n = plan.runs[name]
+            cycle = n * length[sub.cores[0]]
+            runs = n if abs(sub.period_ms - cycle) <= CLOCK_TOLERANCE * cycle else None
+        subchains[name] = SubchainRun(
+            name=name,
+            nodes=sub.nodes,
+            cores=sub.cores,
+            shared=sub.shared,
+            period_ms=sub.period_ms,
+            latency_ms=sub.latency_ms,
+            runs=runs,
+            priority=sub.priority,
+            node_threads=tuple(threads_and_speedup(s, sub.threads) for s in speedups[name]),
+        )
+    shared = []
+    for core in sorted(plan.shared_cores, key=lambda c: c.core):
+        slots = []
+        offset = 0.0
+        for name in core.order:
+            offset += schedule.switch_ms
+            slice_ms = plan.subchains[name].fraction * compute[name]
+            slots.append(Slot(name, offset, slice_ms))
+            offset += slice_ms
+        shared.append(CoreSchedule(core.core, core.period_ms, schedule.switch_ms, tuple(slots)))
+    return RuntimeSchedule(plan.cores, subchains, tuple(shared))
+
+
+# --------------------------------------------------------------------------- per-period decisions
+
+
+def triggers_at_slot(run: SubchainRun, period_index: int) -> bool:
+    """Whether a slice-triggered subchain's head is triggered at its slot in period ``period_index``."""
+    return run.runs is not None and period_index % run.runs == 0
+
+
+def is_late(triggered_ms: float | None, now_ms: float, run: SubchainRun) -> bool:
+    """A run triggered at ``triggered_ms`` and not done is late once its planned latency has passed."""
+    return triggered_ms is not None and now_ms - triggered_ms > run.latency_ms
+
+
+def slot_owner(slot: Slot, core: CoreSchedule, runs: Mapping[str, SubchainRun], late: Set[str]) -> str:
+    """Whose threads are raised in ``slot``: its subchain's, or the late one of highest priority above it."""
+    owner = runs[slot.subchain]
+    thieves = [runs[s.subchain] for s in core.slots if s.subchain in late and s.subchain != slot.subchain]
+    best = max(thieves, key=lambda run: (run.priority, run.name), default=None)
+    if best is not None and best.priority > owner.priority:
+        return best.name
+    return owner.name
+
+
+def node_priority(run: SubchainRun | None) -> int:
+    """The SCHED_FIFO priority a node's threads rest at: 1 shared, 2 dedicated, 3 unscheduled."""
+    return resting_fifo(None if run is None else run.shared)

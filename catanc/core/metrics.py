@@ -1,0 +1,168 @@
+"""The analytic model (catan-model.md sections 2 and 4): pure arithmetic.
+
+Given each stage's period ``p`` and processing latency ``l`` (ms), a chain's
+
+- latency  ``L = l1 + sum_{x>=2} (p_x + l_x)``
+- period   ``P = max_x p_x``
+- response ``R = L + P``
+
+and the objective is ``sum w_t R_t + sum w_i p_i``.  Eq. 1 gives the period
+and latency of a subchain with cores of its own.  Both solver stages and the
+runtime use these functions, so the plan they report is the plan this
+module evaluates.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+
+from catanc.core.problem import Chain, ChainForm, Problem, Stage, Subchain, chain_form
+
+__all__ = ["ChainForm", "chain_form"]  # re-exported: the solvers' view of a chain lives with the problem
+
+
+@dataclass(frozen=True)
+class Timing:
+    """A stage's period and processing latency (ms)."""
+
+    period_ms: float
+    latency_ms: float
+
+
+@dataclass(frozen=True)
+class ChainMetrics:
+    latency_ms: float
+    period_ms: float
+    response_ms: float
+
+
+@dataclass(frozen=True)
+class DedicatedTiming:
+    """Eq. 1's choice for a subchain on ``cores`` cores of its own."""
+
+    cores: int
+    threads: int  # q: most threads any node of the subchain uses
+    period_ms: float
+    latency_ms: float  # sum of the nodes' compute with q threads
+
+    @property
+    def response_ms(self) -> float:
+        return self.latency_ms + self.period_ms
+
+    @property
+    def timing(self) -> Timing:
+        return Timing(self.period_ms, self.latency_ms)
+
+
+def chain_metrics(stages: Sequence[Timing]) -> ChainMetrics:
+    """Latency, period and response time of a chain of stages (Table 1, generalised)."""
+    if not stages:
+        return ChainMetrics(0.0, 0.0, 0.0)
+    latency = stages[0].latency_ms + math.fsum(s.period_ms + s.latency_ms for s in stages[1:])
+    period = max(s.period_ms for s in stages)
+    return ChainMetrics(latency, period, latency + period)
+
+
+def dedicated_timing(compute_by_threads: Sequence[Sequence[float]], cores: int) -> DedicatedTiming:
+    """Eq. 1: the best thread count ``q`` for a subchain on ``cores`` cores.
+
+    ``compute_by_threads[q - 1][j]`` is node j's compute time with at most q
+    threads, for q = 1..cores.  With ``floor(cores / q)`` runs in flight,
+
+        p(q) = max(max_j c^q_j, sum_j c^q_j / floor(cores / q))
+        response(q) = sum_j c^q_j + p(q)
+
+    and the lowest response wins (ties: the smaller q).
+    """
+    if cores < 1:
+        raise ValueError("a dedicated subchain needs at least one core")
+    best: DedicatedTiming | None = None
+    for q in range(1, cores + 1):
+        times = compute_by_threads[q - 1]
+        total = math.fsum(times)
+        period = max(*times, total / (cores // q))
+        candidate = DedicatedTiming(cores, q, period, total)
+        if best is None or candidate.response_ms < best.response_ms:
+            best = candidate
+    assert best is not None
+    return best
+
+
+def capped_dedicated(sub: Subchain, cores: int) -> DedicatedTiming:
+    """Eq. 1 for ``sub`` on ``cores`` cores of its own, then its rate cap applied to the period."""
+    eq1 = dedicated_timing(sub.compute_by_threads(cores), cores)
+    return replace(eq1, period_ms=max(eq1.period_ms, sub.min_period_ms))
+
+
+def fixed_timing(period_ms: float) -> Timing:
+    """An unscheduled node's own clock: its processing latency is its period."""
+    return Timing(period_ms, period_ms)
+
+
+def stage_timings(chain: Chain, timings: Mapping[str, Timing], fixed_periods_ms: Mapping[str, float]) -> list[Timing]:
+    """Per-stage timing of a chain; a batch head uses its observed output period."""
+    result = []
+    for index, stage in enumerate(chain.stages):
+        timing = _stage_timing(stage, timings, fixed_periods_ms)
+        if index == 0 and chain.head_period_ms is not None and not stage.fixed:
+            timing = Timing(chain.head_period_ms, timing.latency_ms)
+        result.append(timing)
+    return result
+
+
+def _stage_timing(stage: Stage, timings: Mapping[str, Timing], fixed_periods_ms: Mapping[str, float]) -> Timing:
+    if stage.fixed:
+        return fixed_timing(fixed_periods_ms[stage.name])
+    return timings[stage.name]
+
+
+def evaluate_chain(problem: Problem, chain: Chain, timings: Mapping[str, Timing]) -> ChainMetrics:
+    """A chain's metrics given every subchain's timing."""
+    return chain_metrics(stage_timings(chain, timings, problem.fixed_periods_ms))
+
+
+def form_metrics(form: ChainForm, timings: Mapping[str, Timing]) -> ChainMetrics:
+    """A chain's metrics from its :class:`ChainForm` (the fast path; :func:`evaluate_chain` is the reference)."""
+    latency = math.fsum(
+        [
+            form.constant,
+            *(timings[name].latency_ms for name in form.latency_of),
+            *(timings[name].period_ms for name in form.period_of),
+        ]
+    )
+    period = max([form.floor, *(timings[name].period_ms for name in form.longest_of)])
+    return ChainMetrics(latency, period, latency + period)
+
+
+def chain_metrics_of(problem: Problem, index: int, timings: Mapping[str, Timing]) -> ChainMetrics:
+    """The metrics of ``problem.chains[index]``, by its precomputed form."""
+    return form_metrics(problem.chain_forms[index], timings)
+
+
+def objective(problem: Problem, timings: Mapping[str, Timing]) -> float:
+    """``sum w_t R_t + sum w_i p_i`` over the problem's terms (ms)."""
+    responses = {
+        term.chain: chain_metrics_of(problem, term.chain, timings).response_ms for term in problem.response_terms
+    }
+    return math.fsum(
+        [term.weight * responses[term.chain] for term in problem.response_terms]
+        + [term.weight * timings[term.subchain].period_ms for term in problem.period_terms]
+    )
+
+
+def bound_scale(problem: Problem, timings: Mapping[str, Timing]) -> float:
+    """Smallest factor (>= 1) on the spec's bounds that these timings meet.
+
+    Chain bounds ``R <= B`` need ``R / B``; a subchain's rate floor (a longest
+    period) needs ``p / p_max``.  1.0 means every bound holds as written.
+    """
+    scale = 1.0
+    for bound in problem.response_bounds:
+        response = chain_metrics_of(problem, bound.chain, timings).response_ms
+        scale = max(scale, response / bound.max_response_ms)
+    for sub in problem.subchains:
+        if sub.max_period_ms < math.inf:
+            scale = max(scale, timings[sub.name].period_ms / sub.max_period_ms)
+    return scale

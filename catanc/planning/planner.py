@@ -1,0 +1,390 @@
+"""The planner: Stage I, then Stage II, into a :class:`Plan` (the runtime table's ``plan``).
+
+- Stage I (:mod:`catanc.planning.stage1`) allocates cores with crude period estimates.
+- Stage II (:mod:`catanc.planning.stage2.solve`) plans an allocation exactly:
+  dedicated subchains by Eq. 1, shared cores by one geometric program with
+  whole runs ``1/f``, bounds soft (the smallest common scale, warned about).
+- Beyond the paper: Stage I's estimate misjudges which subchains pair well,
+  so the planner also plans Stage I's runners-up exactly and keeps the best
+  (:func:`candidate_allocations`): every allocation when there are at most
+  :data:`ALL_ALLOCATIONS_UP_TO`, else the MILP's next best by no-good cuts.
+  Allocations whose solver-free lower bound cannot beat the best so far are
+  skipped, and at most :data:`PLAN_AT_MOST` are solved, the most promising
+  first.  The plain two-stage result is kept for comparison.
+
+Every number in the plan is re-derived from the schedule itself and the
+objective re-evaluated by :mod:`catanc.core.metrics`, so the plan reports what it
+would do.  :class:`catanc.planning.replan.Replanner` re-plans with new compute times.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, replace
+from typing import Literal
+
+from catanc.core.metrics import chain_metrics_of
+from catanc.core.problem import Problem, build_problem
+from catanc.errors import InfeasibleError, UsageError
+from catanc.planning.stage1 import Allocation, Stage1Result, allocate, next_best
+from catanc.planning.stage1.exhaustive import every_allocation
+from catanc.planning.stage2.base import Layout, SharedCore, Stage2Model
+from catanc.planning.stage2.integer import Effort
+from catanc.planning.stage2.solve import SCALE_PRECISION, Stage2Result, better, lower_bound, solve_layout
+from catanc.spec.language import Schedule, Spec
+
+ALL_ALLOCATIONS_UP_TO = 2500
+"""Plan every allocation exactly when there are at most this many (8 subchains on 4 cores: 2,213)."""
+
+PLAN_AT_MOST = 150
+"""Of those, at most this many (the most promising by their lower bound) get a Stage II solve: a
+count, not a clock, so that the same spec always gives the same plan (~2 ms each; 8 subchains on
+4 cores can have 2,000 allocations that the bound cannot rule out)."""
+
+STAGE2_RELAXATIONS = 500
+"""Stage II's integer search on the allocation planned first stops after this many relaxations
+(~0.3-2 ms each) once it has a plan, and the plan says its proven gap: a group of 20 subchains on
+one core took 4,117 (9 s). A count, not a clock: deterministic."""
+
+RUNNER_UP_RELAXATIONS = 200
+RUNNERS_UP_RELAXATIONS = 2000
+"""Each runner-up's search, and all of them together, stop after this many relaxations."""
+
+NEXT_BEST = 4
+"""Beyond ALL_ALLOCATIONS_UP_TO, how many of the MILP's runners-up to plan exactly."""
+
+NEXT_BEST_TIME_S = 0.5
+"""Each runner-up's MILP must be proven within this, else the search for runners-up stops."""
+
+Backend = Literal["cvxpy", "conic"]
+BACKENDS: tuple[Backend, ...] = ("cvxpy", "conic")
+
+
+@dataclass(frozen=True)
+class SubchainPlan:
+    name: str
+    nodes: tuple[str, ...]
+    cores: tuple[int, ...]
+    shared: bool
+    threads: int  # Eq. 1's q (1 on a shared core)
+    period_ms: float
+    latency_ms: float
+    fraction: float  # f: share of one run per schedule period (1.0 when dedicated)
+    priority: int  # higher steals from lower
+
+
+@dataclass(frozen=True)
+class CorePlan:
+    core: int
+    period_ms: float  # T, the schedule's length
+    order: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class ChainPlan:
+    nodes: tuple[str, ...]
+    subchains: tuple[str, ...]
+    latency_ms: float
+    period_ms: float
+    response_ms: float
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """How the plan compares with the paper's plain two-stage result (Stage I's allocation)."""
+
+    allocations: int  # allocations considered
+    planned: int  # of those, planned by Stage II (the rest were bounded out, or beyond PLAN_AT_MOST)
+    complete: bool  # every other allocation was bounded out: the plan is the best of them all
+    two_stage_objective: float | None  # Stage I's allocation under Stage II (None: it could not meet the bounds)
+    two_stage_scale: float | None
+
+
+@dataclass(frozen=True)
+class Plan:
+    app: str
+    cores: int
+    objective: float
+    constraint_scale: float
+    subchains: dict[str, SubchainPlan]
+    shared_cores: tuple[CorePlan, ...]
+    chains: tuple[ChainPlan, ...]
+    stage1: Stage1Result
+    warnings: tuple[str, ...]
+    allocation: Allocation  # the one planned (Stage I's, or a runner-up that Stage II found better)
+    comparison: Comparison
+    runs: dict[str, int]  # n = 1/f per non-batch shared subchain (exact)
+
+
+def plan(
+    spec: Spec,
+    cores: int,
+    *,
+    stage1_method: str = "auto",
+    solver: str | None = None,
+    time_limit_s: float | None = None,
+    runners_up: bool = True,
+    backend: Backend = "cvxpy",
+) -> Plan:
+    """Plan ``spec`` on ``cores`` identical cores.
+
+    ``runners_up=False`` gives the paper's plain two-stage plan.  ``backend``
+    picks the model the plan's Stage II is solved with: cvxpy (the model of
+    record) or the direct conic model (the same optimum, faster); runners-up
+    are always ranked with the conic one.
+    """
+    return plan_problem(
+        build_problem(spec),
+        spec.schedule,
+        cores,
+        stage1_method=stage1_method,
+        solver=solver,
+        time_limit_s=time_limit_s,
+        runners_up=runners_up,
+        backend=backend,
+    )
+
+
+def plan_problem(
+    problem: Problem,
+    schedule: Schedule,
+    cores: int,
+    *,
+    stage1_method: str = "auto",
+    solver: str | None = None,
+    time_limit_s: float | None = None,
+    runners_up: bool = True,
+    backend: Backend = "cvxpy",
+    models: dict[Layout, Stage2Model] | None = None,
+    gap: float = 0.0,
+    start: tuple[Layout, dict[str, int]] | None = None,
+) -> Plan:
+    """:func:`plan` for a built problem; ``models`` caches Stage II models by layout (re-planning).
+
+    Re-planning may also accept each allocation's integer plan within ``gap`` of its optimum (see
+    :func:`~catanc.planning.stage2.solve.solve_layout`; 0: exact) and start the search of ``start``'s layout
+    from its runs (the current plan's).
+    """
+    if backend not in BACKENDS:
+        raise UsageError(f"unknown Stage II backend {backend!r}; choose one of {', '.join(BACKENDS)}")
+    first = allocate(problem, cores, method=stage1_method, solver=solver, time_limit_s=time_limit_s)
+    importance = problem.importance()
+    cache: dict[Layout, Stage2Model] = {} if models is None else models
+
+    candidates = candidate_allocations(problem, cores, first, solver=solver) if runners_up else [first.allocation]
+    layouts = {
+        allocation: ordered_layout(Layout.from_allocation(allocation), schedule, importance, problem)
+        for allocation in candidates
+    }
+    best: Stage2Result | None = None
+    chosen = first.allocation
+    two_stage: Stage2Result | None = None
+    planned = 0
+    complete = True
+    budget = RUNNERS_UP_RELAXATIONS
+    bounds = {allocation: lower_bound(problem, layouts[allocation], schedule) for allocation in candidates[1:]}
+    ranked = candidates[:1] + sorted(candidates[1:], key=lambda allocation: bounds[allocation])
+    for allocation in ranked:
+        if best is not None and not _could_beat(bounds[allocation], best):
+            continue
+        if planned >= PLAN_AT_MOST or budget <= 0:
+            complete = False
+            break
+        layout = layouts[allocation]
+        beat = None if best is None else (best.scale, best.objective)
+        limit = STAGE2_RELAXATIONS if best is None else min(RUNNER_UP_RELAXATIONS, budget)
+        effort = Effort()
+        try:
+            result = solve_layout(
+                problem,
+                layout,
+                schedule,
+                conic_model(cache, problem, layout, schedule),
+                beat=beat,
+                start=start[1] if start is not None and start[0] == layout else None,
+                gap=gap,
+                node_limit=limit,
+                effort=effort,
+            )
+        except InfeasibleError:
+            if len(candidates) == 1:
+                raise
+            result = None
+        planned += 1
+        if best is not None:
+            budget -= effort.relaxations
+        if allocation == first.allocation:
+            two_stage = result
+        if result is not None and (best is None or better(result, (best.scale, best.objective))):
+            best, chosen = result, allocation
+    if best is None:
+        raise InfeasibleError(f"{problem.app}: no schedule exists for the shared cores, whatever the bounds")
+    if backend == "cvxpy" and best.layout.shared:
+        # The winner's numbers come from the model of record, at the runs the search chose.
+        scale = 1.0 if best.scale <= 1.0 + SCALE_PRECISION else best.scale * (1 + SCALE_PRECISION)
+        fixed = (best.runs, scale)
+        record = solve_layout(
+            problem, best.layout, schedule, new_model(problem, best.layout, schedule, "cvxpy"), fixed=fixed
+        )
+        if record is not None:
+            best = replace(record, gap=best.gap, relaxations=best.relaxations)
+    comparison = Comparison(
+        allocations=len(candidates),
+        planned=planned,
+        complete=complete,
+        two_stage_objective=None if two_stage is None else two_stage.objective,
+        two_stage_scale=None if two_stage is None else two_stage.scale,
+    )
+    return assemble(
+        problem=problem,
+        schedule=schedule,
+        cores=cores,
+        result=best,
+        allocation=chosen,
+        first=first,
+        comparison=comparison,
+        importance=importance,
+    )
+
+
+def conic_model(
+    cache: dict[Layout, Stage2Model], problem: Problem, layout: Layout, schedule: Schedule
+) -> Stage2Model | None:
+    """The conic model of ``layout`` from ``cache``, built on first use (None when no core is shared).
+
+    A cached model is reused whatever compute times ``problem`` now has: they are loaded per solve.
+    """
+    if not layout.shared:
+        return None
+    if layout not in cache:
+        cache[layout] = new_model(problem, layout, schedule, "conic")
+    return cache[layout]
+
+
+def new_model(problem: Problem, layout: Layout, schedule: Schedule, backend: Backend) -> Stage2Model:
+    """Stage II's relaxation of ``layout`` for ``backend`` (built once, re-solved with new numbers).
+
+    The solvers load on first use: cvxpy only for the model of record.
+    """
+    if backend == "conic":
+        from catanc.planning.stage2.conic import ConicStage2  # noqa: PLC0415
+
+        return ConicStage2(problem, layout, schedule)
+    from catanc.planning.stage2.relaxed import RelaxedStage2  # noqa: PLC0415
+
+    return RelaxedStage2(problem, layout, schedule)
+
+
+def candidate_allocations(
+    problem: Problem, cores: int, first: Stage1Result, *, solver: str | None = None
+) -> list[Allocation]:
+    """Stage I's allocation, then the runners-up to plan exactly (see the module's docstring)."""
+    every = list(itertools.islice(every_allocation(problem, cores), ALL_ALLOCATIONS_UP_TO + 1))
+    if len(every) <= ALL_ALLOCATIONS_UP_TO:
+        return [first.allocation, *(allocation for allocation in every if allocation != first.allocation)]
+    if not first.optimal:  # Stage I used its whole budget already
+        return [first.allocation]
+    found = [first.allocation]
+    while len(found) <= NEXT_BEST:
+        runner_up = next_best(problem, cores, found, solver=solver, time_limit_s=NEXT_BEST_TIME_S)
+        if not runner_up.optimal or runner_up.allocation in found:
+            break  # a runner-up found by the clock could differ from run to run
+        found.append(runner_up.allocation)
+    return found
+
+
+def _could_beat(bound: tuple[float, float], best: Stage2Result) -> bool:
+    scale, value = bound
+    if scale > best.scale * (1 + SCALE_PRECISION):
+        return False
+    if scale < best.scale * (1 - SCALE_PRECISION):
+        return True
+    return value < best.objective - 1e-9 * max(1.0, abs(best.objective))
+
+
+def ordered_layout(layout: Layout, schedule: Schedule, importance: dict[str, float], problem: Problem) -> Layout:
+    """Each shared core's subchains in schedule order: the spec's ``order``, then by weight."""
+    position = {sub.name: index for index, sub in enumerate(problem.subchains)}
+    given = {name: index for index, name in enumerate(schedule.order or [])}
+
+    def key(name: str) -> tuple[int, float, int]:
+        if name in given:
+            return (0, given[name], 0)
+        return (1, -importance[name], position[name])
+
+    shared = tuple(SharedCore(core.core, tuple(sorted(core.subchains, key=key))) for core in layout.shared)
+    return Layout(layout.dedicated, shared)
+
+
+def priorities(problem: Problem, schedule: Schedule, importance: dict[str, float]) -> dict[str, int]:
+    """Stealing priority: the spec's, else by weight (the heaviest highest); higher steals from lower."""
+    if schedule.priorities:
+        return {sub.name: schedule.priorities.get(sub.name, 0) for sub in problem.subchains}
+    ranked = sorted(range(len(problem.subchains)), key=lambda i: (-importance[problem.subchains[i].name], i))
+    count = len(ranked)
+    return {problem.subchains[i].name: count - rank for rank, i in enumerate(ranked)}
+
+
+def assemble(
+    *,
+    problem: Problem,
+    schedule: Schedule,
+    cores: int,
+    result: Stage2Result,
+    allocation: Allocation,
+    first: Stage1Result,
+    comparison: Comparison,
+    importance: dict[str, float],
+) -> Plan:
+    """The plan of one Stage II result: per subchain, per shared core, per chain, and warnings."""
+    warnings = []
+    if not first.optimal:  # Stage I's own bound scale is an estimate: the plan's below is what counts
+        gap = "unknown" if first.gap is None else f"{first.gap:.2%}"
+        warnings.append(f"Stage I stopped at its time limit with a proven optimality gap of {gap}")
+    if result.gap > 0:
+        warnings.append(
+            f"Stage II's integer search stopped after {result.relaxations} relaxations: the plan is within "
+            f"{result.gap:.3%} of the best for its allocation"
+        )
+    if result.scale > 1.0 + SCALE_PRECISION:
+        warnings.append(
+            f"the bounds cannot all be met: every chain bound and rate floor is scaled by {result.scale:.4g} "
+            "(the plan meets the scaled bounds)"
+        )
+    indices = allocation.core_indices()
+    ranks = priorities(problem, schedule, importance)
+    subchains = {
+        sub.name: SubchainPlan(
+            name=sub.name,
+            nodes=sub.nodes,
+            cores=indices[sub.name],
+            shared=sub.name in result.fractions,
+            threads=result.threads[sub.name],
+            period_ms=result.timings[sub.name].period_ms,
+            latency_ms=result.timings[sub.name].latency_ms,
+            fraction=result.fractions.get(sub.name, 1.0),
+            priority=ranks[sub.name],
+        )
+        for sub in problem.subchains
+    }
+    chains = []
+    for index, chain in enumerate(problem.chains):
+        metrics = chain_metrics_of(problem, index, result.timings)
+        names = tuple(stage.name for stage in chain.stages)
+        chains.append(ChainPlan(chain.nodes, names, metrics.latency_ms, metrics.period_ms, metrics.response_ms))
+    return Plan(
+        app=problem.app,
+        cores=cores,
+        objective=result.objective,
+        constraint_scale=result.scale,
+        subchains=subchains,
+        shared_cores=tuple(
+            CorePlan(core.core, result.lengths[core.core], core.subchains) for core in result.layout.shared
+        ),
+        chains=tuple(chains),
+        stage1=first,
+        warnings=tuple(warnings),
+        allocation=allocation,
+        comparison=comparison,
+        runs=dict(result.runs),
+    )

@@ -1,0 +1,213 @@
+"""Stage II with whole runs: the exact optimum over integer ``n_i = 1/f_i`` (catan-model.md section 4).
+
+A non-batch subchain on a shared core completes one run every ``n_i``
+schedule periods, ``n_i`` a whole number.  The relaxed GP
+(:class:`~catanc.planning.stage2.relaxed.RelaxedStage2`) is convex in log space, so
+its optimum over a box ``low_i <= n_i <= high_i`` bounds every integer point
+in the box: branch and bound on the ``n_i`` with it is exact.  Boxes are
+finite because the minimum slice caps ``n_i <= c_i / min_slice``; the search
+explores the child holding the relaxed value's nearest integer first and
+prunes by the incumbent, which starts as the rounded root relaxation.
+
+(The prototype rounded floor/ceil and searched neighbourhoods; that missed
+the integer optimum by up to 0.95%: shared/docs/solver-notes.md.)
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from catanc.core.problem import Problem
+from catanc.planning.stage2.base import RelaxedSolution, Stage2Model
+from catanc.planning.stage2.onebatch import OPEN, OneBatchRuns, Open
+from catanc.planning.stage2.whole import ENUMERATE_UP_TO, WholeRuns
+from catanc.spec.language import Schedule
+
+INTEGRAL_TOLERANCE = 1e-6
+"""``n`` this close (relatively) to a whole number counts as whole."""
+
+PRUNE_TOLERANCE = 5e-7
+"""A box whose bound is within this (relatively) of the incumbent is not explored. It must exceed
+the relaxation's own accuracy (Clarabel: ~1e-8): where the objective does not depend on some n_i,
+whole boxes tie with the incumbent and a tighter tolerance would explore every one of them (a
+subchain in no weighted term took 11,055 relaxations, 50 s). The optimum is exact to this."""
+
+UNBOUNDED_RUNS = 10_000
+"""The cap on ``n`` when no minimum slice bounds it (``min_slice_ms: 0``)."""
+
+Box = dict[str, tuple[int, int]]
+
+
+@dataclass
+class Effort:
+    """Relaxations solved, counted across searches (the planner's budget for runners-up)."""
+
+    relaxations: int = 0
+
+
+@dataclass(frozen=True)
+class IntegerSolution:
+    runs: dict[str, int]  # n_i: schedule periods per run, for each non-batch shared subchain
+    solution: RelaxedSolution  # the GP's optimum with every n_i fixed
+    objective: float
+    root_bound: float  # a lower bound: the relaxation's value (the optimum itself when enumerated)
+    nodes: int  # relaxations solved
+    gap: float = 0.0  # proven (objective - optimum) / objective: 0 unless stopped by node_limit
+
+
+def most_runs(compute_ms: float, schedule: Schedule) -> int:
+    """The largest ``n`` the minimum slice allows: ``f c >= min(slice, c)``."""
+    if schedule.min_slice_ms <= 0:
+        return UNBOUNDED_RUNS
+    return max(1, math.floor(compute_ms / min(schedule.min_slice_ms, compute_ms) + 1e-9))
+
+
+def solve_integer(
+    model: Stage2Model,
+    problem: Problem,
+    scale: float = 1.0,
+    *,
+    least_scale: bool = False,
+    cutoff: float | None = None,
+    start: dict[str, int] | None = None,
+    gap: float = 0.0,
+    enumerate_up_to: int = ENUMERATE_UP_TO,
+    node_limit: int | None = None,
+    effort: Effort | None = None,
+) -> IntegerSolution | None:
+    """The best plan with whole ``n_i``, or None when no integer plan meets the (scaled) bounds.
+
+    With ``least_scale`` the search minimises the scale the bounds need instead
+    (its ``objective`` is then that scale).  Only plans better than ``cutoff``
+    are of interest (None when there is none): another allocation's plan,
+    say.  ``start`` is a guess at the answer, evaluated first so that it
+    prunes from the outset (the previous plan, when re-planning).  ``gap``
+    accepts a plan proven within that relative distance of the optimum,
+    measured against the plan as MILP solvers do: ``(plan - optimum) / plan
+    <= gap`` (default: exact, to the solver's accuracy :data:`PRUNE_TOLERANCE`).
+
+    Without batch subchains the answer for fixed runs has a closed form
+    (:mod:`catanc.planning.stage2.whole`): small boxes are then enumerated outright,
+    and the search's leaves need no solver (``enumerate_up_to=0`` forces the
+    search, as the tests do).  With one batch subchain the leaves are solved
+    exactly in its one free fraction (:mod:`catanc.planning.stage2.onebatch`).
+
+    ``node_limit`` stops the search after that many relaxations once it has a
+    plan; the result then carries its proven ``gap`` (a large group of
+    subchains on one core can need thousands: 26 integer runs took 4,117).
+    """
+    compute = {sub.name: sub.compute_ms for sub in problem.subchains}
+    # Branch first where it matters: subchains weighted in the objective, then those a bound
+    # depends on, then the rest. The relaxation leaves a subchain that influences nothing at an
+    # arbitrary fraction, and branching on it first multiplies boxes that all tie.
+    weight, bounded = problem.importance(), problem.bounded()
+    rank = {name: (2 if weight[name] > 0 else 1 if name in bounded else 0) for name in model.integral}
+    root: Box = {name: (1, most_runs(compute[name], model.schedule)) for name in model.integral}
+    nodes = 0
+    tolerance = max(PRUNE_TOLERANCE, gap)
+    whole = WholeRuns(model, problem) if WholeRuns.applies(model, problem) else None
+    # Fixed runs in closed form: with no batch subchain, or one (its fraction then solved for exactly).
+    fixed: WholeRuns | OneBatchRuns | None = whole
+    if whole is None and OneBatchRuns.applies(model, problem):
+        fixed = OneBatchRuns(model, problem)
+    if whole is not None and WholeRuns.size(root) <= enumerate_up_to:
+        found = whole.best(root, scale, least_scale=least_scale)
+        if found is None or (cutoff is not None and found.solution.objective >= cutoff):
+            return None
+        value = found.solution.objective
+        return IntegerSolution(found.runs, found.solution, value, root_bound=value, nodes=0)
+
+    def relax(box: Box) -> RelaxedSolution | None:
+        nonlocal nodes
+        nodes += 1
+        if effort is not None:
+            effort.relaxations += 1
+        model.set_box(box)
+        return model.solve_least_scale() if least_scale else model.solve(scale)
+
+    best: tuple[float, Box, RelaxedSolution] | None = None
+    threshold = math.inf if cutoff is None else cutoff  # prune boxes whose bound is not below this
+
+    def offer(box: Box) -> None:
+        nonlocal best, threshold
+        exact: RelaxedSolution | Open | None = OPEN
+        if fixed is not None:  # every n fixed and at most one batch subchain: no solver needed
+            exact = fixed.solve({name: low for name, (low, _) in box.items()}, scale, least_scale=least_scale)
+        if isinstance(exact, Open):
+            exact = relax(box)
+        if exact is not None and exact.objective < min(threshold, best[0] if best else math.inf):
+            best = (exact.objective, box, exact)
+            threshold = exact.objective
+
+    if start is not None and set(start) == set(model.integral):
+        offer({name: (min(max(n, 1), root[name][1]),) * 2 for name, n in start.items()})
+    first = relax(root)
+    if first is None or first.objective >= threshold * (1 - tolerance):
+        return _result(best, first, nodes)
+    rounded = {name: (r, r) for name, r in _nearest(first, model.integral, root).items()}
+    if best is None or best[1] != rounded:
+        offer(rounded)
+
+    stack: list[tuple[Box, RelaxedSolution]] = [(root, first)]
+    while stack:
+        if node_limit is not None and nodes >= node_limit and best is not None:
+            open_bound = min(solution.objective for _, solution in stack)
+            return _result(best, first, nodes, gap=max(0.0, (best[0] - open_bound) / best[0]) if best[0] else 0.0)
+        box, solution = stack.pop()
+        if solution.objective >= threshold * (1 - tolerance):
+            continue
+        branch = _most_fractional(solution, model.integral, box, rank)
+        if branch is None:  # whole already: evaluate exactly with n fixed
+            offer({name: (r, r) for name, r in _nearest(solution, model.integral, box).items()})
+            continue
+        name, runs = branch
+        low, high = box[name]
+        below = {**box, name: (low, math.floor(runs))}
+        above = {**box, name: (math.ceil(runs), high)}
+        children = [below, above] if runs - math.floor(runs) < 0.5 else [above, below]
+        for child in reversed(children):  # the nearer child is explored first
+            relaxed = relax(child)
+            if relaxed is not None and relaxed.objective < threshold * (1 - tolerance):
+                stack.append((child, relaxed))
+    return _result(best, first, nodes)
+
+
+def _result(
+    best: tuple[float, Box, RelaxedSolution] | None, root: RelaxedSolution | None, nodes: int, gap: float = 0.0
+) -> IntegerSolution | None:
+    if best is None:
+        return None
+    objective, box, solution = best
+    return IntegerSolution(
+        runs={name: low for name, (low, _) in box.items()},
+        solution=solution,
+        objective=objective,
+        root_bound=objective if root is None else min(root.objective, objective),
+        nodes=nodes,
+        gap=gap,
+    )
+
+
+def _runs(solution: RelaxedSolution, name: str) -> float:
+    return 1.0 / solution.fraction[name]
+
+
+def _nearest(solution: RelaxedSolution, names: list[str], box: Box) -> dict[str, int]:
+    return {name: min(max(round(_runs(solution, name)), box[name][0]), box[name][1]) for name in names}
+
+
+def _most_fractional(
+    solution: RelaxedSolution, names: list[str], box: Box, rank: dict[str, int]
+) -> tuple[str, float] | None:
+    """The non-whole ``n`` to branch on: highest rank, then farthest from a whole number, then first."""
+    choice: tuple[tuple[int, float], str, float] | None = None
+    for name in names:
+        runs = min(max(_runs(solution, name), box[name][0]), box[name][1])
+        distance = min(runs - math.floor(runs), math.ceil(runs) - runs)
+        if distance <= INTEGRAL_TOLERANCE * max(1.0, runs):
+            continue
+        key = (rank[name], distance)
+        if choice is None or key > choice[0]:
+            choice = (key, name, runs)
+    return None if choice is None else (choice[1], choice[2])

@@ -1,0 +1,422 @@
+"""Who triggers what, and at which priority: catanc's schedule and the hand-tuned baselines.
+
+- :class:`CatanPolicy` does what ``catan run`` does (catan-model.md sections
+  5 and 6, with :mod:`catanc.control.schedule`'s own per-period decisions):
+  a clock per dedicated (or clock-triggered) subchain, a periodic slot
+  schedule per shared core that raises one subchain at a time, later nodes
+  event-triggered, priority stealing, and, given a replanner, the periodic
+  re-solve with the p95 of each node's last compute times.  Without one it
+  is a static plan (Static-FullRun, Static-20s).
+- :class:`TimerPolicy` is the developer's default: every node listed in
+  ``baseline.rates_hz`` runs on its own timer, every other scheduled node
+  when a new input arrives (from a scheduled predecessor if it has one, else
+  from a sensor), on all ``K`` cores shared fairly (CFS) or by static
+  SCHED_FIFO priorities by weight.
+
+Unscheduled nodes with a rate tick on their own clock under every policy.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from catanc.control.flights import Flight, Flights, NodeQueues
+from catanc.control.schedule import (
+    CoreSchedule,
+    RuntimeSchedule,
+    Slot,
+    SubchainRun,
+    is_late,
+    runtime_schedule,
+    slot_owner,
+    triggers_at_slot,
+)
+from catanc.errors import UsageError
+from catanc.planning.replan import Replanner
+from catanc.runtime.measure import Measurements
+from catanc.sim.cpu import Discipline, Job, Pool
+from catanc.sim.dataflow import Dataflow, Origins
+from catanc.sim.engine import Engine
+from catanc.spec.language import Spec
+
+Sampler = Callable[[str, float], float]
+"""(node, seconds into the run) -> one run's compute time in ms on one thread."""
+
+RAISED, RESTING_SHARED, DEDICATED = 2, 1, 2  # the enforcer's SCHED_FIFO levels (catan-model.md section 6)
+
+
+def start_sensors(engine: Engine, flow: Dataflow, spec: Spec) -> None:
+    """Unscheduled nodes with a rate tick every period from time 0."""
+    for name, node in spec.nodes.items():
+        if not node.scheduled and node.rate_hz is not None:
+            period = 1000.0 / node.rate_hz
+            _tick_every(engine, flow, name, period, 0.0)
+
+
+def _tick_every(engine: Engine, flow: Dataflow, node: str, period_ms: float, due_ms: float) -> None:
+    def tick() -> None:
+        flow.tick(node, engine.now)
+        _tick_every(engine, flow, node, period_ms, due_ms + period_ms)
+
+    engine.at(due_ms, tick)
+
+
+@dataclass
+class SubchainState(Flights[Flight]):
+    steals: int = 0
+
+
+@dataclass(frozen=True)
+class Replan:
+    at_s: float
+    reason: str  # stage1 | stage2
+    allocation_changed: bool
+    objective: float
+
+
+class CatanPolicy:
+    """catanc's plan, enforced as ``catanc run`` enforces it; re-solved if given a :class:`Replanner`."""
+
+    def __init__(
+        self,
+        engine: Engine,
+        flow: Dataflow,
+        *,
+        spec: Spec,
+        schedule: RuntimeSchedule,
+        sample: Sampler,
+        replanner: Replanner | None = None,
+    ) -> None:
+        self.engine, self.flow, self.spec, self.sample = engine, flow, spec, sample
+        self.schedule = schedule
+        self.replanner = replanner
+        self.reoptimiser = Reoptimiser(spec, replanner) if replanner is not None else None
+        self.measurements = self.reoptimiser.measurements if self.reoptimiser is not None else None
+        self.states = {name: SubchainState() for name in schedule.subchains}
+        self.nodes = NodeQueues()
+        self.raised: dict[int, str | None] = {}
+        self.pools: dict[str, Pool] = {}  # subchain -> the pool its nodes run on
+        self.core_busy_ms: dict[int, float] = {}  # from pools of earlier allocations
+        self.generation = 0
+
+    # -------------------------------------------------------------- set-up
+
+    def start(self) -> None:
+        self._install(self.schedule)
+        if self.reoptimiser is not None:
+            self.engine.at(self.reoptimiser.first_ms, self._reoptimise)
+
+    def _install(self, schedule: RuntimeSchedule) -> None:
+        """New pools for ``schedule``'s allocation (running jobs move with their subchain), clocks restarted."""
+        self.generation += 1
+        self.schedule = schedule
+        old_jobs = [job for pool in self.engine.pools for job in pool.jobs]
+        self._fold_busy()
+        pools: dict[str, Pool] = {}
+        by_core: dict[int, Pool] = {}
+        for name, run in sorted(schedule.subchains.items()):
+            if run.shared:
+                core = run.cores[0]
+                by_core.setdefault(core, Pool(f"core-{core}", (core,), "fifo"))
+                pools[name] = by_core[core]
+            else:
+                pools[name] = Pool(f"dedicated-{name}", run.cores, "fifo")
+        self.pools = pools
+        self.raised = {}
+        unique = {id(pool): pool for pool in pools.values()}
+        self.engine.pools = list(unique.values())
+        for job in old_jobs:
+            owner = schedule.subchain_of(job.node)
+            if owner is not None:
+                job.priority = RESTING_SHARED if owner.shared else DEDICATED
+                self.engine.submit(pools[owner.name], job)
+        for pool in self.engine.pools:
+            self.engine.changed(pool)
+        generation = self.generation
+        now = self.engine.now
+        for run in schedule.clocked:
+            self._clock(run.name, generation, now)
+        for shared in schedule.shared:
+            self._period(shared.core, generation, now, 0)
+
+    def _fold_busy(self) -> None:
+        for pool in self.engine.pools:
+            for core in pool.cores:
+                self.core_busy_ms[core] = self.core_busy_ms.get(core, 0.0) + pool.busy_core_ms / len(pool.cores)
+            pool.busy_core_ms = 0.0
+
+    def busy_by_core(self) -> dict[int, float]:
+        """Core -> time it ran jobs (ms), over every allocation so far."""
+        self._fold_busy()
+        return dict(self.core_busy_ms)
+
+    # -------------------------------------------------------------- clocks and slots
+
+    def _clock(self, name: str, generation: int, due_ms: float) -> None:
+        def fire() -> None:
+            if generation != self.generation:
+                return
+            run = self.schedule.subchains.get(name)
+            if run is None or not run.on_clock:
+                return
+            self._trigger_head(run)
+            self._clock(name, generation, max(due_ms + run.period_ms, self.engine.now))
+
+        self.engine.at(due_ms, fire)
+
+    def _period(self, core_id: int, generation: int, start_ms: float, index: int) -> None:
+        def begin() -> None:
+            if generation != self.generation:
+                return
+            core = next((c for c in self.schedule.shared if c.core == core_id), None)
+            if core is None or not core.slots:
+                return
+            for slot in core.slots:
+                self.engine.at(start_ms + slot.start_ms - core.switch_ms, self._switcher(core, slot, generation, index))
+            last = core.slots[-1]
+            self.engine.at(start_ms + last.start_ms + last.length_ms, self._lowerer(core_id, generation))
+            self._period(core_id, generation, start_ms + core.period_ms, index + 1)
+
+        self.engine.at(start_ms, begin)
+
+    def _switcher(self, core: CoreSchedule, slot: Slot, generation: int, index: int) -> Callable[[], None]:
+        def switch() -> None:
+            if generation != self.generation:
+                return
+            runs = self.schedule.subchains
+            now = self.engine.now
+            late = set()
+            for other in core.slots:
+                if is_late(self.states[other.subchain].oldest_ms(), now, runs[other.subchain]):
+                    late.add(other.subchain)
+            owner = slot_owner(slot, core, runs, late)
+            if owner != slot.subchain:
+                self.states[owner].steals += 1
+            self._raise(core.core, owner)
+            if triggers_at_slot(runs[slot.subchain], index):
+                self._trigger_head(runs[slot.subchain])
+
+        return switch
+
+    def _lowerer(self, core_id: int, generation: int) -> Callable[[], None]:
+        def lower() -> None:
+            if generation == self.generation:
+                self._raise(core_id, None)
+
+        return lower
+
+    def _raise(self, core_id: int, owner: str | None) -> None:
+        """The previous owner's jobs on ``core_id`` back to FIFO 1 (to the front), ``owner``'s to FIFO 2 (the back)."""
+        previous = self.raised.get(core_id)
+        if previous == owner:
+            return
+        self.raised[core_id] = owner
+        for name, level in ((previous, RESTING_SHARED), (owner, RAISED)):
+            if name is None or name not in self.pools:
+                continue
+            pool = self.pools[name]
+            members = set(self.schedule.subchains[name].nodes)
+            for job in pool.jobs:
+                if job.node in members:
+                    job.priority = level
+                    # Linux: a thread raised goes to the back of its new level, one lowered to the front.
+                    ticket = self.engine.arrival()
+                    job.since = ticket if level == RAISED else -ticket
+            self.engine.changed(pool)
+
+    # -------------------------------------------------------------- runs
+
+    def _trigger_head(self, run: SubchainRun) -> None:
+        seq = self.states[run.name].start(Flight(0, self.engine.now))
+        if seq is not None:
+            self._trigger(run.nodes[0], seq)
+
+    def _trigger(self, node: str, seq: int) -> None:
+        if self.nodes.queued(node, seq):
+            return
+        run = self.schedule.subchain_of(node)
+        if run is None:  # pragma: no cover - every scheduled node is in a subchain
+            return
+        self.nodes.started(node, seq)
+        flight = self.states[run.name].in_flight.get(seq)
+        index = flight.index if flight is not None else run.nodes.index(node)
+        threads, speedup = run.threads_of(index)
+        now = self.engine.now
+        origins = self.flow.read_inputs(node, now)
+        compute = self.sample(node, now / 1000.0)
+        if not run.shared:
+            priority = DEDICATED
+        else:
+            priority = RAISED if self.raised.get(run.cores[0]) == run.name else RESTING_SHARED
+
+        def done(_job: Job) -> None:
+            self._done(node, seq, origins, compute)
+
+        job = Job(node, compute / speedup, threads, priority, 0, done)
+        self.engine.submit(self.pools[run.name], job)
+
+    def _done(self, node: str, seq: int, origins: Origins, compute_ms: float) -> None:
+        if self.measurements is not None:
+            self.measurements.record(node, compute_ms)
+        self.flow.produce(node, origins, self.engine.now)
+        run = self.schedule.subchain_of(node)
+        self._free(node)
+        if run is None:  # pragma: no cover
+            return
+        state = self.states[run.name]
+        handoff = state.node_done(seq, len(run.nodes))
+        if handoff is None:
+            return
+        if handoff.next_index is not None:
+            self._trigger(run.nodes[handoff.next_index], seq)
+        else:
+            state.over(handoff.flight, self.engine.now, run.latency_ms)
+        if handoff.head_done and state.pending:
+            self._trigger_head(run)
+
+    def _free(self, node: str) -> None:
+        waiting = self.nodes.free(node)
+        if waiting is not None:
+            self._trigger(node, waiting)
+
+    # -------------------------------------------------------------- re-solving
+
+    def _reoptimise(self) -> None:
+        assert self.reoptimiser is not None
+        after, reinstall, next_ms = self.reoptimiser.step(self.engine.now, self.schedule)
+        if reinstall:
+            self._install(after)  # new cores, or a subchain now clock- instead of slot-triggered
+        else:
+            self.schedule = after  # slots and periods take effect from the next period or trigger
+        self.engine.at(next_ms, self._reoptimise)
+
+    @property
+    def replans(self) -> list[Replan]:
+        return [] if self.reoptimiser is None else self.reoptimiser.replans
+
+
+class Reoptimiser:
+    """The periodic re-solve of ``catanc run``: Stage II every ``stage2_every_s``, Stage I every ``stage1_every_s``,
+    from the p95s of the compute times recorded since the start."""
+
+    def __init__(self, spec: Spec, replanner: Replanner) -> None:
+        self.spec, self.replanner = spec, replanner
+        self.measurements = Measurements.for_spec(spec)
+        runtime = spec.runtime
+        self.first_ms = runtime.first_solve_after_s * 1000.0
+        self._next_stage1 = (runtime.first_solve_after_s + runtime.stage1_every_s) * 1000.0
+        self.replans: list[Replan] = []
+
+    def step(self, now: float, before: RuntimeSchedule) -> tuple[RuntimeSchedule, bool, float]:
+        """Re-solve now: the new schedule, whether it must be installed afresh, and when to re-solve next."""
+        runtime = self.spec.runtime
+        stage1 = now >= self._next_stage1
+        if stage1:
+            self._next_stage1 = now + runtime.stage1_every_s * 1000.0
+        next_stage2 = now + runtime.stage2_every_s * 1000.0
+        estimates = self.measurements.estimates(measured_only=True)
+        plan = self.replanner.reallocate(estimates or None) if stage1 else self.replanner.resolve(estimates)
+        after = runtime_schedule(plan, self.replanner.problem, self.spec.schedule)
+        moved = _layout(before) != _layout(after)
+        reinstall = moved or {r.name for r in before.clocked} != {r.name for r in after.clocked}
+        self.replans.append(Replan(now / 1000.0, "stage1" if stage1 else "stage2", moved, plan.objective))
+        return after, reinstall, min(self._next_stage1, next_stage2)
+
+
+def _layout(schedule: RuntimeSchedule) -> tuple[tuple[str, tuple[int, ...], bool], ...]:
+    return tuple((name, run.cores, run.shared) for name, run in sorted(schedule.subchains.items()))
+
+
+def baseline_wiring(spec: Spec) -> tuple[dict[str, float], dict[str, list[str]]]:
+    """The hand-tuned baseline's triggers: timer rates (Hz) of the listed scheduled nodes, and per node
+    the input-triggered nodes its outputs trigger (a UsageError if a node would never run)."""
+    rates_hz = spec.baseline.rates_hz
+    if not rates_hz:
+        raise UsageError(f"{spec.app}: the spec has no baseline (baseline.rates_hz) to simulate")
+    rates = {name: rate for name, rate in rates_hz.items() if spec.nodes[name].scheduled}
+    predecessors: dict[str, list[str]] = {name: [] for name in spec.nodes}
+    for source, target in spec.edge_pairs:
+        predecessors[target].append(source)
+    fed_by: dict[str, set[str]] = {}  # input-triggered node -> the nodes whose outputs trigger it
+    gaps = []
+    for name, node in spec.nodes.items():
+        if not node.scheduled or name in rates:
+            continue
+        inputs = predecessors[name]
+        scheduled = {p for p in inputs if spec.nodes[p].scheduled}
+        clocked = {p for p in inputs if not spec.nodes[p].scheduled and spec.nodes[p].rate_hz is not None}
+        if scheduled or clocked:
+            fed_by[name] = scheduled or clocked
+        else:
+            gaps.append(name)
+    if gaps:
+        raise UsageError(
+            f"{spec.app}: the baseline gives {', '.join(sorted(gaps))} no rate in baseline.rates_hz "
+            "and no input with one"
+        )
+    triggers: dict[str, list[str]] = {}
+    for name, feeders in sorted(fed_by.items()):
+        for feeder in sorted(feeders):
+            triggers.setdefault(feeder, []).append(name)
+    return rates, triggers
+
+
+class TimerPolicy:
+    """The hand-tuned baseline: listed nodes on their own timers, the rest on new input; CFS or static FIFO."""
+
+    def __init__(
+        self,
+        engine: Engine,
+        flow: Dataflow,
+        *,
+        spec: Spec,
+        cores: int,
+        sample: Sampler,
+        discipline: Discipline,
+        priorities: dict[str, int],
+    ) -> None:
+        self.engine, self.flow, self.spec, self.sample = engine, flow, spec, sample
+        self.priorities = priorities
+        self.pool = Pool("all", tuple(range(cores)), discipline)
+        engine.pools = [self.pool]
+        self.rates, self.triggers = baseline_wiring(spec)
+        self.busy: dict[str, bool] = {}
+        self.pending: dict[str, bool] = {}
+        flow.listeners.append(self._on_output)
+
+    def start(self) -> None:
+        for name, rate in sorted(self.rates.items()):
+            self._timer(name, 1000.0 / rate, 0.0)
+
+    def busy_by_core(self) -> dict[int, float]:
+        share = self.pool.busy_core_ms / len(self.pool.cores)
+        return dict.fromkeys(self.pool.cores, share)
+
+    def _timer(self, node: str, period_ms: float, due_ms: float) -> None:
+        def fire() -> None:
+            self._trigger(node)
+            self._timer(node, period_ms, due_ms + period_ms)
+
+        self.engine.at(due_ms, fire)
+
+    def _on_output(self, node: str, _now_ms: float) -> None:
+        for target in self.triggers.get(node, ()):
+            self._trigger(target)
+
+    def _trigger(self, node: str) -> None:
+        if self.busy.get(node):
+            self.pending[node] = True  # one callback waits; more coalesce (a depth-1 queue)
+            return
+        self.busy[node] = True
+        now = self.engine.now
+        origins = self.flow.read_inputs(node, now)
+        compute = self.sample(node, now / 1000.0)
+
+        def done(_job: Job) -> None:
+            self.flow.produce(node, origins, self.engine.now)
+            self.busy[node] = False
+            if self.pending.pop(node, False):
+                self._trigger(node)
+
+        self.engine.submit(self.pool, Job(node, compute, 1, self.priorities.get(node, 0), 0, done))
