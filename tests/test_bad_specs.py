@@ -39,6 +39,12 @@ EXPECT_RE = re.compile(r"^# expect: (?P<line>\d+): (?P<field>[^\s:]*): (?P<fragm
 XFAIL_RE = re.compile(r"^# xfail: (?P<reason>\S.*?)\s*$")
 
 REQUIRED_CATEGORIES = [
+    # executors (nodes sharing one thread)
+    "executor_unknown_node",
+    "executor_node_in_two",
+    "executor_unscheduled_node",
+    "executor_one_node",
+    "executor_overload",
     # YAML itself
     "yaml_syntax_indent",
     "yaml_syntax_unclosed_bracket",

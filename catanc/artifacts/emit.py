@@ -129,6 +129,8 @@ def sorted_keys(data: Any) -> Any:
 def normalised_spec(spec: Spec) -> dict[str, Any]:
     """The spec with every default written out, as JSON data ``Spec.model_validate`` reads back."""
     data: dict[str, Any] = spec.model_dump(mode="json", by_alias=True)
+    if not data["executors"]:
+        del data["executors"]  # a later field: tables of specs without executors stay as they were
     return data
 
 

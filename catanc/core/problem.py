@@ -47,6 +47,7 @@ class Subchain:
     batch: bool
     min_period_ms: float = 0.0  # from max_rate_hz / rate_hz
     max_period_ms: float = math.inf  # from min_rate_hz / rate_hz
+    serial: tuple[tuple[int, ...], ...] = ()  # positions of nodes that share one executor thread (2+ each)
 
     @cached_property
     def compute_ms(self) -> float:
@@ -150,6 +151,20 @@ class ResponseBound:
 
 
 @dataclass(frozen=True)
+class Executor:
+    """Scheduled nodes that share one single-threaded executor: they run one after the other."""
+
+    name: str
+    nodes: tuple[str, ...]
+    subchains: tuple[str, ...]  # the subchains its nodes belong to, in spec order
+    where: str = field(default="", compare=False)  # ``file:line:col`` of its declaration ("" without a source)
+
+    @property
+    def label(self) -> str:
+        return f"executor {self.name!r}" + (f" ({self.where})" if self.where else "")
+
+
+@dataclass(frozen=True)
 class Problem:
     """The planning problem a spec states, ready for the solver stages."""
 
@@ -161,6 +176,25 @@ class Problem:
     period_terms: tuple[PeriodTerm, ...]
     response_bounds: tuple[ResponseBound, ...]
     warnings: tuple[Diagnostic, ...] = field(default=())
+    executors: tuple[Executor, ...] = field(default=())
+
+    @cached_property
+    def together(self) -> tuple[tuple[str, ...], ...]:
+        """Sets of 2+ subchains that must share one core: their executors' nodes span them.
+
+        Executors that touch a common subchain merge (a thread cannot be on
+        two cores).  Members in spec order; sets ordered by first member.
+        """
+        order = {sub.name: index for index, sub in enumerate(self.subchains)}
+        sets: list[set[str]] = []
+        for executor in self.executors:
+            merged = set(executor.subchains)
+            for other in [s for s in sets if s & merged]:
+                merged |= other
+                sets.remove(other)
+            sets.append(merged)
+        units = [tuple(sorted(s, key=order.__getitem__)) for s in sets if len(s) >= 2]
+        return tuple(sorted(units, key=lambda unit: order[unit[0]]))
 
     def importance(self) -> dict[str, float]:
         """Total weight of the objective terms each subchain appears in (order, priority, branching)."""
@@ -308,6 +342,8 @@ class _Builder:
         self.check_subchains()
         self.check_settings()
         subchains = self.subchain_bounds()
+        executors = self.check_executors(subchains)
+        subchains = _with_serial(subchains, executors)
         response_terms, period_terms = self.objective_terms()
         bounds = self.response_bounds()
         if self.errors:
@@ -328,6 +364,7 @@ class _Builder:
             period_terms=tuple(period_terms),
             response_bounds=tuple(bounds),
             warnings=tuple(self.warnings),
+            executors=executors,
         )
 
     def check_edges(self) -> None:
@@ -465,6 +502,74 @@ class _Builder:
             )
         return tuple(subchains)
 
+    def check_executors(self, subchains: tuple[Subchain, ...]) -> tuple[Executor, ...]:
+        """Each executor's nodes: known, scheduled, in one executor only, and able to keep up with their floors."""
+        spec = self.spec
+        first_path: dict[str, FieldPath] = {}
+        executors = []
+        by_name = {sub.name: sub for sub in subchains}
+        for name, nodes in spec.executors.items():
+            ok = True
+            for index, node in enumerate(nodes):
+                path: FieldPath = ("executors", name, index)
+                if not self.known(node, path):
+                    ok = False
+                    continue
+                if node in first_path:
+                    other = first_path[node]
+                    where = "earlier in this executor" if other[1] == name else f"already in executor {other[1]!r}"
+                    self.error(path, f"node {node!r} is {where}{self.line_of(other)}; a node runs in one thread")
+                    ok = False
+                    continue
+                first_path[node] = path
+                if not spec.nodes[node].scheduled:
+                    self.error(
+                        path,
+                        f"node {node!r} is unscheduled (scheduled: false): it runs on its own clock, "
+                        "so the scheduler cannot serialise it with the executor's other nodes",
+                    )
+                    ok = False
+                elif node not in self.membership:
+                    ok = False  # reported already: in no (valid) subchain
+            if not ok:
+                continue
+            owners = list(dict.fromkeys(self.membership[node] for node in nodes))
+            order = list(spec.subchains)
+            owners.sort(key=order.index)
+            source = spec.source
+            where = str(source.locate(("executors", name), at_key=True)) if source is not None else ""
+            executor = Executor(name, tuple(nodes), tuple(owners), where)
+            if all(owner in by_name for owner in owners):
+                self.check_executor_load(executor, by_name)
+            executors.append(executor)
+        return tuple(executors)
+
+    def check_executor_load(self, executor: Executor, by_name: Mapping[str, Subchain]) -> None:
+        """One thread gives at most 100% of a core: the executor's nodes at their rate floors must fit.
+
+        Each node runs once per run of its subchain, at a period of at most the
+        subchain's longest allowed period; with its most threads it takes
+        ``c_j / speedup_max``.  No core count changes this, so it is a spec error.
+        """
+        loads = []
+        for node in executor.nodes:
+            sub = by_name[self.membership[node]]
+            if sub.max_period_ms == math.inf or sub.batch:
+                continue
+            position = sub.nodes.index(node)
+            fastest = sub.node_compute_ms[position] / max(sub.node_speedups[position])
+            loads.append((node, 1000.0 / sub.max_period_ms, fastest / sub.max_period_ms))
+        total = math.fsum(load for _, _, load in loads)
+        if total > 1.0:
+            parts = ", ".join(f"{node} at >= {rate:g} Hz needs {load:.0%}" for node, rate, load in loads)
+            self.error(
+                ("executors", executor.name),
+                f"executor {executor.name!r} cannot keep up with its rate floors: {parts} of its one thread, "
+                f"{total:.0%} in all; a single-threaded executor runs one callback at a time on any number of "
+                "cores (lower a min_rate_hz, or split the executor)",
+                at_key=True,
+            )
+
     # -- chains
 
     def add_chain(self, nodes: tuple[str, ...]) -> int:
@@ -556,6 +661,19 @@ class _Builder:
             for chain in self.chains_of(constraint, path):
                 bounds.append(ResponseBound(chain, constraint.max_response_ms, path))
         return bounds
+
+
+def _with_serial(subchains: tuple[Subchain, ...], executors: tuple[Executor, ...]) -> tuple[Subchain, ...]:
+    """Each subchain with the positions of its nodes that share an executor (Eq. 1 adds them up)."""
+    result = []
+    for sub in subchains:
+        serial = tuple(
+            positions
+            for executor in executors
+            if len(positions := tuple(i for i, node in enumerate(sub.nodes) if node in executor.nodes)) >= 2
+        )
+        result.append(replace(sub, serial=serial) if serial else sub)
+    return tuple(result)
 
 
 def _describe_selector(selector: ChainSelector) -> str:

@@ -544,6 +544,14 @@ class Spec(_Model):
     runtime: Runtime = Field(default_factory=Runtime)
     baseline: Baseline = Field(default_factory=Baseline)
     deploy: dict[Name, Deploy] = Field(default_factory=dict)
+    executors: dict[Name, Annotated[list[Name], Field(min_length=2)]] = Field(
+        default_factory=dict,
+        description=(
+            "Nodes that share one single-threaded executor (one ROS process spinning one thread): "
+            "name -> its scheduled nodes. They run one after the other, never at once, and are planned "
+            "on one core set. Sharing deploy.ros_node does not imply it (a process may spin several threads)."
+        ),
+    )
 
     _source: SourceMap | None = PrivateAttr(default=None)
 

@@ -189,6 +189,8 @@ def _message(error: Any, loc: tuple[Hashable, ...]) -> str:
     if kind in ("too_short", "too_long") and loc[:1] == ("edges",):
         count = len(value) if isinstance(value, list) else 0
         return f"an edge is [a, b]: two node names, got {count} (write a longer path as one edge per pair)"
+    if kind == "too_short" and loc[:1] == ("executors",):
+        return "an executor lists at least 2 nodes (one node alone never overlaps itself: remove the entry)"
     if kind == "too_short":
         return "must not be empty" if ctx.get("min_length") == 1 else error["msg"].lower()
     if kind == "too_long":
