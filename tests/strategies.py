@@ -14,9 +14,13 @@ from catanc.spec.load import parse_spec
 
 @st.composite
 def spec_documents(
-    draw: st.DrawFn, max_subchains: int = 7, with_bounds: bool = True, max_threads: int = 3
+    draw: st.DrawFn,
+    max_subchains: int = 7,
+    with_bounds: bool = True,
+    max_threads: int = 3,
+    with_executors: bool = False,
 ) -> dict[str, Any]:
-    """A random app: a layered DAG of subchains (1-3 nodes each), terms, caps and bounds."""
+    """A random app: a layered DAG of subchains (1-3 nodes each), terms, caps and bounds (and executors)."""
     count = draw(st.integers(1, max_subchains))
     subchains: dict[str, list[str]] = {}
     nodes: dict[str, Any] = {}
@@ -61,7 +65,7 @@ def spec_documents(
     if with_bounds and floorable and draw(st.booleans()):
         name = draw(st.sampled_from(floorable))
         constraints.append({"node": subchains[name][0], "min_rate_hz": draw(st.sampled_from([1, 10, 40]))})
-    return {
+    document = {
         "catan": 1,
         "app": "random",
         "nodes": nodes,
@@ -70,6 +74,16 @@ def spec_documents(
         "objective": objective,
         "constraints": constraints,
     }
+    if with_executors:
+        scheduled = [node for members in subchains.values() for node in members]
+        chosen = draw(st.lists(st.sampled_from(scheduled), min_size=0, max_size=min(6, len(scheduled)), unique=True))
+        executors: dict[str, list[str]] = {}
+        while len(chosen) >= 2:  # disjoint executors of 2-3 nodes
+            size = min(len(chosen), draw(st.integers(2, 3)))
+            executors[f"e{len(executors)}"], chosen = chosen[:size], chosen[size:]
+        if executors:
+            document["executors"] = executors
+    return document
 
 
 def spec_of(document: dict[str, Any]) -> Spec:

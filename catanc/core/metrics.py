@@ -65,7 +65,9 @@ def chain_metrics(stages: Sequence[Timing]) -> ChainMetrics:
     return ChainMetrics(latency, period, latency + period)
 
 
-def dedicated_timing(compute_by_threads: Sequence[Sequence[float]], cores: int) -> DedicatedTiming:
+def dedicated_timing(
+    compute_by_threads: Sequence[Sequence[float]], cores: int, serial: Sequence[Sequence[int]] = ()
+) -> DedicatedTiming:
     """Eq. 1: the best thread count ``q`` for a subchain on ``cores`` cores.
 
     ``compute_by_threads[q - 1][j]`` is node j's compute time with at most q
@@ -74,7 +76,10 @@ def dedicated_timing(compute_by_threads: Sequence[Sequence[float]], cores: int) 
         p(q) = max(max_j c^q_j, sum_j c^q_j / floor(cores / q))
         response(q) = sum_j c^q_j + p(q)
 
-    and the lowest response wins (ties: the smaller q).
+    and the lowest response wins (ties: the smaller q).  ``serial`` lists
+    positions of nodes that share one executor thread: runs in flight cannot
+    overlap them, so each such set is one pipeline stage whose compute adds
+    up (``p(q) >= sum_{j in set} c^q_j``).
     """
     if cores < 1:
         raise ValueError("a dedicated subchain needs at least one core")
@@ -82,7 +87,7 @@ def dedicated_timing(compute_by_threads: Sequence[Sequence[float]], cores: int) 
     for q in range(1, cores + 1):
         times = compute_by_threads[q - 1]
         total = math.fsum(times)
-        period = max(*times, total / (cores // q))
+        period = max(*times, total / (cores // q), *(math.fsum(times[j] for j in group) for group in serial))
         candidate = DedicatedTiming(cores, q, period, total)
         if best is None or candidate.response_ms < best.response_ms:
             best = candidate
@@ -92,7 +97,7 @@ def dedicated_timing(compute_by_threads: Sequence[Sequence[float]], cores: int) 
 
 def capped_dedicated(sub: Subchain, cores: int) -> DedicatedTiming:
     """Eq. 1 for ``sub`` on ``cores`` cores of its own, then its rate cap applied to the period."""
-    eq1 = dedicated_timing(sub.compute_by_threads(cores), cores)
+    eq1 = dedicated_timing(sub.compute_by_threads(cores), cores, sub.serial)
     return replace(eq1, period_ms=max(eq1.period_ms, sub.min_period_ms))
 
 

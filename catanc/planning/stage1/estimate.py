@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 from catanc.core.metrics import Timing, bound_scale, capped_dedicated, objective
 from catanc.core.problem import Problem, Subchain
+from catanc.planning.stage1.together import pack_groups
 
 SCALE_SLACK = 1e-6
 """Relative slack on the smallest bound scale when optimising under it (solver tolerance)."""
@@ -80,22 +81,13 @@ def allocation_from_options(problem: Problem, options: Mapping[str, Option]) -> 
     Stage I's estimate depends only on each subchain's option, not on who its
     partners are, so subchains that share in groups of ``m`` are grouped in
     spec order: the first ``m`` together, then the next ``m``.
+    Subchains that must share one core (an executor's, :mod:`catanc.planning.stage1.together`)
+    are kept in one group; raises :class:`ValueError` when no grouping does.
     """
-    dedicated = []
-    sharing: dict[int, list[str]] = {}
-    for sub in problem.subchains:
-        option = options[sub.name]
-        if option.shared:
-            sharing.setdefault(option.size, []).append(sub.name)
-        else:
-            dedicated.append((sub.name, option.size))
-    groups: list[tuple[str, ...]] = []
-    for size, names in sharing.items():
-        if len(names) % size:
-            raise ValueError(f"{len(names)} subchains cannot form groups of {size}")
-        groups.extend(tuple(names[i : i + size]) for i in range(0, len(names), size))
-    order = {sub.name: index for index, sub in enumerate(problem.subchains)}
-    groups.sort(key=lambda group: order[group[0]])
+    dedicated = [(sub.name, options[sub.name].size) for sub in problem.subchains if not options[sub.name].shared]
+    groups = pack_groups(problem, options)
+    if groups is None:
+        raise ValueError("these options cannot form whole groups with every executor's subchains together")
     return Allocation(tuple(dedicated), tuple(groups))
 
 

@@ -3,7 +3,8 @@
 Allocations are set partitions of the subchains (a block of two or more is
 a shared group on one core; a singleton is dedicated) times the ways to hand
 the remaining cores to the dedicated singletons.  With ``N >= K`` subchains
-every core is used; with fewer, cores may stay idle.
+every core is used; with fewer, cores may stay idle.  Partitions that split
+an executor's subchains are skipped (:mod:`catanc.planning.stage1.together`).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from catanc.planning.stage1.estimate import (
     tie_rank,
 )
 from catanc.planning.stage1.result import Stage1Result
+from catanc.planning.stage1.together import check_cores, respects
 
 MAX_EXHAUSTIVE_ALLOCATIONS = 2_000_000
 """Refuse to enumerate more allocations than this (roughly a minute of scoring)."""
@@ -76,7 +78,7 @@ def _layouts(problem: Problem, cores: int) -> Iterator[tuple[list[str], list[lis
         singles = [block[0] for block in partition if len(block) == 1]
         groups = [block for block in partition if len(block) > 1]
         extra = cores - len(singles) - len(groups)
-        if extra < 0:
+        if extra < 0 or not respects(problem, groups):
             continue
         for spread in _spreads(extra, len(singles), exact=every_core_used):
             yield singles, groups, spread
@@ -113,6 +115,7 @@ def every_allocation(problem: Problem, cores: int) -> Iterator[Allocation]:
 
 def solve_exhaustive(problem: Problem, cores: int) -> Stage1Result:
     """The best allocation by scoring every one (exact, for small apps)."""
+    check_cores(problem, cores)
     table = option_table(problem, cores)
     names = [sub.name for sub in problem.subchains]
     scored: list[tuple[float, float, float, tuple[Option, ...]]] = []  # scale, objective, tie rank, options

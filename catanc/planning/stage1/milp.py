@@ -16,6 +16,12 @@ Formulation (cores are identical, so no core indices and no symmetry):
   period; its response ``R_t = L_t + P_t`` is linear.
 - bounds ``R_t <= s B_t`` and ``p_i <= s p_max`` with ``s = 1``; when that is
   infeasible, a first solve minimises ``s`` and the second keeps it.
+- subchains that must share one core (an executor's unit,
+  :mod:`catanc.planning.stage1.together`) take no dedicated option, and all take the
+  same group size, at least the unit's: ``x[a, shared m] = x[b, shared m]``.
+  That leaves only whether the units of one size fit its groups (three pairs
+  in two groups of three do not): an answer that does not is cut off and the
+  MILP solved again.
 
 The objective is section 2's, plus a tie-breaking term 1e-8 of the
 objective's size (:func:`catanc.planning.stage1.estimate.tie_rank`).  The reported
@@ -53,6 +59,7 @@ from catanc.planning.stage1.estimate import (
 )
 from catanc.planning.stage1.result import Stage1Result
 from catanc.planning.stage1.search import local_search
+from catanc.planning.stage1.together import check_cores, options_allowed
 
 DEFAULT_SOLVER = "highs"
 DEFAULT_TIME_LIMIT_S = 2.5
@@ -115,6 +122,7 @@ def solve_milp(
     solver: str = DEFAULT_SOLVER,
     time_limit_s: float = DEFAULT_TIME_LIMIT_S,
     exclude: Sequence[Allocation] = (),
+    exclude_options: Sequence[Mapping[str, Option]] = (),
 ) -> Stage1Result:
     """The best allocation by the MILP; within ``time_limit_s``, else the best found with its gap.
 
@@ -126,16 +134,19 @@ def solve_milp(
 
     ``exclude`` lists allocations already found: a no-good cut per allocation
     (its options may not all be chosen again) makes the MILP return the next best.
+    ``exclude_options`` cuts off options no grouping can form (executor units that do not fit).
     """
     if solver not in SOLVERS:
         raise UsageError(f"unknown Stage I solver {solver!r}; choose one of {', '.join(SOLVERS)}")
     method = f"milp/{solver}"
     if not problem.subchains:
         return Stage1Result(Allocation((), ()), 0.0, 1.0, True, 0.0, method)
-    deadline = time.monotonic() + time_limit_s
+    check_cores(problem, cores)
+    started = time.monotonic()
+    deadline = started + time_limit_s
     table = option_table(problem, cores)
     model = _build(problem, cores, table)
-    excluded = [allocation.options() for allocation in exclude]
+    excluded = [allocation.options() for allocation in exclude] + [dict(options) for options in exclude_options]
     for n, options in enumerate(excluded):
         chosen = pulp.lpSum(model.choice[name, option] for name, option in options.items())
         model.prob += chosen <= len(options) - 1, f"no_good_{n}"
@@ -146,7 +157,9 @@ def solve_milp(
 
     def start_values() -> dict[str, float] | None:
         # An excluded allocation is no start (it violates its cut): the MILP then finds its own.
-        return None if start in excluded else model.start_values(problem, table, start)
+        if start in excluded or not options_allowed(problem, start):
+            return None
+        return model.start_values(problem, table, start)
 
     outcome = _solve(model.prob, solver, deadline, start_values())
     if outcome.status == "infeasible" and model.scale is not None:
@@ -170,6 +183,17 @@ def solve_milp(
             )
     elif outcome.status != "time limit":
         raise RuntimeError(f"Stage I MILP ({solver}) failed: {outcome.status}")
+    if not options_allowed(problem, options):
+        if options in excluded:
+            raise RuntimeError("Stage I found no allocation that keeps each executor's subchains on one core")
+        return solve_milp(
+            problem,
+            cores,
+            solver=solver,
+            time_limit_s=max(0.0, time_limit_s - (time.monotonic() - started)),
+            exclude=exclude,
+            exclude_options=[*exclude_options, options],
+        )
     evaluation = evaluate(problem, table, options)
     bounds = [b for b in (outcome.bound, lp_bound) if b is not None and math.isfinite(b)]
     if evaluation.scale > 1.0:
@@ -249,6 +273,14 @@ def _build(problem: Problem, cores: int, table: OptionTable, *, strengthen: bool
         groups.values()
     )
     prob += (used == cores) if count >= cores else (used <= cores), "cores"
+    for number, unit in enumerate(problem.together):
+        for option in table[unit[0]]:
+            if not option.shared or option.size < len(unit):
+                for name in unit:
+                    prob += choice[name, option] == 0, f"together_{number}_{name}_{option.shared:d}_{option.size}"
+            else:
+                for name in unit[1:]:
+                    prob += choice[name, option] == choice[unit[0], option], f"together_{number}_{name}_{option.size}"
 
     response: dict[int, pulp.LpAffineExpression] = {}
     chain_periods: dict[int, pulp.LpVariable] = {}

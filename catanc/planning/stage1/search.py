@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 
 from catanc.core.problem import Problem
 from catanc.planning.stage1.estimate import Option, OptionTable, evaluate
+from catanc.planning.stage1.together import respects
 
 MAX_EVALUATIONS = 6_000
 
@@ -69,6 +70,8 @@ def local_search(
         options = state.options()
         if any(option not in table[name] for name, option in options.items()):
             return (math.inf, math.inf)  # a step on the way, not an allocation (a group too big)
+        if not respects(problem, state.groups):
+            return (math.inf, math.inf)  # an executor's subchains apart: a step on the way
         evaluation = evaluate(problem, table, options)
         return (evaluation.scale, evaluation.objective)  # meet the bounds first, then optimise
 
