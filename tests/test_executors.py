@@ -8,6 +8,7 @@ executor's subchains lie in one shared group, scored by the analytic model.
 from __future__ import annotations
 
 import itertools
+import math
 from typing import Any
 
 import pytest
@@ -202,3 +203,18 @@ def test_executor_overload_is_a_spec_error() -> None:
     # Apart, each fits a core of its own.
     load(text.replace("executors:\n  worker: [b, c]\n", ""))
 
+
+
+def test_nav2d_mapper_shares_a_core() -> None:
+    from catanc.planning.planner import plan
+    from catanc.spec.load import load_spec
+
+    spec = load_spec("specs/nav2d.yaml")
+    problem = build_problem(spec)
+    assert problem.together == (("GL", "GM"),)
+    for cores in (1, 2, 3):
+        result = plan(spec, cores)
+        assert result.subchains["GL"].cores == result.subchains["GM"].cores
+        assert result.subchains["GL"].shared
+        assert result.stage1.allocation.options()["GL"] == result.stage1.allocation.options()["GM"]
+        assert math.isfinite(result.objective)

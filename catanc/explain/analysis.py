@@ -35,7 +35,7 @@ from rich.table import Table
 from rich.text import Text
 
 from catanc.core.metrics import Timing, evaluate_chain
-from catanc.core.problem import Chain, Problem, Subchain
+from catanc.core.problem import Chain, Executor, Problem, Subchain
 from catanc.planning.baseline import BaselineEvaluation, BaselineGap, TermValue, evaluate_baseline, objective_terms
 from catanc.planning.stage1.estimate import Allocation
 from catanc.spec.language import Schedule, Spec
@@ -138,6 +138,7 @@ class Explanation:
     warnings: tuple[str, ...]
     baseline: BaselineEvaluation | BaselineGap
     allocation: str  # how the allocation was chosen, in a sentence
+    executors: tuple[str, ...] = ()  # one sentence per executor: its nodes never overlap, and where they run
 
 
 # --------------------------------------------------------------------------- analysis
@@ -176,7 +177,21 @@ def explain_plan(spec: Spec, problem: Problem, plan: Plan) -> Explanation:
         warnings=(*plan.warnings, *_warnings(plan, problem, spec.schedule, headrooms)),
         baseline=evaluate_baseline(spec, problem, plan.cores),
         allocation=allocation_note(plan),
+        executors=tuple(executor_note(executor, plan) for executor in problem.executors),
     )
+
+
+def executor_note(executor: Executor, plan: Plan) -> str:
+    """Where an executor's nodes run: one thread, so one core set and never at once."""
+    nodes = ", ".join(executor.nodes)
+    subs = executor.subchains
+    cores = sorted({core for name in subs for core in plan.subchains[name].cores})
+    where = _cores_text(cores)
+    if len(subs) == 1:
+        how = f"in subchain {subs[0]} on {where}: its period covers their compute added up"
+    else:
+        how = f"subchains {', '.join(subs)} share {where}, one slot after the other"
+    return f"Executor {executor.name} runs {nodes} in one thread (never at once): {how}."
 
 
 def allocation_text(allocation: Allocation) -> str:
@@ -800,6 +815,7 @@ def report_blocks(explanation: Explanation) -> list[Block]:
     blocks: list[Block] = [
         Paragraph(f"{explanation.app} on {cores}: objective {explanation.objective:.3f} ms, {scale}.", strong=True),
         Paragraph(explanation.allocation),
+        *(Paragraph(note) for note in explanation.executors),
         Heading("1. Cores: one schedule period each"),
     ]
     for view in explanation.shared:
