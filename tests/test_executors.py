@@ -204,7 +204,6 @@ def test_executor_overload_is_a_spec_error() -> None:
     load(text.replace("executors:\n  worker: [b, c]\n", ""))
 
 
-
 def test_nav2d_mapper_shares_a_core() -> None:
     from catanc.planning.planner import plan
     from catanc.spec.load import load_spec

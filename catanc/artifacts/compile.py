@@ -17,6 +17,7 @@ from catanc.artifacts.emit import Provenance, emit
 from catanc.core.problem import build_problem
 from catanc.planning.planner import plan
 from catanc.spec.load import read_spec
+from catanc.spec.machine import apply_machine, read_machine
 
 DEFAULT_OUT = Path("out")
 DEFAULT_STAGE1 = "auto"
@@ -30,6 +31,7 @@ class Options:
     stage1: str = DEFAULT_STAGE1
     solver: str = DEFAULT_SOLVER
     time_limit_s: float | None = None
+    machine: Path | None = None  # a machine profile (catanc.spec.machine) whose measured costs the plan covers
 
 
 @dataclass(frozen=True)
@@ -51,6 +53,9 @@ def compile_spec(spec_path: Path, cores: int, *, out: Path | None = None, option
     """Plan ``spec_path`` on ``cores`` cores and emit its folder's files."""
     loaded = read_spec(spec_path)
     spec = loaded.spec
+    used = None
+    if options.machine is not None:
+        spec, used = apply_machine(spec, read_machine(options.machine))
     problem = build_problem(spec)
     result = plan(spec, cores, stage1_method=options.stage1, solver=options.solver, time_limit_s=options.time_limit_s)
     provenance = Provenance(
@@ -64,7 +69,7 @@ def compile_spec(spec_path: Path, cores: int, *, out: Path | None = None, option
         app=spec.app,
         cores=cores,
         folder=out if out is not None else default_folder(spec.app, cores),
-        files=emit(spec, problem, result, provenance),
+        files=emit(spec, problem, result, provenance, used),
         warnings=result.warnings,
     )
 
@@ -80,6 +85,8 @@ def normalised_command(spec_path: Path, cores: int, out: Path | None, options: O
         words += ["--solver", options.solver]
     if options.time_limit_s is not None:
         words += ["--time-limit", f"{options.time_limit_s:g}"]
+    if options.machine is not None:
+        words += ["--machine", display_path(options.machine)]
     return shlex.join(words)
 
 

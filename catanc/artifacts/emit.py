@@ -30,6 +30,7 @@ if TYPE_CHECKING:
     from catanc.core.problem import Problem
     from catanc.planning.planner import Plan
     from catanc.spec.language import Spec
+    from catanc.spec.machine import MachineUse
 
 RUNTIME_FORMAT = "catanc-runtime/1"
 """``runtime.json``'s ``format``: the enforcer refuses a table of another format."""
@@ -59,13 +60,20 @@ class Provenance:
         )
 
 
-def emit(spec: Spec, problem: Problem, plan: Plan, provenance: Provenance) -> dict[str, str]:
-    """The output folder's files for ``plan``: ``{relative path: text}``."""
+def emit(
+    spec: Spec, problem: Problem, plan: Plan, provenance: Provenance, machine: MachineUse | None = None
+) -> dict[str, str]:
+    """The output folder's files for ``plan``: ``{relative path: text}``.
+
+    ``machine``: the profile ``spec``'s schedule costs were raised with (``compile --machine``); the
+    table records it under ``machine`` and its spec holds the costs used.
+    """
     deployed = processes(spec, plan)
+    report = explain_plan(spec, problem, plan, machine)
     started = [process for process in deployed if process.argv]
     context: dict[str, Any] = {"app": spec.app, "cores": plan.cores, "header": provenance.header}
     files = {
-        "runtime.json": runtime_json(spec, problem, plan, provenance, deployed),
+        "runtime.json": runtime_json(spec, problem, plan, provenance, deployed, machine=machine),
         "params.yaml": _render("params.yaml.j2", context, params=ros_parameters(deployed)),
         "launch.sh": _render(
             "launch.sh.j2",
@@ -80,14 +88,22 @@ def emit(spec: Spec, problem: Problem, plan: Plan, provenance: Provenance) -> di
             ros=[process for process in deployed if process.package is not None],
             not_ros=[process for process in started if process.package is None],
         ),
-        "PLAN.md": _render("PLAN.md.j2", context, report=render_markdown(explain_plan(spec, problem, plan)).rstrip()),
+        "PLAN.md": _render("PLAN.md.j2", context, report=render_markdown(report).rstrip()),
     }
     return dict(sorted(files.items()))
 
 
-def runtime_json(spec: Spec, problem: Problem, plan: Plan, provenance: Provenance, deployed: Iterable[Process]) -> str:
+def runtime_json(
+    spec: Spec,
+    problem: Problem,
+    plan: Plan,
+    provenance: Provenance,
+    deployed: Iterable[Process],
+    *,
+    machine: MachineUse | None = None,
+) -> str:
     """The runtime table: interfaces.md's fields, the processes, and where it came from."""
-    table = {
+    table: dict[str, Any] = {
         "format": RUNTIME_FORMAT,
         "generated_by": {
             "catanc": provenance.version,
@@ -112,6 +128,8 @@ def runtime_json(spec: Spec, problem: Problem, plan: Plan, provenance: Provenanc
             for process in deployed
         ],
     }
+    if machine is not None:
+        table["machine"] = machine.record()
     # Keys sorted, except inside the spec: its order of nodes and subchains breaks ties between plans.
     ordered = {**sorted_keys(table), "spec": normalised_spec(spec)}
     return json.dumps(dict(sorted(ordered.items())), indent=2, allow_nan=False, ensure_ascii=False) + "\n"

@@ -44,6 +44,14 @@ Stage1Opt = Annotated[
 ]
 SolverOpt = Annotated[str, typer.Option(help="MILP solver: highs or cbc.")]
 TimeLimitOpt = Annotated[float | None, typer.Option(min=0.01, help="Stage I time limit in seconds (default 2.5).")]
+MachineOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--machine",
+        metavar="FILE",
+        help="A machine profile (catanc calibrate): plan with switch_ms and slack raised to its measured costs.",
+    ),
+]
 # simulate and bench: the same comparison, simulated or measured.
 WorkloadSeedOpt = Annotated[int, typer.Option("--seed", min=0, help="Seed of the workload's random draws.")]
 TablesJsonOpt = Annotated[bool, typer.Option("--json", help="Print JSON instead of tables.")]
@@ -218,20 +226,25 @@ def explain(
     solver: SolverOpt = "highs",
     time_limit: TimeLimitOpt = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the runtime table's plan as JSON.")] = False,
+    machine: MachineOpt = None,
 ) -> None:
     """Plan the spec and explain the plan: timelines, what binds, warnings, the baseline."""
     from catanc.artifacts.runtime_table import plan_json
     from catanc.explain.analysis import explain_plan, render
     from catanc.planning.planner import plan
+    from catanc.spec.machine import apply_machine, read_machine
 
     spec, problem = _load_problem(spec_path)
+    used = None
+    if machine is not None:
+        spec, used = apply_machine(spec, read_machine(machine))
     result = plan(spec, cores, stage1_method=stage1, solver=solver, time_limit_s=time_limit)
     if as_json:  # the text shows them in its own warnings section
         _print_notes(spec_path, result.warnings)
         sys.stdout.write(plan_json(result, problem, app=spec.app, cores=cores))
         return
     out = _stdout()
-    for part in render(explain_plan(spec, problem, result)):
+    for part in render(explain_plan(spec, problem, result, used)):
         out.print(part)
 
 
@@ -254,6 +267,7 @@ def compile_(
     stage1: Stage1Opt = "auto",
     solver: SolverOpt = "highs",
     time_limit: TimeLimitOpt = None,
+    machine: MachineOpt = None,
 ) -> None:
     """Plan each spec and write its deployment folder: runtime.json, params.yaml, launch.sh, launch.py, PLAN.md."""
     from catanc.artifacts.compile import Options, compile_spec
@@ -265,7 +279,7 @@ def compile_(
     pairs = list(dict.fromkeys((path, k) for path in specs for k in cores))
     if out is not None and len(pairs) > 1:
         raise UsageError("--out names one folder: give one spec and one --cores with it")
-    options = Options(stage1=stage1, solver=solver, time_limit_s=time_limit)
+    options = Options(stage1=stage1, solver=solver, time_limit_s=time_limit, machine=machine)
     targets = []
     for path, k in pairs:  # plan everything before touching any folder
         target = compile_spec(path, k, out=out, options=options)

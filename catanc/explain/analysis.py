@@ -42,6 +42,7 @@ from catanc.spec.language import Schedule, Spec
 
 if TYPE_CHECKING:
     from catanc.planning.planner import CorePlan, Plan, SubchainPlan
+    from catanc.spec.machine import MachineUse
 
 BINDING_TOLERANCE = 1e-6
 """Relative distance at which a constraint counts as binding."""
@@ -139,13 +140,17 @@ class Explanation:
     baseline: BaselineEvaluation | BaselineGap
     allocation: str  # how the allocation was chosen, in a sentence
     executors: tuple[str, ...] = ()  # one sentence per executor: its nodes never overlap, and where they run
+    machine: str | None = None  # which machine profile the plan's costs came from (compile/explain --machine)
 
 
 # --------------------------------------------------------------------------- analysis
 
 
-def explain_plan(spec: Spec, problem: Problem, plan: Plan) -> Explanation:
-    """Everything ``catanc explain`` shows about ``plan`` (planned from ``spec`` on ``plan.cores`` cores)."""
+def explain_plan(spec: Spec, problem: Problem, plan: Plan, machine: MachineUse | None = None) -> Explanation:
+    """Everything ``catanc explain`` shows about ``plan`` (planned from ``spec`` on ``plan.cores`` cores).
+
+    ``machine``: the profile ``spec``'s schedule costs were raised with, if any.
+    """
     by_name = {sub.name: sub for sub in problem.subchains}
     timings = plan_timings(plan)
     responses = [evaluate_chain(problem, chain, timings).response_ms for chain in problem.chains]
@@ -178,6 +183,7 @@ def explain_plan(spec: Spec, problem: Problem, plan: Plan) -> Explanation:
         baseline=evaluate_baseline(spec, problem, plan.cores),
         allocation=allocation_note(plan),
         executors=tuple(executor_note(executor, plan) for executor in problem.executors),
+        machine=machine.sentence() if machine is not None else None,
     )
 
 
@@ -816,6 +822,7 @@ def report_blocks(explanation: Explanation) -> list[Block]:
         Paragraph(f"{explanation.app} on {cores}: objective {explanation.objective:.3f} ms, {scale}.", strong=True),
         Paragraph(explanation.allocation),
         *(Paragraph(note) for note in explanation.executors),
+        *([Paragraph(explanation.machine)] if explanation.machine else []),
         Heading("1. Cores: one schedule period each"),
     ]
     for view in explanation.shared:
