@@ -36,6 +36,7 @@ from rich.text import Text
 
 from catanc.core.metrics import Timing, evaluate_chain
 from catanc.core.problem import Chain, Executor, Problem, Subchain
+from catanc.explain.enforceable import short_slots
 from catanc.planning.baseline import BaselineEvaluation, BaselineGap, TermValue, evaluate_baseline, objective_terms
 from catanc.planning.stage1.estimate import Allocation
 from catanc.spec.language import Schedule, Spec
@@ -179,7 +180,11 @@ def explain_plan(spec: Spec, problem: Problem, plan: Plan, machine: MachineUse |
         bindings=tuple(bindings(plan, problem, spec.schedule)),
         terms=terms,
         headrooms=headrooms,
-        warnings=(*plan.warnings, *_warnings(plan, problem, spec.schedule, headrooms)),
+        warnings=(
+            *plan.warnings,
+            *_warnings(plan, problem, spec.schedule, headrooms),
+            *([] if machine is not None else [found.warning for found in short_slots(plan, spec.schedule)]),
+        ),
         baseline=evaluate_baseline(spec, problem, plan.cores),
         allocation=allocation_note(plan),
         executors=tuple(executor_note(executor, plan) for executor in problem.executors),
