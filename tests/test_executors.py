@@ -22,6 +22,7 @@ from catanc.errors import ExitCode, InfeasibleError, SpecError
 from catanc.planning.stage1 import Option, allocate, next_best
 from catanc.planning.stage1.estimate import evaluate, option_table
 from catanc.planning.stage1.exhaustive import set_partitions
+from catanc.sim.simulate import EngineChoice
 from catanc.spec.language import Spec
 from catanc.spec.load import parse_spec
 from tests.strategies import spec_documents, spec_of
@@ -217,3 +218,33 @@ def test_nav2d_mapper_shares_a_core() -> None:
         assert result.subchains["GL"].shared
         assert result.stage1.allocation.options()["GL"] == result.stage1.allocation.options()["GM"]
         assert math.isfinite(result.objective)
+
+
+TWO_TIMERS = {
+    "catan": 1,
+    "app": "two",
+    "nodes": {"a": {"compute_ms": 10}, "b": {"compute_ms": 10}, "c": {"compute_ms": 1}},
+    "subchains": {"A": ["a"], "B": ["b"], "C": ["c"]},
+    "objective": [{"node": "a", "weight": 1}],
+    "baseline": {"rates_hz": {"a": 10, "b": 10, "c": 10}},
+}
+
+
+@pytest.mark.parametrize("engine", ["python", "compiled"])
+def test_the_simulator_runs_an_executors_nodes_one_after_the_other(engine: EngineChoice) -> None:
+    # Baseline on 3 cores, a and b (10 ms each) on 10 Hz timers from t = 0. Apart, each takes a core:
+    # both done at 10 ms. In one executor, b waits for a: done at 20 ms, every period; c is unaffected.
+    # No workload: every run takes its compute_ms.
+    from catanc.sim.simulate import Setup, simulate
+
+    apart = simulate(Setup(spec_of(TWO_TIMERS), 3, 0.35, 0), "baseline", engine=engine)
+    assert list(apart.node_done_ms["a"]) == pytest.approx([10, 110, 210, 310])
+    assert list(apart.node_done_ms["b"]) == pytest.approx([10, 110, 210, 310])
+    together = simulate(
+        Setup(spec_of({**TWO_TIMERS, "executors": {"worker": ["a", "b"]}}), 3, 0.35, 0),
+        "baseline",
+        engine=engine,
+    )
+    assert list(together.node_done_ms["a"]) == pytest.approx([10, 110, 210, 310])
+    assert list(together.node_done_ms["b"]) == pytest.approx([20, 120, 220, 320])
+    assert list(together.node_done_ms["c"]) == list(apart.node_done_ms["c"])

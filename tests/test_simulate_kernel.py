@@ -111,9 +111,10 @@ def test_draws_taken_from_small_rings_change_nothing(monkeypatch: pytest.MonkeyP
 
 
 @st.composite
-def apps_with_workloads(draw: st.DrawFn) -> dict[str, Any]:
-    """A random app with random jitter, growth and spikes, a hand-tuned baseline and quick re-solves."""
-    document = draw(spec_documents(max_subchains=4))
+def apps_with_workloads(draw: st.DrawFn, executors: bool = False) -> dict[str, Any]:
+    """A random app with random jitter, growth and spikes, a hand-tuned baseline and quick re-solves
+    (and, if ``executors``, nodes that share executor threads)."""
+    document = draw(spec_documents(max_subchains=4, with_executors=executors))
     for name, node in document["nodes"].items():
         if "compute_ms" not in node:
             continue
@@ -145,6 +146,19 @@ def test_random_apps_run_the_same_in_both_engines(document: dict[str, Any], core
     except CatancError:  # an app the planner finds infeasible: the planner's tests cover those
         return
     assert_same_run(simulate(setup, policy, engine="compiled"), python)
+
+
+@untimed
+@given(apps_with_workloads(executors=True), st.integers(1, 3), st.sampled_from(POLICIES), st.integers(0, 5))
+def test_random_apps_with_executors_run_the_same_in_both_engines(
+    document: dict[str, Any], cores: int, policy: str, seed: int
+) -> None:
+    try:
+        spec: Spec = spec_of(document)
+        python = simulate(Setup(spec, cores, 4.0, seed), policy, engine="python")
+    except CatancError:  # an executor that cannot keep up, or a core count it forbids: tested elsewhere
+        return
+    assert_same_run(simulate(Setup(spec, cores, 4.0, seed), policy, engine="compiled"), python)
 
 
 @settings(deadline=None, max_examples=60)

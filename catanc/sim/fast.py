@@ -127,6 +127,10 @@ def topology(
         "trig": trig,
         "priority": priority,
         "cores": cores,
+        "executor_of": np.array(
+            [next((e for e, nodes in enumerate(spec.executors.values()) if name in nodes), -1) for name in names],
+            np.int64,
+        ),
     }
 
 
@@ -291,6 +295,7 @@ def run_fields(graph: Fields, subchains: int, policy: int, measured_window: int 
     measured compute times are kept ``measured_window`` deep (the re-solving policy's window)."""
     n, cores = graph["scheduled"].shape[0], graph["cores"]
     pools = max(subchains, 1)
+    executors = int(graph["executor_of"].max(initial=-1)) + 1
     return {
         "now": 0.0,
         "order": 0,
@@ -345,6 +350,11 @@ def run_fields(graph: Fields, subchains: int, policy: int, measured_window: int 
         "raised": np.full(cores, -1, np.int64),
         "timer_busy": np.zeros(n, np.bool_),
         "timer_pending": np.zeros(n, np.bool_),
+        "exec_running": np.full(executors, -1, np.int64),
+        "exec_wait_node": np.zeros((executors, n), np.int64),
+        "exec_wait_seq": np.zeros((executors, n), np.int64),
+        "exec_wait_head": np.zeros(executors, np.int64),
+        "exec_wait_tail": np.zeros(executors, np.int64),
         "done_n": 0,
         "done_node": np.zeros(FIRST_RECORDS, np.int64),
         "done_at": np.zeros(FIRST_RECORDS),

@@ -106,7 +106,8 @@ class SimProxy(structref.StructRefProxy):  # type: ignore[misc]
     outputs it read), ``sub_of`` per node,
     ``sub_ptr/sub_nodes``, ``sensor_period`` (NaN if not a sensor) and
     ``sensor_order`` (spec order), ``timer_period``/``timer_order``/``trig_ptr``/
-    ``trig``/``priority`` (the baselines' wiring), ``cores``.
+    ``trig``/``priority`` (the baselines' wiring), ``cores``, ``executor_of``
+    (per node, its executor's number, -1 for none: :mod:`catanc.sim.threads`).
 
     The schedules, by version ``[V, ...]`` (a switch keeps the version it was
     scheduled in): ``sub_ncores``, ``sub_cores``, ``sub_shared``,
@@ -128,6 +129,8 @@ class SimProxy(structref.StructRefProxy):  # type: ignore[misc]
     ``job_read_at``: what a run read and when); catanc's runs (``busy_seq``, the ``wait`` rings,
     ``sub_*`` counters, ``heads_in_flight``, the ``flight_*`` rings by seq,
     ``raised`` per core); the baselines' ``timer_busy`` and ``timer_pending``;
+    per executor the node it runs (``exec_running``, -1: free) and the runs
+    waiting for it (``exec_wait_node/seq`` rings with ``exec_wait_head/tail``);
     scratch (``finished``, ``sort_buf``, ``stack``); the records with their
     counts (``done_*`` with ``done_feeds``/``feeds_n``, ``stale_*``), grown here
     as they fill; and ``measured_*``: per node a ring of its last ``window``
@@ -140,7 +143,7 @@ FIELDS = (
     # the graph
     "scheduled", "pass_through", "pred_ptr", "pred", "succ_ptr", "succ", "feed_ptr", "feed", "sub_of", "sub_ptr",
     "sub_nodes", "sensor_period", "sensor_order", "timer_period", "timer_order", "trig_ptr", "trig", "priority",
-    "cores",
+    "cores", "executor_of",
     # the schedules
     "sub_ncores", "sub_cores", "sub_shared", "sub_period", "sub_latency", "sub_runs", "sub_priority",
     "node_threads", "node_speedup", "clocked", "n_shared", "core_id", "core_period", "core_switch", "core_nslots",
@@ -155,7 +158,8 @@ FIELDS = (
     "pool_dirty", "sub_pool", "core_busy", "finished", "sort_buf", "stack", "latest_id", "latest_at",
     "busy_seq", "wait", "wait_head", "wait_tail", "sub_seq", "sub_pending", "sub_late", "sub_steals", "sub_skipped",
     "heads_in_flight", "flight_index", "flight_at", "flight_live", "flight_low", "raised", "timer_busy",
-    "timer_pending", "done_n", "done_node", "done_at", "done_read", "feeds_n", "done_feeds", "stale_n", "stale_node",
+    "timer_pending", "exec_running", "exec_wait_node", "exec_wait_seq", "exec_wait_head", "exec_wait_tail",
+    "done_n", "done_node", "done_at", "done_read", "feeds_n", "done_feeds", "stale_n", "stale_node",
     "stale_ms", "measured_ring", "measured_total", "measured_taken",
 )  # fmt: skip
 structref.define_constructor(SimProxy, SimType, FIELDS)
@@ -840,6 +844,42 @@ def trigger_head(sim: Sim, sub: int) -> None:
     catan_trigger(sim, sim.sub_nodes[sim.sub_ptr[sub]], seq)
 
 
+@inlined
+def exec_enter(sim: Sim, node: int, seq: int) -> bool:
+    """:meth:`ExecutorGate.enter`: whether ``node``'s run starts now (else it waits for its executor)."""
+    e = sim.executor_of[node]
+    if e < 0:
+        return True
+    if sim.exec_running[e] < 0:
+        sim.exec_running[e] = node
+        return True
+    cap = sim.exec_wait_node.shape[1]  # a node waits at most once: as many places as nodes
+    tail = sim.exec_wait_tail[e] % cap
+    sim.exec_wait_node[e, tail] = node
+    sim.exec_wait_seq[e, tail] = seq
+    sim.exec_wait_tail[e] += 1
+    return False
+
+
+@compiled
+def exec_leave(sim: Sim, node: int) -> None:
+    """:meth:`ExecutorGate.leave`: ``node`` finished; its executor starts the next waiting run."""
+    e = sim.executor_of[node]
+    if e < 0:
+        return
+    if sim.exec_wait_tail[e] == sim.exec_wait_head[e]:
+        sim.exec_running[e] = -1
+        return
+    head = sim.exec_wait_head[e] % sim.exec_wait_node.shape[1]
+    following, seq = sim.exec_wait_node[e, head], sim.exec_wait_seq[e, head]
+    sim.exec_wait_head[e] += 1
+    sim.exec_running[e] = following
+    if sim.policy >= TIMER_FAIR:
+        timer_start(sim, following)
+    else:
+        catan_start(sim, following, seq)
+
+
 @compiled
 def catan_trigger(sim: Sim, node: int, seq: int) -> None:
     if sim.busy_seq[node] != NO_SEQ:
@@ -847,9 +887,16 @@ def catan_trigger(sim: Sim, node: int, seq: int) -> None:
         sim.wait[node, sim.wait_tail[node] % cap] = seq
         sim.wait_tail[node] += 1
         return
+    sim.busy_seq[node] = seq
+    if exec_enter(sim, node, seq):
+        catan_start(sim, node, seq)
+
+
+@compiled
+def catan_start(sim: Sim, node: int, seq: int) -> None:
+    """:meth:`CatanPolicy._start`: the run reads its inputs, draws its time and becomes a job."""
     sub = sim.sub_of[node]
     version = sim.version
-    sim.busy_seq[node] = seq
     now = sim.now
     read_inputs(sim, node, now)
     compute = sample(sim, node, now / 1000.0)
@@ -872,6 +919,7 @@ def catan_done(sim: Sim, node: int) -> None:
         ring[node, runs % ring.shape[1]] = sim.job_compute[node]
         sim.measured_total[node] = runs + 1
     produce(sim, node)
+    exec_leave(sim, node)
     sub = sim.sub_of[node]
     sim.busy_seq[node] = NO_SEQ  # free: the next waiting run of this node starts
     if sim.wait_tail[node] > sim.wait_head[node]:
@@ -906,6 +954,13 @@ def timer_trigger(sim: Sim, node: int) -> None:
         sim.timer_pending[node] = True
         return
     sim.timer_busy[node] = True
+    if exec_enter(sim, node, 0):
+        timer_start(sim, node)
+
+
+@compiled
+def timer_start(sim: Sim, node: int) -> None:
+    """:meth:`TimerPolicy._start`."""
     now = sim.now
     read_inputs(sim, node, now)
     compute = sample(sim, node, now / 1000.0)
@@ -915,6 +970,7 @@ def timer_trigger(sim: Sim, node: int) -> None:
 @inlined
 def timer_done(sim: Sim, node: int) -> None:
     produce(sim, node)
+    exec_leave(sim, node)
     sim.timer_busy[node] = False
     if sim.timer_pending[node]:
         sim.timer_pending[node] = False

@@ -38,6 +38,7 @@ from catanc.runtime.measure import Measurements
 from catanc.sim.cpu import Discipline, Job, Pool
 from catanc.sim.dataflow import Dataflow, Origins
 from catanc.sim.engine import Engine
+from catanc.sim.threads import ExecutorGate
 from catanc.spec.language import Spec
 
 Sampler = Callable[[str, float], float]
@@ -95,6 +96,7 @@ class CatanPolicy:
         self.measurements = self.reoptimiser.measurements if self.reoptimiser is not None else None
         self.states = {name: SubchainState() for name in schedule.subchains}
         self.nodes = NodeQueues()
+        self.gate = ExecutorGate(spec)
         self.raised: dict[int, str | None] = {}
         self.pools: dict[str, Pool] = {}  # subchain -> the pool its nodes run on
         self.core_busy_ms: dict[int, float] = {}  # from pools of earlier allocations
@@ -239,6 +241,13 @@ class CatanPolicy:
         if run is None:  # pragma: no cover - every scheduled node is in a subchain
             return
         self.nodes.started(node, seq)
+        self.gate.enter(node, lambda: self._start(node, seq))
+
+    def _start(self, node: str, seq: int) -> None:
+        """``node``'s run ``seq`` starts now (its executor, if any, is free): it reads, draws, becomes a job."""
+        run = self.schedule.subchain_of(node)
+        if run is None:  # pragma: no cover - every scheduled node is in a subchain
+            return
         flight = self.states[run.name].in_flight.get(seq)
         index = flight.index if flight is not None else run.nodes.index(node)
         threads, speedup = run.threads_of(index)
@@ -260,6 +269,7 @@ class CatanPolicy:
         if self.measurements is not None:
             self.measurements.record(node, compute_ms)
         self.flow.produce(node, origins, self.engine.now)
+        self.gate.leave(node)
         run = self.schedule.subchain_of(node)
         self._free(node)
         if run is None:  # pragma: no cover
@@ -383,6 +393,7 @@ class TimerPolicy:
         self.rates, self.triggers = baseline_wiring(spec)
         self.busy: dict[str, bool] = {}
         self.pending: dict[str, bool] = {}
+        self.gate = ExecutorGate(spec)
         flow.listeners.append(self._on_output)
 
     def start(self) -> None:
@@ -409,12 +420,16 @@ class TimerPolicy:
             self.pending[node] = True  # one callback waits; more coalesce (a depth-1 queue)
             return
         self.busy[node] = True
+        self.gate.enter(node, lambda: self._start(node))
+
+    def _start(self, node: str) -> None:
         now = self.engine.now
         origins = self.flow.read_inputs(node, now)
         compute = self.sample(node, now / 1000.0)
 
         def done(_job: Job) -> None:
             self.flow.produce(node, origins, self.engine.now)
+            self.gate.leave(node)
             self.busy[node] = False
             if self.pending.pop(node, False):
                 self._trigger(node)
