@@ -55,6 +55,7 @@ from catanc.runtime.worker import (
     parse_modes,
     read_records,
     worker_command,
+    worker_groups,
     workload_worker_command,
     write_records,
 )
@@ -596,6 +597,37 @@ def test_worker_usage_errors(argv: list[str], error: str, capsys: pytest.Capture
     assert error in capsys.readouterr().err
 
 
+def test_worker_groups_put_an_executors_nodes_in_one_worker() -> None:
+    nodes = ["scan", "GL", "GM", "GP", "NC"]
+    assert worker_groups(nodes, {}) == [("scan",), ("GL",), ("GM",), ("GP",), ("NC",)]
+    assert worker_groups(nodes, {"mapper": ["GM", "GL"], "nav": ["NC", "GP"]}) == [
+        ("scan",),
+        ("GL", "GM"),
+        ("GP", "NC"),
+    ]
+    argv = worker_command({"GL": 3.0, "GM": 150.0}, executors=[("GL", "GM")], python="python3")
+    assert argv[-2:] == ["--executor", "GL,GM"]
+    assert parse_args(argv[3:]).executors == (("GL", "GM"),)
+    with pytest.raises(ValueError, match="does not serve GP"):
+        worker_command({"GL": 3.0}, executors=[("GL", "GP")])
+
+
+@pytest.mark.parametrize(
+    ("extra", "error"),
+    [
+        (["--executor", "A"], "give two or more different nodes"),
+        (["--executor", "A,A"], "give two or more different nodes"),
+        (["--executor", "A,C"], "this worker does not serve C"),
+        (["--executor", "A,B", "--executor", "B,A"], "B, A already in another executor"),
+    ],
+)
+def test_worker_executor_usage_errors(extra: list[str], error: str, capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exited:
+        parse_args(["--node", "A", "--node", "B", "--compute-ms", "1", *extra])
+    assert exited.value.code == 2
+    assert error in capsys.readouterr().err
+
+
 Spawn = Callable[[list[str]], "subprocess.Popen[str]"]
 
 
@@ -640,6 +672,32 @@ def test_worker_runs_its_nodes_in_threads_and_exits_on_stop(enforcer: EnforcerSo
         assert enforcer.send(Stop(), sender)
     assert finish(process) == (0, "")
     assert enforcer.receive(0) is None  # stopped: no bye
+
+
+@pytest.mark.parametrize("shared", [False, True])
+def test_worker_runs_an_executors_nodes_one_after_the_other(
+    enforcer: EnforcerSocket, spawn: Spawn, tmp_path: Path, shared: bool
+) -> None:
+    # A and B (40 ms each) triggered together, three times. Apart, their threads run at once (the
+    # interpreter lock interleaves them): every pair of runs overlaps. In one executor, never.
+    record = tmp_path / "runs"
+    executors = [("A", "B")] if shared else []
+    process = spawn([*worker_command({"A": 40.0, "B": 40.0}, socket_path=enforcer.path, executors=executors),
+                     "--record", str(record)])  # fmt: skip
+    hellos = welcome(enforcer, {"A", "B"})
+    for seq in (1, 2, 3):
+        assert enforcer.send(Trigger("A", seq), hellos["A"][1])
+        assert enforcer.send(Trigger("B", seq), hellos["B"][1])
+        assert {expect(enforcer, Done)[0].node for _ in range(2)} == {"A", "B"}
+    for _, sender in hellos.values():
+        assert enforcer.send(Stop(), sender)
+    assert finish(process) == (0, "")
+    runs = read_records(record)
+    a = [run for run in runs if run.node == "A"]
+    b = [run for run in runs if run.node == "B"]
+    assert len(a) == len(b) == 3
+    overlapping = sum(1 for x in a for y in b if x.start_ns < y.end_ns and y.start_ns < x.end_ns)
+    assert overlapping == (0 if shared else 3)
 
 
 def test_worker_draws_modes_from_its_seed(enforcer: EnforcerSocket, spawn: Spawn) -> None:

@@ -56,7 +56,7 @@ from catanc.runtime.sched import (
     set_affinity,
     set_fifo,
 )
-from catanc.runtime.worker import RunRecord, read_records, workload_worker_command
+from catanc.runtime.worker import RunRecord, read_records, worker_groups, workload_worker_command
 from catanc.sim.metrics import PolicyResult
 from catanc.sim.simulate import Setup, reported_chains, static_profile
 from catanc.spec.language import Spec
@@ -176,31 +176,34 @@ def bench_policy(setup: BenchSetup, policy: str) -> PolicyResult:
 
 
 class Workers:
-    """The run's worker processes: one per scheduled node, each with its record file."""
+    """The run's worker processes, each with its record file: one per scheduled node, one per executor."""
 
     def __init__(self, setup: BenchSetup, folder: Path) -> None:
         self.setup = setup
         self.children = Children()
-        self.records: dict[str, Path] = {}
+        self.records: dict[str, Path] = {}  # by the worker's nodes, joined by ", "
         self.nodes = [name for name, node in setup.spec.nodes.items() if node.scheduled]
-        for index, name in enumerate(self.nodes):
-            self.records[name] = folder / f"worker-{index}.runs"  # node names need not be file names
+        self.groups = worker_groups(self.nodes, setup.spec.executors)
+        for index, group in enumerate(self.groups):
+            self.records[", ".join(group)] = folder / f"worker-{index}.runs"  # node names need not be file names
 
     def start(self, socket_path: Path) -> None:
         """Start every worker; the workload model's time counts from now."""
         clock_start_ns = time.monotonic_ns()
         spec = self.setup.spec
-        for name in self.nodes:
+        for group in self.groups:
+            key = ", ".join(group)
             argv = workload_worker_command(
-                [name],
+                list(group),
                 self.setup.spec_path.absolute(),
                 seed=self.setup.seed,
                 clock_start_ns=clock_start_ns,
-                record=self.records[name],
+                record=self.records[key],
                 socket_path=socket_path,
-                speedups={name: spec.nodes[name].threads.speedups},
+                speedups={name: spec.nodes[name].threads.speedups for name in group},
+                executors=[group] if len(group) > 1 else [],
             )
-            self.children.start(name, argv, str(socket_path))
+            self.children.start(key, argv, str(socket_path))
 
     def check_alive(self) -> None:
         """Raise :class:`BenchError` if a worker has exited (before the run is over, none should)."""

@@ -24,7 +24,7 @@ from pathlib import Path
 
 from catanc.errors import UsageError
 from catanc.runtime.protocol import SOCKET_ENV
-from catanc.runtime.worker import Profile, worker_command
+from catanc.runtime.worker import Profile, worker_command, worker_groups
 from catanc.spec.language import ModalCompute, Spec
 
 STOP_GRACE_S = 2.0
@@ -82,11 +82,20 @@ def demo_profiles(spec: Spec) -> dict[str, Profile]:
 
 
 def start_demo(children: Children, spec: Spec, socket_path: str, *, seed: int = 0) -> None:
-    """One worker process per scheduled node (Python threads of one process would share one interpreter lock)."""
-    for name, profile in demo_profiles(spec).items():
-        speedups = {name: spec.nodes[name].threads.speedups}  # a multi-threaded node burns on the threads it is given
-        argv = worker_command({name: profile}, seed=seed, socket_path=socket_path, speedups=speedups)
-        children.start(name, argv, socket_path)
+    """One worker process per scheduled node (Python threads of one process would share one interpreter lock),
+    except that the nodes of one executor share a worker whose runs take turns (the spec's ``executors``)."""
+    profiles = demo_profiles(spec)
+    for group in worker_groups(list(profiles), spec.executors):
+        speedups = {name: spec.nodes[name].threads.speedups for name in group}  # burns on the threads given
+        executors = [group] if len(group) > 1 else []
+        argv = worker_command(
+            {name: profiles[name] for name in group},
+            seed=seed,
+            socket_path=socket_path,
+            speedups=speedups,
+            executors=executors,
+        )
+        children.start(", ".join(group), argv, socket_path)
 
 
 def start_launch(children: Children, processes: Sequence[Mapping[str, object]], socket_path: str) -> None:

@@ -4,7 +4,7 @@
 
     python -m catanc.runtime.worker --node NAME [--node NAME2 ...]
         (--compute-ms MS | --modes W:MS,... | --workload SPEC [--clock-start-ns NS])
-        [--seed N] [--scale-after S:FACTOR] [--record FILE] [--socket PATH]
+        [--seed N] [--scale-after S:FACTOR] [--record FILE] [--socket PATH] [--executor NAME,NAME ...]
 
 One thread per node, each a :class:`catanc.client.Node` loop.  On each
 trigger a node burns its compute time, measured in thread CPU time (so being
@@ -27,6 +27,13 @@ every run, as :class:`RunRecord` JSON lines, to FILE when the worker exits
 (:func:`read_records` reads them back): ``catanc bench`` measures chains from
 these timestamps.
 
+``--executor A,B`` says that nodes A and B of this worker share one
+single-threaded executor (the spec's ``executors``, catan-model.md section
+6): their runs take turns, one at a time in the order their triggers
+arrived, as a ROS executor's callbacks do; a run waiting for its turn has
+not started (its record starts when its turn comes).  Each node keeps its
+own thread, the one the enforcer pins and measures.
+
 The worker exits 0 when the enforcer says stop and on SIGINT or SIGTERM
 (each node says bye), 1 if a node cannot register or loses the enforcer.
 
@@ -38,6 +45,7 @@ each.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import functools
 import hashlib
 import json
@@ -50,7 +58,7 @@ import sys
 import threading
 import time
 import traceback
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType
@@ -59,7 +67,7 @@ from typing import NamedTuple
 from catanc.client import ClientError, Node
 from catanc.core.speedup import threads_and_speedup
 from catanc.errors import CatancError, ExitCode
-from catanc.runtime.protocol import ProtocolError, Welcome
+from catanc.runtime.protocol import ProtocolError, Trigger, Welcome
 
 MODULE = "catanc.runtime.worker"
 
@@ -113,6 +121,7 @@ def worker_command(
     socket_path: str | os.PathLike[str] | None = None,
     python: str | None = None,
     speedups: Mapping[str, Sequence[float]] | None = None,
+    executors: Sequence[Sequence[str]] = (),
 ) -> list[str]:
     """The argv that starts one worker process serving ``nodes`` (name -> compute ms, or (weight, ms) modes).
 
@@ -130,8 +139,12 @@ def worker_command(
             argv += ["--compute-ms", repr(modes[0][1])]
         else:
             argv += ["--modes", format_modes(modes)]
-    return argv + _common_options(
-        nodes, seed=seed, scale_after=scale_after, socket_path=socket_path, speedups=speedups, record=None
+    return (
+        argv
+        + _common_options(
+            nodes, seed=seed, scale_after=scale_after, socket_path=socket_path, speedups=speedups, record=None
+        )
+        + _executor_options(nodes, executors)
     )
 
 
@@ -145,6 +158,7 @@ def workload_worker_command(
     socket_path: str | os.PathLike[str] | None = None,
     python: str | None = None,
     speedups: Mapping[str, Sequence[float]] | None = None,
+    executors: Sequence[Sequence[str]] = (),
 ) -> list[str]:
     """The argv of a worker serving ``nodes`` whose compute times follow the workload model of ``spec_path``.
 
@@ -160,9 +174,40 @@ def workload_worker_command(
     argv += ["--workload", os.fspath(spec_path)]
     if clock_start_ns is not None:
         argv += ["--clock-start-ns", str(_check_clock(clock_start_ns))]
-    return argv + _common_options(
-        nodes, seed=seed, scale_after=None, socket_path=socket_path, speedups=speedups, record=record
+    return (
+        argv
+        + _common_options(nodes, seed=seed, scale_after=None, socket_path=socket_path, speedups=speedups, record=record)
+        + _executor_options(nodes, executors)
     )
+
+
+def worker_groups(nodes: Sequence[str], executors: Mapping[str, Sequence[str]]) -> list[tuple[str, ...]]:
+    """The nodes as workers serve them: an executor's nodes together in one worker, every other node alone.
+
+    Ordered by each group's first node in ``nodes``; an executor's nodes in ``nodes`` order.
+    """
+    order = {name: index for index, name in enumerate(nodes)}
+    groups: list[tuple[str, ...]] = []
+    grouped: set[str] = set()
+    for members in executors.values():
+        group = tuple(sorted((name for name in members if name in order), key=order.__getitem__))
+        if group:
+            groups.append(group)
+            grouped.update(group)
+    groups += [(name,) for name in nodes if name not in grouped]
+    return sorted(groups, key=lambda group: order[group[0]])
+
+
+def _executor_options(nodes: Iterable[str], executors: Sequence[Sequence[str]]) -> list[str]:
+    """``--executor A,B`` per executor; ValueError for a node this worker does not serve."""
+    served = set(nodes)
+    argv: list[str] = []
+    for members in executors:
+        missing = [name for name in members if name not in served]
+        if missing:
+            raise ValueError(f"executor {list(members)}: this worker does not serve {', '.join(missing)}")
+        argv += ["--executor", ",".join(members)]
+    return argv
 
 
 def _common_options(
@@ -203,6 +248,7 @@ class WorkerOptions:
     workload: Path | None = None
     clock_start_ns: int | None = None
     record: Path | None = None
+    executors: tuple[tuple[str, ...], ...] = ()  # nodes whose runs take turns (one executor thread each)
 
 
 class RunRecord(NamedTuple):
@@ -273,6 +319,14 @@ def parse_args(argv: Sequence[str] | None = None) -> WorkerOptions:
         "--scale-after", type=_scale_arg, metavar="S:FACTOR", help="multiply compute by FACTOR S s after registering"
     )
     parser.add_argument("--socket", type=Path, metavar="PATH", help="the enforcer's socket (default $CATANC_SOCKET)")
+    parser.add_argument(
+        "--executor",
+        action="append",
+        dest="executors",
+        default=[],
+        metavar="NAME,NAME",
+        help="nodes that share one single-threaded executor: their runs take turns",
+    )
     args = parser.parse_args(argv)
     names: list[str] = args.nodes
     profiles: list[Modes] = args.profiles or []
@@ -300,6 +354,20 @@ def parse_args(argv: Sequence[str] | None = None) -> WorkerOptions:
     unknown = sorted(set(speedups) - set(names))
     if unknown:
         parser.error(f"--speedup for node(s) this worker does not serve: {', '.join(unknown)}")
+    executors: list[tuple[str, ...]] = []
+    taken: set[str] = set()
+    for text in args.executors:
+        members = tuple(part.strip() for part in text.split(","))
+        if len(members) < 2 or len(set(members)) != len(members):
+            parser.error(f"--executor {text!r}: give two or more different nodes, NAME,NAME")
+        strangers = [name for name in members if name not in names]
+        if strangers:
+            parser.error(f"--executor {text!r}: this worker does not serve {', '.join(strangers)}")
+        twice = [name for name in members if name in taken]
+        if twice:
+            parser.error(f"--executor {text!r}: {', '.join(twice)} already in another executor")
+        taken.update(members)
+        executors.append(members)
     return WorkerOptions(
         nodes=dict(zip(names, profiles, strict=True)),
         speedups=speedups,
@@ -309,7 +377,31 @@ def parse_args(argv: Sequence[str] | None = None) -> WorkerOptions:
         workload=args.workload,
         clock_start_ns=args.clock_start_ns,
         record=args.record,
+        executors=tuple(executors),
     )
+
+
+class Turns:
+    """One executor thread's callbacks: one at a time, in the order they arrived (a ticket queue)."""
+
+    def __init__(self) -> None:
+        self._changed = threading.Condition()
+        self._issued = 0
+        self._serving = 0
+
+    @contextlib.contextmanager
+    def turn(self) -> Iterator[None]:
+        with self._changed:
+            ticket = self._issued
+            self._issued += 1
+            while ticket != self._serving:
+                self._changed.wait()
+        try:
+            yield
+        finally:
+            with self._changed:
+                self._serving += 1
+                self._changed.notify_all()
 
 
 def burn(compute_ms: float) -> None:
@@ -417,6 +509,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     previous = {signum: signal.signal(signum, on_signal) for signum in handled} if in_main else {}
     finished: queue.Queue[tuple[Node, Exception | None]] = queue.Queue()
     records: dict[str, list[RunRecord]] = {node.name: [] for node in nodes}
+    turns = {name: shared for members in options.executors for shared in [Turns()] for name in members}
     try:
         for node in nodes:
             thread = threading.Thread(
@@ -428,6 +521,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     "scale_after": options.scale_after,
                     "clock_start_ns": clock_start_ns,
                     "records": records[node.name] if options.record is not None else None,
+                    "turns": turns.get(node.name),
                 },
                 name=f"catanc-{node.name}",
                 daemon=True,
@@ -463,28 +557,54 @@ def _serve(
     scale_after: tuple[float, float] | None,
     clock_start_ns: int,
     records: list[RunRecord] | None,
+    turns: Turns | None = None,
 ) -> None:
     error: Exception | None = None
     try:
         with node:
             registered_at = time.monotonic()
             for trigger in node:
-                started_ns = time.monotonic_ns()
-                cpu_before = time.thread_time_ns()
-                compute_ms = draw((started_ns - clock_start_ns) / 1e9)
-                if scale_after is not None and time.monotonic() - registered_at >= scale_after[0]:
-                    compute_ms *= scale_after[1]
-                threads = burn_parallel(compute_ms, trigger.threads, speedups)
-                ended_ns = time.monotonic_ns()
-                if records is not None:  # each helper thread burned as long as this one
-                    cpu_ns = (time.thread_time_ns() - cpu_before) * threads
-                    records.append(RunRecord(node.name, started_ns, ended_ns, cpu_ns))
-                # On one thread, its CPU time (the client's default); on more, the run's wall time.
-                node.done(None if trigger.threads == 1 else (ended_ns - started_ns) / 1e6)
+                with turns.turn() if turns is not None else contextlib.nullcontext():
+                    _run(
+                        node,
+                        trigger,
+                        draw=draw,
+                        speedups=speedups,
+                        scale_after=scale_after,
+                        clock_start_ns=clock_start_ns,
+                        registered_at=registered_at,
+                        records=records,
+                    )
     except Exception as exc:
         error = exc
     finally:
         finished.put((node, error))
+
+
+def _run(
+    node: Node,
+    trigger: Trigger,
+    *,
+    draw: Draw,
+    speedups: tuple[float, ...],
+    scale_after: tuple[float, float] | None,
+    clock_start_ns: int,
+    registered_at: float,
+    records: list[RunRecord] | None,
+) -> None:
+    """One run: burn the drawn compute time on the threads the trigger gives, record it, report done."""
+    started_ns = time.monotonic_ns()
+    cpu_before = time.thread_time_ns()
+    compute_ms = draw((started_ns - clock_start_ns) / 1e9)
+    if scale_after is not None and time.monotonic() - registered_at >= scale_after[0]:
+        compute_ms *= scale_after[1]
+    threads = burn_parallel(compute_ms, trigger.threads, speedups)
+    ended_ns = time.monotonic_ns()
+    if records is not None:  # each helper thread burned as long as this one
+        cpu_ns = (time.thread_time_ns() - cpu_before) * threads
+        records.append(RunRecord(node.name, started_ns, ended_ns, cpu_ns))
+    # On one thread, its CPU time (the client's default); on more, the run's wall time.
+    node.done(None if trigger.threads == 1 else (ended_ns - started_ns) / 1e6)
 
 
 def _check_name(name: str) -> None:
