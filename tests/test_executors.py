@@ -248,3 +248,22 @@ def test_the_simulator_runs_an_executors_nodes_one_after_the_other(engine: Engin
     assert list(together.node_done_ms["a"]) == pytest.approx([10, 110, 210, 310])
     assert list(together.node_done_ms["b"]) == pytest.approx([20, 120, 220, 320])
     assert list(together.node_done_ms["c"]) == list(apart.node_done_ms["c"])
+
+
+def test_explain_says_how_long_a_run_can_wait_for_its_executor() -> None:
+    # One core, b (2 ms) and c (3 ms) in one executor: b can wait for c's whole run, 3 ms of compute,
+    # at the executor's share of the core, (f_B * 2 + f_C * 3) / T of it.
+    from catanc.explain.analysis import explain_plan
+    from catanc.planning.planner import plan
+
+    spec = parse_spec(
+        "catan: 1\napp: t\nnodes: {b: {compute_ms: 2}, c: {compute_ms: 3}}\nsubchains: {B: [b], C: [c]}\n"
+        "objective: [{node: b, weight: 1}, {node: c, weight: 1}]\nexecutors: {worker: [b, c]}\n"
+    )
+    result = plan(spec, 1)
+    core = result.shared_cores[0]
+    share = (result.subchains["B"].fraction * 2 + result.subchains["C"].fraction * 3) / core.period_ms
+    (note,) = explain_plan(spec, build_problem(spec), result).executors
+    assert note.startswith("Executor worker runs b, c in one thread (never at once): subchains B, C share core 0")
+    expected = f"about {3 / share:.1f} ms for b behind c (3 ms of compute at the executor's {share:.0%} of the core)"
+    assert expected in note

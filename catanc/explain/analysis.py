@@ -187,22 +187,45 @@ def explain_plan(spec: Spec, problem: Problem, plan: Plan, machine: MachineUse |
         ),
         baseline=evaluate_baseline(spec, problem, plan.cores),
         allocation=allocation_note(plan),
-        executors=tuple(executor_note(executor, plan) for executor in problem.executors),
+        executors=tuple(executor_note(executor, plan, problem) for executor in problem.executors),
         machine=machine.sentence() if machine is not None else None,
     )
 
 
-def executor_note(executor: Executor, plan: Plan) -> str:
-    """Where an executor's nodes run: one thread, so one core set and never at once."""
+def executor_note(executor: Executor, plan: Plan, problem: Problem) -> str:
+    """Where an executor's nodes run: one thread, so one core set and never at once.
+
+    Across subchains on a shared core, a run can wait for the other nodes' runs to end: their
+    compute, in wall time at about the executor's share of the core (its subchains' slices over
+    ``T``; it may also take idle time of other slots).  The slot model's latencies do not count
+    that wait, so the note says how long it can be.
+    """
     nodes = ", ".join(executor.nodes)
     subs = executor.subchains
     cores = sorted({core for name in subs for core in plan.subchains[name].cores})
     where = _cores_text(cores)
     if len(subs) == 1:
         how = f"in subchain {subs[0]} on {where}: its period covers their compute added up"
-    else:
-        how = f"subchains {', '.join(subs)} share {where}, one slot after the other"
-    return f"Executor {executor.name} runs {nodes} in one thread (never at once): {how}."
+        return f"Executor {executor.name} runs {nodes} in one thread (never at once): {how}."
+    how = f"subchains {', '.join(subs)} share {where}, one slot after the other"
+    period = next((core.period_ms for core in plan.shared_cores if core.core in cores), None)
+    if period is None:
+        return f"Executor {executor.name} runs {nodes} in one thread (never at once): {how}."
+    share = math.fsum(plan.subchains[name].fraction * problem.subchain(name).compute_ms for name in subs) / period
+    compute = {
+        node: c
+        for name in subs
+        for node, c in zip(problem.subchain(name).nodes, problem.subchain(name).node_compute_ms, strict=True)
+    }
+    waits = {node: math.fsum(compute[other] for other in executor.nodes if other != node) for node in executor.nodes}
+    node = max(executor.nodes, key=lambda n: (waits[n], -executor.nodes.index(n)))
+    behind = ", ".join(other for other in executor.nodes if other != node)
+    wall = waits[node] / min(share, 1.0)
+    return (
+        f"Executor {executor.name} runs {nodes} in one thread (never at once): {how}; a run may wait for "
+        f"the others' to end, about {wall:.1f} ms for {node} behind {behind} ({waits[node]:.3g} ms of compute at "
+        f"the executor's {share:.0%} of the core), which the plan's latencies do not count."
+    )
 
 
 def allocation_text(allocation: Allocation) -> str:
