@@ -17,12 +17,14 @@ from typing import Annotated, Any, Literal
 
 from pydantic import (
     BaseModel,
+    BeforeValidator,
     ConfigDict,
     Discriminator,
     Field,
     PrivateAttr,
     Tag,
     ValidationError,
+    WithJsonSchema,
     field_validator,
     model_validator,
 )
@@ -59,6 +61,34 @@ class _Model(BaseModel):
         allow_inf_nan=False,
         frozen=True,
         populate_by_name=True,
+    )
+
+
+def _any_case_pattern(choices: tuple[str, ...]) -> str:
+    """A JSON Schema pattern matching ``choices`` in any letter case (ECMA regexes have no ``(?i)``)."""
+    options = ["".join(f"[{c.lower()}{c.upper()}]" if c.isalpha() else c for c in choice) for choice in choices]
+    return f"^(?:{'|'.join(options)})$"
+
+
+def lower_case_of(choices: tuple[str, ...]) -> BeforeValidator:
+    """Read lower-case words in any case (``Hz``, ``HZ``) and store them lower-case.
+
+    For words the ecosystem spells several ways.  A value that matches no
+    choice is left as written, so its error quotes it as the user wrote it.
+    """
+
+    def canonical(value: Any) -> Any:
+        if isinstance(value, str) and value.lower() in choices:
+            return value.lower()
+        return value
+
+    return BeforeValidator(canonical)
+
+
+def any_case_schema(choices: tuple[str, ...]) -> WithJsonSchema:
+    """The JSON Schema of such a word: the choices (which editors offer) or the same in any case."""
+    return WithJsonSchema(
+        {"type": "string", "anyOf": [{"enum": list(choices)}, {"pattern": _any_case_pattern(choices)}]}
     )
 
 
@@ -178,7 +208,9 @@ BatchFlag = Annotated[
 
 # --------------------------------------------------------------------------- workload
 
-JitterDist = Literal["lognormal", "uniform", "normal"]
+JitterDistName = Literal["lognormal", "uniform", "normal"]
+JITTER_DISTS: tuple[JitterDistName, ...] = ("lognormal", "uniform", "normal")
+JitterDist = Annotated[JitterDistName, lower_case_of(JITTER_DISTS), any_case_schema(JITTER_DISTS)]
 
 JITTER_MAX_CV = 2.0
 """Above this, run times are more noise than signal (lognormal: a median under half the mean)."""
@@ -514,13 +546,18 @@ class Baseline(_Model):
     )
 
 
+RateUnitName = Literal["hz", "s", "ms"]
+RATE_UNITS: tuple[RateUnitName, ...] = ("hz", "s", "ms")
+RateUnit = Annotated[RateUnitName, lower_case_of(RATE_UNITS), any_case_schema(RATE_UNITS)]
+
+
 class Deploy(_Model):
     """How one node is started and named in deployment artifacts."""
 
     ros_node: str | None = Field(default=None, description="Fully qualified ROS node name, e.g. /local_mapper.")
     rate_param: str | None = Field(default=None, description="Parameter that sets the node's rate.")
-    rate_unit: Literal["hz", "s", "ms"] = Field(
-        default="hz", description="Unit of rate_param: a rate in hz, or a period in s or ms."
+    rate_unit: RateUnit = Field(
+        default="hz", description="Unit of rate_param: a rate in hz, or a period in s or ms (any case: Hz, S, MS)."
     )
     package: str | None = Field(default=None, description="ROS 2 package (for launch.py).")
     executable: str | None = Field(default=None, description="ROS 2 executable (for launch.py).")
