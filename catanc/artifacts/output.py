@@ -25,7 +25,7 @@ from enum import Enum
 from pathlib import Path
 
 from catanc.artifacts.emit import EXECUTABLE
-from catanc.errors import NotCompiledError, OutputBlockedError, OutputError
+from catanc.errors import NotCompiledError, OutputBlockedError, OutputError, UsageError
 
 
 class Status(Enum):
@@ -242,3 +242,33 @@ def ensure_comparable(comparison: Comparison) -> None:
         raise NotCompiledError(
             f"{comparison.folder}: no output folder to check; run the same command without --check to create it"
         )
+
+
+def create_file(path: Path, text: str) -> None:
+    """Write a new file atomically: all of ``text`` or nothing, and never over an existing file.
+
+    The text goes to a temporary file beside ``path``, flushed to disk, then
+    hard-linked to ``path``: the link fails if ``path`` exists, even if it
+    appeared a moment ago, so a user's file is never replaced.
+    """
+    if path.exists() or path.is_symlink():
+        raise UsageError(f"{path}: already exists; catanc does not overwrite it (choose another name with --out)")
+    parent = path.parent
+    if not parent.is_dir():
+        raise OutputError(f"{parent}: no such folder")
+    fd, staging = tempfile.mkstemp(dir=parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            handle.write(text.encode("utf-8"))
+            handle.flush()
+            os.fsync(handle.fileno())
+        Path(staging).chmod(0o666 & ~_umask())  # mkstemp made it private
+        try:
+            os.link(staging, path)
+        except FileExistsError:
+            raise UsageError(f"{path}: already exists; catanc does not overwrite it") from None
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot write: {exc.strerror or exc}") from None
+    finally:
+        Path(staging).unlink(missing_ok=True)
+    _sync(parent)

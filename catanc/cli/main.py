@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Annotated, Any, ParamSpec, TypeVar
 import typer
 from rich.console import Console
 
+from catanc.cli.init_command import init
 from catanc.errors import CatancError, Diagnostic, ExitCode, SpecError
 
 if TYPE_CHECKING:
@@ -131,6 +132,9 @@ def _reporting(command: Callable[P, R]) -> Callable[P, R]:
             raise typer.Exit(int(ExitCode.INTERNAL)) from None
 
     return wrapper
+
+
+app.command(name="init")(_reporting(init))
 
 
 @app.command()
