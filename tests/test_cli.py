@@ -45,7 +45,7 @@ def good(tmp_path: Path) -> Path:
 def test_validate_ok(good: Path) -> None:
     result = runner.invoke(app, ["validate", str(good)])
     assert result.exit_code == ExitCode.OK, result.output
-    assert f"{good}: ok: app demo, 4 nodes, 1 subchains, 2 chains" in result.stdout
+    assert f"{good}: ok: app demo, 4 nodes, 1 subchain, 2 chains" in result.stdout
 
 
 def test_validate_reports_every_file(good: Path, tmp_path: Path) -> None:

@@ -63,7 +63,7 @@ def flat(text: str) -> str:
 @pytest.mark.parametrize("cores", [1, 2])
 @pytest.mark.parametrize("name", EXAMPLES)
 def test_explain_shows_every_subchain_with_the_plans_numbers(name: str, cores: int) -> None:
-    result = runner.invoke(app, ["explain", str(SPECS / f"{name}.yaml"), "-k", str(cores)])
+    result = runner.invoke(app, ["explain", str(SPECS / f"{name}.yaml"), "-k", str(cores), "--width", "200"])
     assert result.exit_code == ExitCode.OK, result.output
     out = result.stdout
     expected = planned(name, cores)
@@ -74,8 +74,9 @@ def test_explain_shows_every_subchain_with_the_plans_numbers(name: str, cores: i
     for sub in expected.subchains.values():
         row = flat(rows[sub.name])
         assert f" {1000 / sub.period_ms:.2f} {sub.period_ms:.3f} " in row
-        assert f" {sub.latency_ms:.3f} {sub.priority} " in row
-        assert ("shared" if sub.shared else "dedicated") in row
+        assert row.endswith(f" {sub.latency_ms:.3f} ")
+        # catan-model.md section 6: shared threads rest at SCHED_FIFO 1 and run their slice at 2; dedicated at 2.
+        assert (" shared, FIFO 1->2 " if sub.shared else " dedicated, FIFO 2 ") in row
     for core in expected.shared_cores:
         assert f"core {core.core}: shared by {len(core.order)} subchain" in out
         assert f"T = {core.period_ms:.3f} ms" in out
@@ -325,7 +326,7 @@ def test_many_chains_heaviest_first_then_a_count(tmp_path: Path) -> None:
         f"edges: [{edges}, [d0, out], [d1, out]]\nsubchains: {{{subchains}}}\n"
         "objective: [{chain: [a1, b1, c1, d1, out], weight: 1}, {chains: {to: out}, weight: 0.01}]\n"
     )
-    result = runner.invoke(app, ["explain", str(path), "-k", "1"])
+    result = runner.invoke(app, ["explain", str(path), "-k", "1", "--width", "200"])
     assert result.exit_code == ExitCode.OK, result.output
     table = result.stdout[result.stdout.index("3. Chains (16") : result.stdout.index("4. What binds")]
     rows = [line for line in table.splitlines() if line.startswith("│ ")]
@@ -432,9 +433,9 @@ def test_markdown_is_a_well_formed_reproducible_document(report: Report) -> None
     headings = [line for line in lines if line.startswith("#")]
     assert len(headings) == len(SECTIONS)
     assert all(h.startswith(f"## {s}") for h, s in zip(headings, SECTIONS, strict=True))
-    # Each shared core's timeline bar sits alone in a fenced block (it is made of `|`, `.` and letters).
-    fenced = [lines[i + 1] for i, line in enumerate(lines) if line == "```" and lines[i + 2] == "```"]
-    assert [line.split("  (")[0] for line in fenced] == [timeline_bar(view) for view in report.explanation.shared]
+    # Each shared core's timeline bar sits in a fenced block with its legend (it is made of `|`, `.` and letters).
+    fenced = [lines[i + 1] for i, line in enumerate(lines) if line == "```" and lines[i + 3] == "```"]
+    assert fenced == [timeline_bar(view) for view in report.explanation.shared]
     assert lines.count("```") == 2 * len(report.explanation.shared)
     tables = markdown_tables(markdown)
     assert len(tables) >= 4  # subchains, chains, objective terms, baseline (or binding constraints)
@@ -454,8 +455,9 @@ def test_markdown_is_a_well_formed_reproducible_document(report: Report) -> None
     for name, sub in chosen.items():
         row = rows[name]
         assert unescape(row[1]) == " -> ".join(sub.nodes)
-        assert row[5:7] == [f"{1000 / sub.period_ms:.2f}", f"{sub.period_ms:.3f}"]
-        assert row[9:] == [f"{sub.latency_ms:.3f}", str(sub.priority)]
+        assert row[3] == ("shared, FIFO 1->2" if sub.shared else "dedicated, FIFO 2")
+        assert row[4:6] == [f"{1000 / sub.period_ms:.2f}", f"{sub.period_ms:.3f}"]
+        assert row[8:] == [f"{sub.latency_ms:.3f}"]
 
 
 def test_markdown_says_what_the_terminal_says(report: Report) -> None:

@@ -15,6 +15,7 @@ from pathlib import Path, PurePath
 from catanc import __version__
 from catanc.artifacts.emit import Provenance, emit
 from catanc.core.problem import build_problem
+from catanc.errors import Diagnostic
 from catanc.planning.planner import plan
 from catanc.spec.load import read_spec
 from catanc.spec.machine import apply_machine, read_machine
@@ -41,7 +42,8 @@ class Target:
     cores: int
     folder: Path
     files: dict[str, str]
-    warnings: tuple[str, ...]
+    warnings: tuple[str, ...]  # the planner's
+    spec_warnings: tuple[Diagnostic, ...] = ()  # the spec's, with their places
 
 
 def default_folder(app: str, cores: int, root: Path = DEFAULT_OUT) -> Path:
@@ -71,6 +73,7 @@ def compile_spec(spec_path: Path, cores: int, *, out: Path | None = None, option
         folder=out if out is not None else default_folder(spec.app, cores),
         files=emit(spec, problem, result, provenance, used),
         warnings=result.warnings,
+        spec_warnings=tuple(problem.warnings),
     )
 
 

@@ -20,6 +20,7 @@ from rich.console import Console
 
 from catanc.cli.init_command import init
 from catanc.errors import CatancError, Diagnostic, ExitCode, SpecError
+from catanc.text import plural
 
 if TYPE_CHECKING:
     from catanc.artifacts.output import Comparison
@@ -69,10 +70,20 @@ PlotDirOpt = Annotated[
 PIPED_WIDTH = 160
 """Table width when stdout is not a terminal (rich would assume 80 and wrap every chain)."""
 
+REPORT_WIDTH = 100
+"""``explain``'s width when stdout is not a terminal: its tables wrap their text to fit, so a file reads well."""
+
 
 def _stdout() -> Console:
     width = None if sys.stdout.isatty() else PIPED_WIDTH
     return Console(highlight=False, soft_wrap=True, width=width)
+
+
+def _report_out(width: int | None) -> Console:
+    """A console whose text wraps at ``width``: the terminal's by default, else :data:`REPORT_WIDTH`."""
+    if width is None and not sys.stdout.isatty():
+        width = REPORT_WIDTH
+    return Console(highlight=False, soft_wrap=False, width=width)
 
 
 def _stderr() -> Console:
@@ -158,8 +169,9 @@ def validate(
         problem = build_problem(spec)
         _print_diagnostics(problem.warnings, warning=True)
         out.print(
-            f"{path}: ok: app {spec.app}, {len(spec.nodes)} nodes, {len(problem.subchains)} subchains, "
-            f"{len(problem.chains)} chains in the objective and constraints",
+            f"{path}: ok: app {spec.app}, {plural(len(spec.nodes), 'node')}, "
+            f"{plural(len(problem.subchains), 'subchain')}, "
+            f"{plural(len(problem.chains), 'chain')} in the objective and constraints",
             markup=False,
         )
     if failed:
@@ -195,7 +207,7 @@ def chains(
         payload = {"app": spec.app, "total_source_to_sink": listing.total_paths, "chains": rows}
         sys.stdout.write(json.dumps(payload, indent=2, sort_keys=True) + "\n")
         return
-    _stdout().print(chains_table(listing, f"{spec.app}: {listing.total_paths} source-to-sink chains"))
+    _stdout().print(chains_table(listing, f"{spec.app}: {plural(listing.total_paths, 'source-to-sink chain')}"))
 
 
 @app.command()
@@ -231,6 +243,12 @@ def explain(
     time_limit: TimeLimitOpt = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the runtime table's plan as JSON.")] = False,
     machine: MachineOpt = None,
+    width: Annotated[
+        int | None,
+        typer.Option(
+            min=40, metavar="N", help=f"Lay the report out N columns wide (default: the terminal's or {REPORT_WIDTH})."
+        ),
+    ] = None,
 ) -> None:
     """Plan the spec and explain the plan: timelines, what binds, warnings, the baseline."""
     from catanc.artifacts.runtime_table import plan_json
@@ -243,11 +261,11 @@ def explain(
     if machine is not None:
         spec, used = apply_machine(spec, read_machine(machine))
     result = plan(spec, cores, stage1_method=stage1, solver=solver, time_limit_s=time_limit)
-    if as_json:  # the text shows them in its own warnings section
-        _print_notes(spec_path, result.warnings)
+    _print_notes(spec_path, result.warnings)  # the report's warnings section says them too
+    if as_json:
         sys.stdout.write(plan_json(result, problem, app=spec.app, cores=cores))
         return
-    out = _stdout()
+    out = _report_out(width)
     for part in render(explain_plan(spec, problem, result, used)):
         out.print(part)
 
@@ -287,6 +305,7 @@ def compile_(
     targets = []
     for path, k in pairs:  # plan everything before touching any folder
         target = compile_spec(path, k, out=out, options=options)
+        _print_diagnostics(target.spec_warnings, warning=True)
         _print_notes(path, target.warnings)
         targets.append(target)
     folders: dict[Path, Path] = {}
@@ -324,7 +343,7 @@ def _summary(comparison: Comparison, *, check: bool, dry_run: bool) -> str:
     if comparison.current:
         return f"{folder}: up to date"
     if not comparison.exists:
-        return f"{folder}: {'would be created' if dry_run else 'created'} ({len(comparison.statuses)} files)"
+        return f"{folder}: {'would be created' if dry_run else 'created'} ({plural(len(comparison.statuses), 'file')})"
     parts = []
     for status in (Status.CHANGED, Status.MISSING, Status.EXTRA, Status.NEW):
         names = comparison.of(status)
@@ -470,7 +489,7 @@ def simulate(
     spec, _ = _load_problem(spec_path)
     chosen = check_policies(policy or list(POLICIES))
     results = simulate_policies(Setup(spec, cores, duration, seed), chosen)
-    title = f"{spec.app}, {cores} core{'s' if cores > 1 else ''}, {duration:g} s simulated, seed {seed}"
+    title = f"{spec.app}, {plural(cores, 'core')}, {duration:g} s simulated, seed {seed}"
     _show_comparison(spec, results, title, plot, as_json)
 
 
@@ -524,7 +543,7 @@ def bench(
     except KeyboardInterrupt:
         err.print("catanc: interrupted; every worker stopped", markup=False)
         raise typer.Exit(130) from None
-    title = f"{spec.app}, {cores} core{'s' if cores > 1 else ''}, {duration:g} s measured, seed {seed}"
+    title = f"{spec.app}, {plural(cores, 'core')}, {duration:g} s measured, seed {seed}"
     _show_comparison(spec, results, title, plot, as_json)
 
 

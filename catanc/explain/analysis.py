@@ -30,16 +30,20 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal, assert_never
 
-from rich.console import RenderableType
+from rich.console import Console, ConsoleOptions, RenderableType, RenderResult
+from rich.measure import Measurement
 from rich.table import Table
 from rich.text import Text
 
 from catanc.core.metrics import Timing, evaluate_chain
+from catanc.core.priorities import ENFORCER_FIFO, RUNNING_FIFO, UNSCHEDULED_FIFO, resting_fifo
 from catanc.core.problem import Chain, Executor, Problem, Subchain
+from catanc.errors import Diagnostic
 from catanc.explain.enforceable import short_slots
 from catanc.planning.baseline import BaselineEvaluation, BaselineGap, TermValue, evaluate_baseline, objective_terms
 from catanc.planning.stage1.estimate import Allocation
 from catanc.spec.language import Schedule, Spec
+from catanc.text import plural
 
 if TYPE_CHECKING:
     from catanc.planning.planner import CorePlan, Plan, SubchainPlan
@@ -142,6 +146,7 @@ class Explanation:
     allocation: str  # how the allocation was chosen, in a sentence
     executors: tuple[str, ...] = ()  # one sentence per executor: its nodes never overlap, and where they run
     machine: str | None = None  # which machine profile the plan's costs came from (compile/explain --machine)
+    unscheduled: tuple[str, ...] = ()  # nodes on their own clock (SCHED_FIFO 3)
 
 
 # --------------------------------------------------------------------------- analysis
@@ -181,6 +186,7 @@ def explain_plan(spec: Spec, problem: Problem, plan: Plan, machine: MachineUse |
         terms=terms,
         headrooms=headrooms,
         warnings=(
+            *(spec_warning(diagnostic) for diagnostic in problem.warnings),
             *plan.warnings,
             *_warnings(plan, problem, spec.schedule, headrooms),
             *([] if machine is not None else [found.warning for found in short_slots(plan, spec.schedule)]),
@@ -189,7 +195,15 @@ def explain_plan(spec: Spec, problem: Problem, plan: Plan, machine: MachineUse |
         allocation=allocation_note(plan),
         executors=tuple(executor_note(executor, plan, problem) for executor in problem.executors),
         machine=machine.sentence() if machine is not None else None,
+        unscheduled=tuple(name for name, node in spec.nodes.items() if not node.scheduled),
     )
+
+
+def spec_warning(diagnostic: Diagnostic) -> str:
+    """A spec's warning in the report: what stderr says after ``warning:``, and the spec's line (not its path)."""
+    what = f"{diagnostic.field}: " if diagnostic.field else ""
+    line = f" (spec line {diagnostic.location.line})" if diagnostic.location is not None else ""
+    return f"{what}{diagnostic.message}{line}"
 
 
 def executor_note(executor: Executor, plan: Plan, problem: Problem) -> str:
@@ -663,7 +677,7 @@ def _runs_text(sub: SubchainPlan, batch: bool, length: float) -> str:
 def _shared_blocks(view: SharedCoreView, explanation: Explanation) -> list[Block]:
     subs = {sub.name: sub for sub in explanation.subchains}
     title = (
-        f"core {view.core}: shared by {len(view.order)} subchain{'s' if len(view.order) > 1 else ''}, "
+        f"core {view.core}: shared by {plural(len(view.order), 'subchain')}, "
         f"schedule period T = {view.period_ms:.3f} ms ({_rate(view.period_ms)} Hz)"
     )
     marks = "  ".join(f"{SLICE_MARKS[i % len(SLICE_MARKS)]} {name}" for i, name in enumerate(view.order))
@@ -684,10 +698,18 @@ def _shared_blocks(view: SharedCoreView, explanation: Explanation) -> list[Block
             (_ms(segment.offset_ms), _ms(segment.length_ms), _share(segment.length_ms, view.period_ms), what, often)
         )
     columns = _columns(("offset ms", "length ms", "share of T", "what", "how often"), left=("what", "how often"))
-    return [
+    blocks: list[Block] = [
         TableBlock(columns, tuple(rows), title=title),
-        Preformatted(f"{timeline_bar(view)}  ({marks}; | switch, . idle)"),
+        Preformatted(f"{timeline_bar(view)}\n{marks}; | switch, . idle"),
     ]
+    if len(view.order) > 1:
+        ranked = sorted(view.order, key=lambda name: (-subs[name].priority, name))
+        blocks.append(
+            Paragraph(
+                f"Stealing order: {' > '.join(ranked)} (a subchain that is late takes the slice of one after it)."
+            )
+        )
+    return blocks
 
 
 def _dedicated_line(view: DedicatedView, explanation: Explanation) -> Paragraph:
@@ -696,7 +718,7 @@ def _dedicated_line(view: DedicatedView, explanation: Explanation) -> Paragraph:
     load = sub.latency_ms / sub.period_ms
     spread = f", {load * sub.threads / cores:.0%} of its {cores} cores" if cores > 1 else ""
     return Paragraph(
-        f"{_cores_text(view.cores)}: dedicated to {sub.name}, {sub.threads} thread{'s' if sub.threads > 1 else ''}, "
+        f"{_cores_text(view.cores)}: dedicated to {sub.name}, {plural(sub.threads, 'thread')}, "
         f"period {sub.period_ms:.3f} ms ({_rate(sub.period_ms)} Hz), latency {sub.latency_ms:.3f} ms: "
         f"busy {load:.0%} (latency/period){spread}"
     )
@@ -704,8 +726,7 @@ def _dedicated_line(view: DedicatedView, explanation: Explanation) -> Paragraph:
 
 def _subchain_table(explanation: Explanation) -> TableBlock:
     columns = (
-        "subchain", "nodes", "cores", "how", "threads", "rate Hz", "period ms", "fraction", "slice ms",
-        "latency ms", "priority",
+        "subchain", "nodes", "cores", "how", "rate Hz", "period ms", "fraction", "slice ms", "latency ms",
     )  # fmt: skip
     rows = []
     for sub in explanation.subchains:
@@ -717,17 +738,27 @@ def _subchain_table(explanation: Explanation) -> TableBlock:
                 sub.name,
                 " -> ".join(sub.nodes),
                 ",".join(str(c) for c in sub.cores) or "-",
-                "shared" if sub.shared else "dedicated",
-                str(sub.threads),
+                f"{'shared' if sub.shared else 'dedicated'}, FIFO {fifo_levels(sub.shared)}",
                 _rate(sub.period_ms),
                 _ms(sub.period_ms),
                 fraction,
                 slice_ms,
                 _ms(sub.latency_ms),
-                str(sub.priority),
             )
         )
-    return TableBlock(_columns(columns, left=("subchain", "nodes", "how")), tuple(rows))
+    unscheduled = explanation.unscheduled
+    own_clock = f" Unscheduled nodes ({', '.join(unscheduled)}): {UNSCHEDULED_FIFO}." if unscheduled else ""
+    footer = (
+        "FIFO: the SCHED_FIFO level of a subchain's threads as deployed: at rest (launch.sh sets it) -> in its "
+        f"slice (catanc run raises it).{own_clock} catanc run's own threads: {ENFORCER_FIFO}."
+    )
+    return TableBlock(_columns(columns, left=("subchain", "nodes", "how")), tuple(rows), footer=footer)
+
+
+def fifo_levels(shared: bool) -> str:
+    """The SCHED_FIFO levels of a subchain's threads as the deployment applies them (catan-model.md section 6)."""
+    rest = resting_fifo(shared)
+    return f"{rest}->{RUNNING_FIFO}" if rest != RUNNING_FIFO else str(rest)
 
 
 def _chain_table(explanation: Explanation) -> TableBlock:
@@ -749,7 +780,8 @@ def _chain_table(explanation: Explanation) -> TableBlock:
     if len(chains) > ROW_LIMIT:
         rest = chains[ROW_LIMIT:]
         weighted = math.fsum(view.weight * view.response_ms for view in rest)
-        footer = f"... {len(rest)} more chains (together {_share(weighted, explanation.objective)} of the objective)"
+        share = _share(weighted, explanation.objective)
+        footer = f"... {plural(len(rest), 'more chain')} (together {share} of the objective)"
     return TableBlock(_columns(columns, left=("chain", "subchains")), rows, footer=footer)
 
 
@@ -781,7 +813,7 @@ def _term_table(explanation: Explanation) -> TableBlock:
     footer = None
     if len(terms) > ROW_LIMIT:
         rest = math.fsum(t.contribution for t in terms[ROW_LIMIT:])
-        footer = f"... {len(terms) - ROW_LIMIT} more terms ({_share(rest, total)} of the objective)"
+        footer = f"... {plural(len(terms) - ROW_LIMIT, 'more term')} ({_share(rest, total)} of the objective)"
     return TableBlock(
         _columns(columns, left=("term", "spec")), rows, title=f"Objective terms: {total:.3f} ms in all", footer=footer
     )
@@ -793,7 +825,7 @@ def _baseline_section(explanation: Explanation) -> list[Block]:
         return [Paragraph(f"Baseline: {baseline.reason}; nothing to compare with.")]
     listed = ", ".join(f"{row.node} {row.rate_hz:g} Hz" for row in baseline.nodes.values() if row.rate_hz is not None)
     inherited = ", ".join(f"{row.node} on {row.trigger}" for row in baseline.nodes.values() if row.trigger is not None)
-    cores = f"{baseline.cores} core{'s' if baseline.cores > 1 else ''}"
+    cores = plural(baseline.cores, "core")
     blocks: list[Block] = [
         Paragraph(
             f"Baseline: the spec's hand-tuned timers ({listed})"
@@ -819,7 +851,7 @@ def _baseline_section(explanation: Explanation) -> list[Block]:
         for base, mine in pairs[:ROW_LIMIT]
     ]
     if len(pairs) > ROW_LIMIT:
-        rows.append((f"... {len(pairs) - ROW_LIMIT} more terms", "", "", "", ""))
+        rows.append((f"... {plural(len(pairs) - ROW_LIMIT, 'more term')}", "", "", "", ""))
     rows.append(
         (
             "objective (weighted sum)",
@@ -845,7 +877,7 @@ def report_blocks(explanation: Explanation) -> list[Block]:
         if explanation.constraint_scale == 1.0
         else f"every bound scaled by {explanation.constraint_scale:.4g}"
     )
-    cores = f"{explanation.cores} core{'s' if explanation.cores > 1 else ''}"
+    cores = plural(explanation.cores, "core")
     blocks: list[Block] = [
         Paragraph(f"{explanation.app} on {cores}: objective {explanation.objective:.3f} ms, {scale}.", strong=True),
         Paragraph(explanation.allocation),
@@ -858,7 +890,9 @@ def report_blocks(explanation: Explanation) -> list[Block]:
     blocks += [_dedicated_line(view, explanation) for view in explanation.dedicated]
     blocks += [Paragraph(f"core {core}: idle (no subchain runs here)") for core in explanation.idle_cores]
     blocks += [Heading("2. Subchains"), _subchain_table(explanation)]
-    blocks += [Heading(f"3. Chains ({len(explanation.chains)}, the most weighted first)"), _chain_table(explanation)]
+    count = len(explanation.chains)
+    chains = f"3. Chains ({count}, the most weighted first)" if count > 1 else f"3. Chains ({count})"
+    blocks += [Heading(chains), _chain_table(explanation)]
     blocks += [Heading("4. What binds and what dominates"), _binding_table(explanation), _term_table(explanation)]
     blocks.append(Heading("5. Warnings"))
     blocks.append(Bullets(explanation.warnings) if explanation.warnings else Paragraph("none"))
@@ -881,13 +915,48 @@ def _rich_parts(block: Block) -> list[RenderableType]:
     if isinstance(block, Bullets):
         return [Text(f"- {item}") for item in block.items]
     if isinstance(block, TableBlock):
-        table = Table(title=block.title, title_justify="left")
-        for column in block.columns:
-            table.add_column(column.header, justify=column.align)
-        for row in block.rows:
-            table.add_row(*row)
+        table = FittedTable(block)
         return [table] if block.footer is None else [table, Text(f"  {block.footer}")]
     assert_never(block)
+
+
+UNBOUNDED_WIDTH = 10_000
+"""Room enough to measure the narrowest a table can be without cutting a word."""
+
+
+@dataclass(frozen=True)
+class FittedTable:
+    """A table that fits the width it is given: one-line headers, or each header word on its own line if
+    one-line headers would cut words short or if stacking them takes fewer lines (the text wraps less).
+
+    Number columns are never wrapped or cut; text columns (names, chains, notes) wrap to fit.
+    """
+
+    block: TableBlock
+
+    def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
+        flat, stacked = self._table(stacked=False), self._table(stacked=True)
+        narrowest = Measurement.get(console, options.update_width(UNBOUNDED_WIDTH), flat).minimum
+        if narrowest > options.max_width:  # one-line headers would cut words short
+            yield stacked
+        elif len(console.render_lines(stacked, options)) < len(console.render_lines(flat, options)):
+            yield stacked  # taller headers, but the text wraps less: fewer lines in all
+        else:
+            yield flat
+
+    def _table(self, *, stacked: bool) -> Table:
+        block = self.block
+        table = Table(title=block.title, title_justify="left")
+        for index, column in enumerate(block.columns):
+            if column.align == "right":
+                header = column.header.replace(" ", "\n") if stacked else column.header
+                widest = max((len(row[index]) for row in block.rows), default=0)
+                table.add_column(header, justify="right", no_wrap=True, min_width=widest)
+            else:
+                table.add_column(column.header, justify="left")
+        for row in block.rows:
+            table.add_row(*row)
+        return table
 
 
 def render(explanation: Explanation) -> list[RenderableType]:
