@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -51,3 +52,40 @@ def test_quiet_or_forced_off_prints_nothing(terminal: str) -> None:
     finished = run(terminal, quiet=terminal == "1")
     assert finished.stdout == b"alpha\nbeta\ndone False\n"
     assert finished.stderr == b""
+
+
+ROOT = Path(__file__).parent.parent
+FACE = str(ROOT / "specs" / "face_tracking.yaml")
+
+
+def catanc(args: list[str], env_terminal: str | None, cwd: Path) -> subprocess.CompletedProcess[bytes]:
+    env = {k: v for k, v in os.environ.items() if k not in ("TTY_COMPATIBLE", "FORCE_COLOR", "TTY_INTERACTIVE")}
+    if env_terminal is not None:
+        env["TTY_COMPATIBLE"] = env_terminal
+    finished = subprocess.run(
+        [sys.executable, "-m", "catanc", *args], env=env, cwd=cwd, capture_output=True, check=False
+    )
+    assert finished.returncode == 0, finished.stderr.decode()
+    return finished
+
+
+@pytest.mark.parametrize(
+    ("args", "bar"),
+    [
+        (
+            ["simulate", FACE, "-k", "1", "--duration", "2", "--policy", "catan", "--policy", "baseline", "--json"],
+            "simulating: catan",
+        ),
+        (["compile", FACE, "-k", "1", "-k", "2", "--dry-run"], "planning: "),
+    ],
+    ids=["simulate-json", "compile"],
+)
+def test_commands_output_is_the_same_bytes_with_or_without_a_bar(args: list[str], bar: str, tmp_path: Path) -> None:
+    quiet = catanc([*args, "--quiet"], "1", tmp_path)  # a terminal, but told to be quiet
+    piped = catanc(args, None, tmp_path)  # not a terminal
+    shown = catanc(args, "1", tmp_path)  # rich told stdout and stderr are terminals
+    assert quiet.stderr == b""
+    assert piped.stderr == b""
+    assert bar in shown.stderr.decode()
+    assert piped.stdout == quiet.stdout
+    assert shown.stdout == quiet.stdout  # the bar never reaches stdout

@@ -57,6 +57,7 @@ MachineOpt = Annotated[
 # simulate and bench: the same comparison, simulated or measured.
 WorkloadSeedOpt = Annotated[int, typer.Option("--seed", min=0, help="Seed of the workload's random draws.")]
 TablesJsonOpt = Annotated[bool, typer.Option("--json", help="Print JSON instead of tables.")]
+QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar (there is none off a terminal).")]
 PlotDirOpt = Annotated[
     Path | None,
     typer.Option(
@@ -290,10 +291,12 @@ def compile_(
     solver: SolverOpt = "highs",
     time_limit: TimeLimitOpt = None,
     machine: MachineOpt = None,
+    quiet: QuietOpt = False,
 ) -> None:
     """Plan each spec and write its deployment folder: runtime.json, params.yaml, launch.sh, launch.py, PLAN.md."""
     from catanc.artifacts.compile import Options, compile_spec
     from catanc.artifacts.output import compare, ensure_comparable, write
+    from catanc.cli.progress import tracked
     from catanc.errors import UsageError
 
     if check and dry_run:
@@ -303,7 +306,8 @@ def compile_(
         raise UsageError("--out names one folder: give one spec and one --cores with it")
     options = Options(stage1=stage1, solver=solver, time_limit_s=time_limit, machine=machine)
     targets = []
-    for path, k in pairs:  # plan everything before touching any folder
+    planning = tracked(pairs, "planning", label=lambda pair: f"{pair[0]} on {plural(pair[1], 'core')}", quiet=quiet)
+    for path, k in planning:  # plan everything before touching any folder
         target = compile_spec(path, k, out=out, options=options)
         _print_diagnostics(target.spec_warnings, warning=True)
         _print_notes(path, target.warnings)
@@ -482,13 +486,16 @@ def simulate(
     seed: WorkloadSeedOpt = 0,
     as_json: TablesJsonOpt = False,
     plot: PlotDirOpt = None,
+    quiet: QuietOpt = False,
 ) -> None:
     """Simulate the app on K cores under catanc's plan and the baselines; compare response times and rates."""
-    from catanc.sim.simulate import POLICIES, Setup, check_policies, simulate_policies
+    from catanc.cli.progress import tracked
+    from catanc.sim.simulate import POLICIES, Setup, check_policies, simulate
 
     spec, _ = _load_problem(spec_path)
     chosen = check_policies(policy or list(POLICIES))
-    results = simulate_policies(Setup(spec, cores, duration, seed), chosen)
+    setup = Setup(spec, cores, duration, seed)
+    results = [simulate(setup, name) for name in tracked(chosen, "simulating", quiet=quiet)]
     title = f"{spec.app}, {plural(cores, 'core')}, {duration:g} s simulated, seed {seed}"
     _show_comparison(spec, results, title, plot, as_json)
 
@@ -529,17 +536,21 @@ def bench(
     seed: WorkloadSeedOpt = 0,
     as_json: TablesJsonOpt = False,
     plot: PlotDirOpt = None,
+    quiet: QuietOpt = False,
 ) -> None:
     """Run the app's synthetic workers on this machine under catanc's plan and the baselines; compare them."""
+    from catanc.cli.progress import progress
     from catanc.realbench.bench import DEFAULT_POLICIES, BenchSetup, bench_policies
 
     spec, _ = _load_problem(spec_path)
     setup = BenchSetup(spec_path, spec, cores, duration, seed)
+    chosen = policy or list(DEFAULT_POLICIES)
     err = _stderr()
     try:
-        results = bench_policies(
-            setup, policy or list(DEFAULT_POLICIES), progress=lambda text: err.print(text, markup=False)
-        )
+        with progress("benchmarking", len(chosen), quiet=quiet) as bar:
+            # a bar on a terminal; elsewhere (CI logs) a line per policy as it starts, as before; --quiet: nothing
+            step = bar.start if bar.shown or quiet else (lambda text: err.print(text, markup=False))
+            results = bench_policies(setup, chosen, progress=step)
     except KeyboardInterrupt:
         err.print("catanc: interrupted; every worker stopped", markup=False)
         raise typer.Exit(130) from None
