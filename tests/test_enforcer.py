@@ -920,8 +920,9 @@ def test_losing_a_cpu_re_plans_for_the_cores_left(harness: Harness, tmp_path: Pa
 # --------------------------------------------------------------------------- multi-threaded nodes
 
 # One subchain of one node on both cores.  With 2 threads at speedup 1.8 a run takes 20 / 1.8 =
-# 11.1 ms against 20 ms on one, so Eq. 1 picks q = 2: period = response/2 = 11.1 ms (90 Hz), and
-# triggers say `threads: 2`.  The worker burns 11.1 ms of CPU on each of two threads.  The re-solve
+# 11.1 ms against 20 ms on one, so Eq. 1 picks q = 2: period 11.1 ms, kept 5% idle (the default
+# slack): 11.1 / 0.95 = 11.7 ms (85.5 Hz), and triggers say `threads: 2`.  The worker burns 11.1 ms
+# of CPU on each of two threads.  The re-solve
 # at 2 s must plan with the one-thread 20 ms (the measured 11.1 ms times the speedup); planning
 # with the raw 11.1 ms would shrink the period to 11.1 / 1.8 = 6.2 ms, which no run can meet.
 THREADED_SPEC = """\
@@ -945,7 +946,7 @@ def test_a_multi_threaded_node_runs_on_its_threads_and_is_planned_with_its_one_t
     planned = table_subchains(table)["solve"]
     run_ms = THREADED_ONE_THREAD_MS / THREADED_SPEEDUP
     assert planned["threads"] == 2
-    assert planned["period_ms"] == pytest.approx(run_ms, rel=1e-6)  # Eq. 1 by hand
+    assert planned["period_ms"] == pytest.approx(run_ms / 0.95, rel=1e-6)  # Eq. 1 with the slack, by hand
     duration = 6.0
     harness.start(table, "--start", "spec", duration=duration)
     worker = harness.worker({"solve": THREADED_ONE_THREAD_MS}, speedups={"solve": (1.0, THREADED_SPEEDUP)})

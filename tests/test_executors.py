@@ -123,12 +123,14 @@ def load(text: str) -> Problem:
 THREE = """nodes: {a: {compute_ms: 1}, b: {compute_ms: 2}, c: {compute_ms: 3}}
 subchains: {A: [a], B: [b], C: [c]}
 objective: [{node: a, weight: 1}, {node: b, weight: 1}, {node: c, weight: 1}]
+schedule: {slack: 0}
 """
 
 
 @pytest.mark.parametrize("method", ["exhaustive", "milp"])
 def test_worked_example_executor_forces_sharing(method: str) -> None:
-    # Without the executor each subchain gets a core of its own on 3 cores (periods 1, 2, 3: objective 6).
+    # Without the executor each subchain gets a core of its own on 3 cores (periods 1, 2, 3: objective 6;
+    # no slack, so dedicated periods are Eq. 1's).
     # With b and c in one thread, B and C must share a core: {A on 2 cores | B, C shared}; A's period is
     # still 1 (one node), B and C get fair shares 2*2 and 3*2: objective 1 + 4 + 6 = 11.
     free = allocate(load(THREE), 3, method=method)
@@ -180,12 +182,14 @@ def test_eq1_adds_up_an_executors_nodes_by_hand() -> None:
         "nodes: {a: {compute_ms: 2}, b: {compute_ms: 3}, c: {compute_ms: 4}}\nedges: [[a, b], [b, c]]\n"
         "subchains: {S: [a, b, c]}\nobjective: [{node: a, weight: 1}]\n"
     )
-    assert capped_dedicated(load(text).subchain("S"), 3).period_ms == 4.0
+    assert capped_dedicated(load(text).subchain("S"), 3, 0.0).period_ms == 4.0
     bound = load(text + "executors: {worker: [b, c]}\n").subchain("S")
     assert bound.serial == ((1, 2),)
-    assert capped_dedicated(bound, 3).period_ms == 7.0
-    # On one core nothing overlaps anyway: 9 ms either way.
-    assert capped_dedicated(bound, 1).period_ms == 9.0
+    assert capped_dedicated(bound, 3, 0.0).period_ms == 7.0
+    # On one core nothing overlaps anyway: 9 ms either way; the slack stretches the period alone.
+    assert capped_dedicated(bound, 1, 0.0).period_ms == 9.0
+    assert capped_dedicated(bound, 3, 0.3).period_ms == 10.0
+    assert capped_dedicated(bound, 3, 0.3).latency_ms == 9.0
 
 
 def test_executor_overload_is_a_spec_error() -> None:

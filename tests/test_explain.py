@@ -128,8 +128,9 @@ def _problem_and_plan(name: str, cores: int) -> tuple[Problem, Plan]:
     return build_problem(spec), planned(name, cores)
 
 
-# One subchain on one core (Eq. 1: period = latency = c). A chain bound of 15 ms cannot hold
-# (R = 2c = 20 ms), so every bound is scaled by 20/15 and the scaled bound binds.
+# One subchain on one core (Eq. 1: latency c, period c / (1 - slack), the slack 0 here). A chain
+# bound of 15 ms cannot hold (R = 2c = 20 ms), so every bound is scaled by 20/15 and the scaled
+# bound binds.
 ALONE = """
 catan: 1
 app: alone
@@ -138,6 +139,7 @@ edges: [[a, out]]
 subchains: {A: [a]}
 objective: [{chain: [a, out], weight: 1}]
 constraints: [{chain: [a, out], max_response_ms: 15}]
+schedule: {slack: 0}
 """
 
 

@@ -121,7 +121,9 @@ nodes:
 edges: [[a, b], [b, c], [c, sink]]
 subchains: {a: [a], b: [b], c: [c]}
 objective: [{chain: [a, b, c, sink], weight: 1}]
+schedule: {slack: 0}
 """
+# (Worked without the slack, as are the two below: test_dedicated_estimates_keep_the_slack has it.)
 
 
 @pytest.mark.parametrize("method", ["milp", "exhaustive"])
@@ -157,7 +159,9 @@ def test_rate_floor_changes_the_allocation(method: str) -> None:
 def test_fewer_subchains_than_cores_may_leave_cores_idle() -> None:
     # One 10 ms subchain, single-threaded, on 3 cores: Eq. 1 gives p = 10 on any k, so the tie
     # rule (fewer cores) keeps it on one core; the other two stay idle.
-    problem = spec("nodes: {a: {compute_ms: 10}}\nsubchains: {a: [a]}\nobjective: [{node: a, weight: 1}]\n")
+    problem = spec(
+        "nodes: {a: {compute_ms: 10}}\nsubchains: {a: [a]}\nobjective: [{node: a, weight: 1}]\nschedule: {slack: 0}\n"
+    )
     for method in ("milp", "exhaustive"):
         result = allocate(problem, 3, method=method)
         assert result.allocation == Allocation(dedicated=(("a", 1),), groups=())
@@ -169,6 +173,7 @@ def test_one_subchain_takes_the_cores_it_can_use() -> None:
     # against q = 1 with 4 runs in flight: p = max(40, 40 / 4) = 40, R = 80.
     problem = spec(
         "nodes: {a: {compute_ms: 40, threads: {max: 4}}}\nsubchains: {a: [a]}\nobjective: [{node: a, weight: 1}]\n"
+        "schedule: {slack: 0}\n"
     )
     result = allocate(problem, 4)
     assert result.allocation == Allocation(dedicated=(("a", 4),), groups=())
@@ -203,14 +208,28 @@ def test_option_estimates_by_hand() -> None:
     )
     sub = problem.subchain("s")
     # Shared by 3: fair share 40 * 3 = 120 ms for both period and latency.
-    shared = option_timing(sub, Option(True, 3))
+    shared = option_timing(sub, Option(True, 3), 0.0)
     assert (shared.period_ms, shared.latency_ms) == (120, 120)
     # 1 core: p = 40; raised to the 20 Hz cap's 50 ms; latency stays 40.
-    one = option_timing(sub, Option(False, 1))
+    one = option_timing(sub, Option(False, 1), 0.0)
     assert (one.period_ms, one.latency_ms) == (50, 40)
     # 2 cores: q = 1 -> p = max(30, 40 / 2) = 30, R = 70; q = 2 -> c = (20, 10), p = 30, R = 60: q = 2.
-    two = option_timing(sub, Option(False, 2))
+    two = option_timing(sub, Option(False, 2), 0.0)
     assert (two.period_ms, two.latency_ms) == (50, 30)
+
+
+def test_dedicated_estimates_keep_the_slack() -> None:
+    problem = spec("nodes: {a: {compute_ms: 30}, b: {compute_ms: 10}}\nedges: [[a, b]]\nsubchains: {s: [a, b]}\n")
+    assert problem.slack == 0.05  # the spec's default
+    sub = problem.subchain("s")
+    # 1 core: 40 ms of work, busy at most 80%: p = 40 / 0.8 = 50; latency stays 40.
+    one = option_timing(sub, Option(False, 1), 0.2)
+    assert one.period_ms == pytest.approx(50)
+    assert one.latency_ms == 40
+    # 2 cores, one thread: two runs in flight, p = max(30, 40 / 2) / 0.8 = 37.5.
+    two = option_timing(sub, Option(False, 2), 0.2)
+    assert two.period_ms == pytest.approx(37.5)
+    assert two.latency_ms == 40
 
 
 BELL = [1, 1, 2, 5, 15, 52, 203, 877]

@@ -29,7 +29,7 @@ from tests.strategies import spec_documents, spec_of
 
 def closed_form(problem: Problem, layout: Layout, schedule: Schedule, runs: dict[str, int]) -> dict[str, Timing]:
     by_name = {sub.name: sub for sub in problem.subchains}
-    timings = {name: capped_dedicated(by_name[name], k).timing for name, k in layout.dedicated}
+    timings = {name: capped_dedicated(by_name[name], k, problem.slack).timing for name, k in layout.dedicated}
     for core in layout.shared:
         load = sum(by_name[n].compute_ms / runs[n] for n in core.subchains)
         length = (load + len(core.subchains) * schedule.switch_ms) / (1 - schedule.slack)

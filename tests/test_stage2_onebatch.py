@@ -40,7 +40,7 @@ def timings_at(
 ) -> tuple[dict[str, Timing], float]:
     """Every subchain's timing with these runs and batch fraction ``x``, and the sum of the ``T``."""
     by_name = {sub.name: sub for sub in problem.subchains}
-    timings = {name: capped_dedicated(by_name[name], k).timing for name, k in layout.dedicated}
+    timings = {name: capped_dedicated(by_name[name], k, problem.slack).timing for name, k in layout.dedicated}
     lengths = 0.0
     for core in layout.shared:
         load = sum(by_name[n].compute_ms * x if n == batch else by_name[n].compute_ms / runs[n] for n in core.subchains)

@@ -80,7 +80,7 @@ def test_gp_value_is_the_models_objective(document: dict[str, object], cores: in
     solution = model.solve(scale=1e6)  # bounds out of the way: this checks the objective's encoding
     assert solution is not None
     by_name = {sub.name: sub for sub in problem.subchains}
-    timings = {name: capped_dedicated(by_name[name], k).timing for name, k in layout.dedicated}
+    timings = {name: capped_dedicated(by_name[name], k, problem.slack).timing for name, k in layout.dedicated}
     usable = 1 - spec.schedule.slack
     for core in layout.shared:
         T = solution.core_period_ms[core.core]

@@ -66,14 +66,19 @@ def chain_metrics(stages: Sequence[Timing]) -> ChainMetrics:
 
 
 def dedicated_timing(
-    compute_by_threads: Sequence[Sequence[float]], cores: int, serial: Sequence[Sequence[int]] = ()
+    compute_by_threads: Sequence[Sequence[float]],
+    cores: int,
+    serial: Sequence[Sequence[int]] = (),
+    slack: float = 0.0,
 ) -> DedicatedTiming:
-    """Eq. 1: the best thread count ``q`` for a subchain on ``cores`` cores.
+    """Eq. 1 with the slack: the best thread count ``q`` for a subchain on ``cores`` cores.
 
     ``compute_by_threads[q - 1][j]`` is node j's compute time with at most q
-    threads, for q = 1..cores.  With ``floor(cores / q)`` runs in flight,
+    threads, for q = 1..cores.  With ``floor(cores / q)`` runs in flight and
+    each core busy at most ``1 - slack`` of the time (catan-model.md section 4:
+    no plan runs a SCHED_FIFO core 100% busy),
 
-        p(q) = max(max_j c^q_j, sum_j c^q_j / floor(cores / q))
+        p(q) = max(max_j c^q_j, sum_j c^q_j / floor(cores / q)) / (1 - slack)
         response(q) = sum_j c^q_j + p(q)
 
     and the lowest response wins (ties: the smaller q).  ``serial`` lists
@@ -87,7 +92,8 @@ def dedicated_timing(
     for q in range(1, cores + 1):
         times = compute_by_threads[q - 1]
         total = math.fsum(times)
-        period = max(*times, total / (cores // q), *(math.fsum(times[j] for j in group) for group in serial))
+        stages = (math.fsum(times[j] for j in group) for group in serial)
+        period = max(*times, total / (cores // q), *stages) / (1.0 - slack)
         candidate = DedicatedTiming(cores, q, period, total)
         if best is None or candidate.response_ms < best.response_ms:
             best = candidate
@@ -95,9 +101,9 @@ def dedicated_timing(
     return best
 
 
-def capped_dedicated(sub: Subchain, cores: int) -> DedicatedTiming:
-    """Eq. 1 for ``sub`` on ``cores`` cores of its own, then its rate cap applied to the period."""
-    eq1 = dedicated_timing(sub.compute_by_threads(cores), cores, sub.serial)
+def capped_dedicated(sub: Subchain, cores: int, slack: float) -> DedicatedTiming:
+    """Eq. 1 with the slack for ``sub`` on ``cores`` cores of its own, then its rate cap applied to the period."""
+    eq1 = dedicated_timing(sub.compute_by_threads(cores), cores, sub.serial, slack)
     return replace(eq1, period_ms=max(eq1.period_ms, sub.min_period_ms))
 
 

@@ -176,6 +176,7 @@ class Problem:
     period_terms: tuple[PeriodTerm, ...]
     response_bounds: tuple[ResponseBound, ...]
     warnings: tuple[Diagnostic, ...] = field(default=())
+    slack: float = 0.0  # the schedule's idle share of every core, dedicated ones too (catan-model.md 4)
     executors: tuple[Executor, ...] = field(default=())
 
     @cached_property
@@ -365,6 +366,7 @@ class _Builder:
             response_bounds=tuple(bounds),
             warnings=tuple(self.warnings),
             executors=executors,
+            slack=self.spec.schedule.slack,
         )
 
     def check_edges(self) -> None:

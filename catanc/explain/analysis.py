@@ -720,7 +720,7 @@ def _dedicated_line(view: DedicatedView, explanation: Explanation) -> Paragraph:
     return Paragraph(
         f"{_cores_text(view.cores)}: dedicated to {sub.name}, {plural(sub.threads, 'thread')}, "
         f"period {sub.period_ms:.3f} ms ({_rate(sub.period_ms)} Hz), latency {sub.latency_ms:.3f} ms: "
-        f"busy {load:.0%} (latency/period){spread}"
+        f"busy {load:.0%} (latency/period){spread}, {explanation.schedule.slack:.0%} slack kept idle"
     )
 
 

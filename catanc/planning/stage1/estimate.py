@@ -4,7 +4,8 @@ Each subchain either has ``k >= 1`` cores of its own (*dedicated*) or shares
 one core with ``m - 1`` others (*shared*, ``m >= 2``).  Stage I estimates:
 
 - shared in a group of ``m``: period and latency ``c(S) * m`` (fair share);
-- dedicated on ``k`` cores: Eq. 1's period and latency for the best ``q``;
+- dedicated on ``k`` cores: Eq. 1's period (divided by ``1 - slack``) and
+  latency for the best ``q``;
 - then the period is raised to the rate cap's shortest period.
 
 A subchain alone on a core is *dedicated* with ``k = 1`` (the fair share of
@@ -103,12 +104,15 @@ def options_for(problem: Problem, cores: int) -> list[Option]:
     return [Option(False, k) for k in range(1, cores + 1)] + [Option(True, m) for m in range(2, largest_group + 1)]
 
 
-def option_timing(sub: Subchain, option: Option) -> Timing:
-    """Stage I's estimate of a subchain's period and processing latency under ``option``."""
+def option_timing(sub: Subchain, option: Option, slack: float) -> Timing:
+    """Stage I's estimate of a subchain's period and processing latency under ``option``.
+
+    A dedicated estimate keeps the schedule's ``slack`` idle, as Stage II does (catan-model.md 3, 4).
+    """
     if option.shared:
         fair = sub.compute_ms * option.size
         return Timing(max(fair, sub.min_period_ms), fair)
-    return capped_dedicated(sub, option.size).timing
+    return capped_dedicated(sub, option.size, slack).timing
 
 
 OptionTable = dict[str, dict[Option, Timing]]
@@ -117,7 +121,9 @@ OptionTable = dict[str, dict[Option, Timing]]
 def option_table(problem: Problem, cores: int) -> OptionTable:
     """Every subchain's estimate under every option (the MILP's coefficients)."""
     options = options_for(problem, cores)
-    return {sub.name: {option: option_timing(sub, option) for option in options} for sub in problem.subchains}
+    return {
+        sub.name: {option: option_timing(sub, option, problem.slack) for option in options} for sub in problem.subchains
+    }
 
 
 @dataclass(frozen=True)

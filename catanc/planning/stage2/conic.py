@@ -403,7 +403,7 @@ class ConicStage2(LayoutModel):
         shared = np.array([by_name[name].compute_ms for name in self.shared_names])
         values[1 : 1 + len(shared)] = shared
         for index, (name, cores) in enumerate(self.layout.dedicated):
-            timing = capped_dedicated(by_name[name], cores)
+            timing = capped_dedicated(by_name[name], cores, problem.slack)
             values[1 + len(shared) + 2 * index] = timing.period_ms
             values[2 + len(shared) + 2 * index] = timing.latency_ms
         if self.schedule.min_slice_ms > 0:

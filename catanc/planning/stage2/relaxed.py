@@ -160,7 +160,7 @@ class RelaxedStage2(LayoutModel):
             self.compute[name].value = compute
             self.slice[name].value = min(self.schedule.min_slice_ms, compute)
         for name, cores in self.layout.dedicated:
-            timing = capped_dedicated(by_name[name], cores)
+            timing = capped_dedicated(by_name[name], cores, problem.slack)
             self.fixed_period[name].value = timing.period_ms
             self.fixed_latency[name].value = timing.latency_ms
 

@@ -49,7 +49,7 @@ def dedicated_timings(problem: Problem, layout: Layout) -> tuple[dict[str, Timin
     timings: dict[str, Timing] = {}
     threads: dict[str, int] = {}
     for name, cores in layout.dedicated:
-        dedicated = capped_dedicated(problem.subchain(name), cores)
+        dedicated = capped_dedicated(problem.subchain(name), cores, problem.slack)
         timings[name] = dedicated.timing
         threads[name] = dedicated.threads
     return timings, threads

@@ -51,7 +51,8 @@ class WholeRuns:
         self.schedule = model.schedule
         self.shared = model.layout.shared_names
         self.dedicated = {
-            name: capped_dedicated(problem.subchain(name), k).timing for name, k in model.layout.dedicated
+            name: capped_dedicated(problem.subchain(name), k, problem.slack).timing
+            for name, k in model.layout.dedicated
         }
         self.by_name = {sub.name: sub for sub in problem.subchains}
 
