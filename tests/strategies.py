@@ -18,9 +18,12 @@ def spec_documents(
     max_subchains: int = 7,
     with_bounds: bool = True,
     max_threads: int = 3,
+    *,
     with_executors: bool = False,
+    fixed_rates: bool = False,
 ) -> dict[str, Any]:
-    """A random app: a layered DAG of subchains (1-3 nodes each), terms, caps and bounds (and executors)."""
+    """A random app: a layered DAG of subchains (1-3 nodes each), terms, caps and bounds (and executors,
+    fixed rates)."""
     count = draw(st.integers(1, max_subchains))
     subchains: dict[str, list[str]] = {}
     nodes: dict[str, Any] = {}
@@ -61,6 +64,11 @@ def spec_documents(
         constraints.append({"node": subchains[name][0], "max_rate_hz": draw(st.sampled_from([5, 20, 100, 500]))})
     if with_bounds and draw(st.booleans()):
         constraints.append({"chains": {"to": "sink"}, "max_response_ms": draw(st.floats(5, 2000))})
+    fixable = [name for name in names if name not in capped]
+    if fixed_rates:  # up to two: on one core they may have no common T (then the least scale)
+        for name in draw(st.lists(st.sampled_from(fixable), max_size=2, unique=True)) if fixable else []:
+            constraints.append({"node": subchains[name][0], "rate_hz": draw(st.sampled_from([20, 50, 120]))})
+            capped.append(name)
     floorable = [name for name in names if name not in capped]
     if with_bounds and floorable and draw(st.booleans()):
         name = draw(st.sampled_from(floorable))

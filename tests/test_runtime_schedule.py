@@ -67,20 +67,27 @@ def test_slot_triggers_give_the_planned_rates(path: Path, cores: int) -> None:
             assert abs(count - elapsed_s * 1000 / run.period_ms) <= 1, name  # a partial cycle at the end
 
 
-def test_capped_and_batch_subchains_run_on_their_own_clock() -> None:
+def test_only_batch_subchains_run_on_their_own_clock() -> None:
+    # Every shared non-batch subchain is triggered at its slot every k periods, a rate cap's too
+    # (catan-model.md section 4): GP at 1 Hz on nav2d's one core, timewarp at vsync on VR's.
     spec = load_spec(ROOT / "specs" / "nav2d.yaml")
     result = plan(spec, 1)
     schedule = runtime_schedule(result, build_problem(spec), spec.schedule)
     length = schedule.shared[0].period_ms
-    assert schedule.subchains["GL"].on_clock  # batch: a continuous fraction
+    assert [run.name for run in schedule.clocked] == ["GL"]  # batch: a continuous fraction
     for run in schedule.subchains.values():
-        if run.runs is not None:
-            assert math.isclose(run.period_ms, run.runs * length, rel_tol=1e-6)
-        elif run.name != "GL":
-            assert run.period_ms > length  # held back by a rate cap: GP at 1 Hz
+        if run.name != "GL":
+            assert run.runs == result.every[run.name]
+            assert math.isclose(run.period_ms, run.runs * length, rel_tol=1e-9)
+    assert result.every["GP"] > result.runs["GP"]  # held back by its cap: every k > n periods
+    assert schedule.subchains["GP"].period_ms >= 1000.0 * (1 - 1e-9)
     vr = load_spec(ROOT / "specs" / "vr_illixr.yaml")
-    vr_schedule = runtime_schedule(plan(vr, 1), build_problem(vr), vr.schedule)
-    assert vr_schedule.subchains["timewarp"].on_clock  # vsync: 8.333 ms, not a whole number of periods
+    vr_plan = plan(vr, 1)
+    vr_schedule = runtime_schedule(vr_plan, build_problem(vr), vr.schedule)
+    assert vr_schedule.clocked == ()
+    timewarp = vr_schedule.subchains["timewarp"]
+    assert math.isclose(vr_plan.every["timewarp"] * vr_schedule.shared[0].period_ms, 1000 / 120, rel_tol=1e-9)
+    assert timewarp.runs == vr_plan.every["timewarp"]  # vsync
 
 
 def run(name: str, priority: int, latency_ms: float = 10.0) -> SubchainRun:

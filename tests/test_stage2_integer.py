@@ -1,23 +1,29 @@
 """Stage II's integer restoration against enumeration of every integer vector.
 
-The oracle does not use the GP: with every ``n_i`` fixed and no batch
-subchain on a core, the best schedule length has a closed form,
-``T = (sum_i c_i / n_i + m * switch) / (1 - slack)`` (a longer T only lengthens
-every period), each period is ``max(T n_i, p_min)`` and each latency ``T n_i``,
-and the analytic model scores the result.
+The oracle does not use the GP nor the search's breakpoints: it enumerates
+every ``(n, k)``: the runs ``n_i`` of each non-batch shared subchain, and for
+one with a rate cap (or fixed rate) every trigger interval ``k_i >= n_i`` up to
+``ceil(p_min / T_fit)`` (a longer ``k`` leaves ``T`` as it is and only
+lengthens ``p``).  With ``(n, k)`` fixed every term grows with ``T``, so the
+best schedule length is the least that fits the slices and keeps every
+``k_i T >= p_min_i``: ``T = max(T_fit, max_i p_min_i / k_i)`` with
+``T_fit = (sum_i c_i / n_i + m * switch) / (1 - slack)``; then latency
+``n_i T``, period ``k_i T`` (catan-model.md section 4), and the analytic
+model scores the result.
 """
 
 from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Iterator
 from typing import Any
 
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from catanc.core.metrics import Timing, capped_dedicated, evaluate_chain, objective
+from catanc.core.metrics import Timing, bound_scale, capped_dedicated, evaluate_chain, objective
 from catanc.core.problem import Problem, build_problem
 from catanc.planning.stage1 import allocate
 from catanc.planning.stage2.integer import most_runs, solve_integer
@@ -27,15 +33,39 @@ from catanc.spec.language import Schedule
 from tests.strategies import spec_documents, spec_of
 
 
-def closed_form(problem: Problem, layout: Layout, schedule: Schedule, runs: dict[str, int]) -> dict[str, Timing]:
+def fitted_length(problem: Problem, names: tuple[str, ...], schedule: Schedule, runs: dict[str, int]) -> float:
+    load = sum(problem.subchain(n).compute_ms / runs[n] for n in names)
+    return (load + len(names) * schedule.switch_ms) / (1 - schedule.slack)
+
+
+def closed_form(
+    problem: Problem, layout: Layout, schedule: Schedule, runs: dict[str, int], every: dict[str, int] | None = None
+) -> dict[str, Timing]:
+    """Every subchain's timing with these runs and trigger intervals (``every`` None: ``k = n``)."""
+    every = every or {}
     by_name = {sub.name: sub for sub in problem.subchains}
     timings = {name: capped_dedicated(by_name[name], k, problem.slack).timing for name, k in layout.dedicated}
     for core in layout.shared:
-        load = sum(by_name[n].compute_ms / runs[n] for n in core.subchains)
-        length = (load + len(core.subchains) * schedule.switch_ms) / (1 - schedule.slack)
+        ks = {name: every.get(name, runs[name]) for name in core.subchains}
+        length = max(
+            [fitted_length(problem, core.subchains, schedule, runs)]
+            + [by_name[name].min_period_ms / ks[name] for name in core.subchains]
+        )
         for name in core.subchains:
-            timings[name] = Timing(max(length * runs[name], by_name[name].min_period_ms), length * runs[name])
+            timings[name] = Timing(ks[name] * length, runs[name] * length)
     return timings
+
+
+def intervals(problem: Problem, layout: Layout, schedule: Schedule, runs: dict[str, int]) -> Iterator[dict[str, int]]:
+    """Every vector of trigger intervals worth trying with these runs."""
+    ranges: dict[str, range] = {}
+    for core in layout.shared:
+        fit = fitted_length(problem, core.subchains, schedule, runs)
+        for name in core.subchains:
+            n, p_min = runs[name], problem.subchain(name).min_period_ms
+            ranges[name] = range(n, max(n, math.ceil(p_min / fit)) + 1)
+    for combo in itertools.product(*ranges.values()):
+        yield dict(zip(ranges, combo, strict=True))
 
 
 def meets_bounds(problem: Problem, timings: dict[str, Timing], scale: float) -> bool:
@@ -49,22 +79,29 @@ def meets_bounds(problem: Problem, timings: dict[str, Timing], scale: float) -> 
     return True
 
 
-def enumerate_best(problem: Problem, layout: Layout, schedule: Schedule, scale: float) -> float | None:
+def every_plan(problem: Problem, layout: Layout, schedule: Schedule) -> Iterator[dict[str, Timing]]:
+    """The timings of every ``(n, k)`` (no batch subchain shares a core)."""
     by_name = {sub.name: sub for sub in problem.subchains}
     names = [name for core in layout.shared for name in core.subchains]
     ranges = [range(1, most_runs(by_name[name].compute_ms, schedule) + 1) for name in names]
-    best = None
     for combo in itertools.product(*ranges):
-        timings = closed_form(problem, layout, schedule, dict(zip(names, combo, strict=True)))
-        if meets_bounds(problem, timings, scale):
-            value = objective(problem, timings)
-            best = value if best is None else min(best, value)
-    return best
+        runs = dict(zip(names, combo, strict=True))
+        for every in intervals(problem, layout, schedule, runs):
+            yield closed_form(problem, layout, schedule, runs, every)
+
+
+def enumerate_best(problem: Problem, layout: Layout, schedule: Schedule, scale: float) -> float | None:
+    values = [objective(problem, t) for t in every_plan(problem, layout, schedule) if meets_bounds(problem, t, scale)]
+    return min(values, default=None)
+
+
+def enumerate_least_scale(problem: Problem, layout: Layout, schedule: Schedule) -> float:
+    return min(max(1.0, bound_scale(problem, t)) for t in every_plan(problem, layout, schedule))
 
 
 @st.composite
 def small_apps(draw: st.DrawFn) -> tuple[dict[str, Any], int]:
-    document = draw(spec_documents(max_subchains=5, max_threads=1))
+    document = draw(spec_documents(max_subchains=5, max_threads=1, fixed_rates=True))
     # A minimum slice of a fifth of the longest subchain keeps every n_i <= 5, so the oracle
     # enumerates at most 5**5 vectors; slack and switch cost are drawn too.
     longest = max(
@@ -100,9 +137,13 @@ def test_branch_and_bound_matches_enumeration(app: tuple[dict[str, Any], int], l
             continue
         assert found is not None
         assert found.objective == pytest.approx(expected, rel=1e-6)
-        # The n_i it reports score, in closed form, what it says they score.
-        timings = closed_form(problem, layout, spec.schedule, found.runs)
-        assert objective(problem, timings) == pytest.approx(found.objective, rel=1e-6)
+        # The n_i it reports score, with their best k, what it says they score.
+        best_k = min(
+            objective(problem, t)
+            for every in intervals(problem, layout, spec.schedule, found.runs)
+            if meets_bounds(problem, t := closed_form(problem, layout, spec.schedule, found.runs, every), scale)
+        )
+        assert best_k == pytest.approx(found.objective, rel=1e-6)
         assert found.root_bound <= found.objective * (1 + 1e-6)
         # A cutoff above the optimum keeps it; one below leaves nothing; a start changes nothing.
         above = solve_integer(model, problem, scale, cutoff=expected * (1 + 1e-3), enumerate_up_to=enumerate_up_to)
@@ -114,6 +155,9 @@ def test_branch_and_bound_matches_enumeration(app: tuple[dict[str, Any], int], l
             warm = solve_integer(model, problem, scale, start=start, enumerate_up_to=enumerate_up_to)
             assert warm is not None
             assert warm.objective == pytest.approx(expected, rel=1e-6)
+    least = solve_integer(model, problem, least_scale=True, enumerate_up_to=0)
+    assert least is not None
+    assert least.objective == pytest.approx(enumerate_least_scale(problem, layout, spec.schedule), rel=1e-6)
     if expected is not None:
         # Stopped early, the search still returns a plan, and the gap it proves brackets the optimum.
         capped = solve_integer(model, problem, scale, enumerate_up_to=0, node_limit=2)

@@ -58,6 +58,8 @@ def plan_payload(plan: Plan, problem: Problem) -> dict[str, Any]:
             "slice_ms": ms(fraction * problem.subchain(name).compute_ms) if sub.shared else None,
             "priority": sub.priority,
         }
+        if sub.every is not None:  # triggered at its slot every k periods: period_ms = k * the core's
+            subchains[name]["every"] = sub.every
     cores = [
         {"core": core.core, "period_ms": ms(core.period_ms), "order": list(core.order)}
         for core in sorted(plan.shared_cores, key=lambda c: c.core)

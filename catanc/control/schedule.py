@@ -7,11 +7,11 @@ tests can simulate them without threads or a kernel (catan-model.md
 sections 5 and 6):
 
 - a dedicated subchain's head is triggered every ``period_ms`` on its own
-  clock, and so is a shared subchain whose period is not a whole number of
-  schedule periods (a batch subchain, or one held back by a rate cap or a
-  fixed rate, like VR's timewarp at vsync);
-- every other shared subchain is triggered at the start of its slice every
-  ``n = 1/f`` periods, so its run falls into its slices;
+  clock, and so is a batch subchain (its period is an average);
+- every other shared subchain is triggered at the start of its slot every
+  ``k`` periods (the plan's ``every``: ``k = n = 1/f`` unless a rate cap or a
+  fixed rate makes it longer, like VR's timewarp at vsync), so its run falls
+  into its slices and no trigger waits for a slot (catan-model.md section 4);
 - in each period a shared core raises each subchain's threads for its slice
   ``f * c(S)``, in order, after a switch; the rest of ``T`` is slack;
 - priority stealing: a slot goes to the highest-priority subchain on the
@@ -34,9 +34,6 @@ from catanc.spec.language import Schedule
 if TYPE_CHECKING:
     from catanc.planning.planner import Plan
 
-CLOCK_TOLERANCE = 1e-6
-"""Relative: a shared subchain whose period is this close to ``n * T`` is triggered at its slices."""
-
 
 @dataclass(frozen=True)
 class SubchainRun:
@@ -48,7 +45,7 @@ class SubchainRun:
     shared: bool
     period_ms: float
     latency_ms: float  # planned: a run is late once it takes longer
-    runs: int | None  # n: triggered at its slice every n periods; None: on its own clock
+    runs: int | None  # k: triggered at its slot every k periods; None: on its own clock
     priority: int  # stealing priority: higher steals from lower
     node_threads: tuple[tuple[int, float], ...] = ()  # per node, its threads (Eq. 1's q) and their speedup
 
@@ -106,16 +103,11 @@ def runtime_schedule(plan: Plan, problem: Problem, schedule: Schedule) -> Runtim
     """The schedule the enforcer runs for ``plan`` (``problem`` gives each subchain's ``c(S)``)."""
     compute = {sub.name: sub.compute_ms for sub in problem.subchains}
     speedups = {sub.name: sub.node_speedups for sub in problem.subchains}
-    length = {core.core: core.period_ms for core in plan.shared_cores}
     subchains = {}
     for name, sub in plan.subchains.items():
-        runs = None
-        if sub.shared and name not in plan.runs:
-            runs = None  # batch: a continuous fraction, so its own clock
-        elif sub.shared:
-            n = plan.runs[name]
-            cycle = n * length[sub.cores[0]]
-            runs = n if abs(sub.period_ms - cycle) <= CLOCK_TOLERANCE * cycle else None
+        runs = None  # dedicated, or batch (a continuous fraction): its own clock
+        if sub.shared and name in plan.runs:
+            runs = plan.every.get(name, plan.runs[name])
         subchains[name] = SubchainRun(
             name=name,
             nodes=sub.nodes,

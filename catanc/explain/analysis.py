@@ -356,8 +356,18 @@ def bindings(plan: Plan, problem: Problem, schedule: Schedule) -> list[Binding]:
             if capped or floored:
                 found.append(Binding("fixed rate", sub.name, f"runs at exactly {_hz(sub.min_period_ms)}"))
         else:
+            held = chosen.every is not None and chosen.every > (runs_per_period(chosen, sub.batch) or 1)
             if capped:
                 found.append(Binding("rate cap", sub.name, f"period {period:.3f} ms = its cap of {_hz(period)}"))
+            elif held:  # aligned with the slots: every k periods, the first multiple of T at or above the cap
+                found.append(
+                    Binding(
+                        "rate cap",
+                        sub.name,
+                        f"period {period:.3f} ms = {chosen.every} periods, the fewest at or above its cap of "
+                        f"{_hz(sub.min_period_ms)}",
+                    )
+                )
             if floored:
                 scaled = "" if scale == 1.0 else f" (scaled by {scale:.4g})"
                 found.append(
@@ -422,10 +432,13 @@ def _sustained(plan: Plan, problem: Problem, schedule: Schedule, growth: float) 
     timings: dict[str, Timing] = {}
     for core in plan.shared_cores:
         load = math.fsum(plan.subchains[name].fraction * by_name[name].compute_ms for name in core.order)
-        length = core.period_ms + (growth - 1.0) * load / (1.0 - schedule.slack)
+        fit = (load * growth + len(core.order) * schedule.switch_ms) / (1.0 - schedule.slack)
+        # T may sit above what fits (a fixed rate's p_min / k): runs then take as long until the
+        # slots outgrow it, and the periods the schedule can sustain are those of the fitted T.
+        length = max(core.period_ms, fit)
         for name in core.order:
-            latency = length / plan.subchains[name].fraction
-            timings[name] = Timing(latency, latency)
+            fraction = plan.subchains[name].fraction
+            timings[name] = Timing(fit / fraction, length / fraction)
     for name, chosen in plan.subchains.items():
         if chosen.shared:
             continue
@@ -669,8 +682,12 @@ def _runs_text(sub: SubchainPlan, batch: bool, length: float) -> str:
         text = f"{sub.fraction:.3g} runs per period"
     else:
         text = f"one run every {1.0 / sub.fraction:.3g} periods on average"
-    if sub.period_ms > sub.latency_ms * (1 + BINDING_TOLERANCE):
-        text += f"; triggered every {sub.period_ms:.3f} ms (rate cap)"
+    if sub.every is not None and sub.every > (runs or 1):
+        text += f"; triggered at its slot every {sub.every} periods ({sub.period_ms:.3f} ms, rate cap)"
+    elif sub.every is not None:
+        text += "; triggered at its slot"
+    elif sub.period_ms > sub.latency_ms * (1 + BINDING_TOLERANCE):
+        text += f"; triggered every {sub.period_ms:.3f} ms on its own clock (rate cap)"
     return text
 
 
@@ -726,7 +743,8 @@ def _dedicated_line(view: DedicatedView, explanation: Explanation) -> Paragraph:
 
 def _subchain_table(explanation: Explanation) -> TableBlock:
     columns = (
-        "subchain", "nodes", "cores", "how", "rate Hz", "period ms", "fraction", "slice ms", "latency ms",
+        "subchain", "nodes", "cores", "how", "rate Hz", "period ms", "fraction", "every k", "slice ms",
+        "latency ms",
     )  # fmt: skip
     rows = []
     for sub in explanation.subchains:
@@ -742,6 +760,7 @@ def _subchain_table(explanation: Explanation) -> TableBlock:
                 _rate(sub.period_ms),
                 _ms(sub.period_ms),
                 fraction,
+                "-" if sub.every is None else str(sub.every),
                 slice_ms,
                 _ms(sub.latency_ms),
             )

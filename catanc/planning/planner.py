@@ -20,7 +20,7 @@ would do.  :class:`catanc.planning.replan.Replanner` re-plans with new compute t
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 from catanc.core.metrics import chain_metrics_of
@@ -30,7 +30,14 @@ from catanc.planning.stage1 import Allocation, Stage1Result, allocate, next_best
 from catanc.planning.stage1.exhaustive import every_allocation
 from catanc.planning.stage2.base import Layout, SharedCore, Stage2Model
 from catanc.planning.stage2.integer import Effort
-from catanc.planning.stage2.solve import SCALE_PRECISION, Stage2Result, better, lower_bound, solve_layout
+from catanc.planning.stage2.solve import (
+    SCALE_PRECISION,
+    Stage2Result,
+    better,
+    fixed_rate_conflicts,
+    lower_bound,
+    solve_layout,
+)
 from catanc.spec.language import Schedule, Spec
 
 ALL_ALLOCATIONS_UP_TO = 2500
@@ -71,6 +78,7 @@ class SubchainPlan:
     latency_ms: float
     fraction: float  # f: share of one run per schedule period (1.0 when dedicated)
     priority: int  # higher steals from lower
+    every: int | None = None  # k: a shared non-batch subchain is triggered at its slot every k periods
 
 
 @dataclass(frozen=True)
@@ -114,6 +122,7 @@ class Plan:
     allocation: Allocation  # the one planned (Stage I's, or a runner-up that Stage II found better)
     comparison: Comparison
     runs: dict[str, int]  # n = 1/f per non-batch shared subchain (exact)
+    every: dict[str, int] = field(default_factory=dict)  # k >= n per non-batch shared subchain: p = k T
 
 
 def plan(
@@ -346,6 +355,7 @@ def assemble(
             f"Stage II's integer search stopped after {result.relaxations} relaxations: the plan is within "
             f"{result.gap:.3%} of the best for its allocation"
         )
+    warnings += fixed_rate_conflicts(problem, result)
     if result.scale > 1.0 + SCALE_PRECISION:
         warnings.append(
             f"the bounds cannot all be met: every chain bound and rate floor is scaled by {result.scale:.4g} "
@@ -364,6 +374,7 @@ def assemble(
             latency_ms=result.timings[sub.name].latency_ms,
             fraction=result.fractions.get(sub.name, 1.0),
             priority=ranks[sub.name],
+            every=result.every.get(sub.name),
         )
         for sub in problem.subchains
     }
@@ -387,4 +398,5 @@ def assemble(
         allocation=allocation,
         comparison=comparison,
         runs=dict(result.runs),
+        every=dict(result.every),
     )

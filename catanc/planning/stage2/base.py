@@ -104,6 +104,37 @@ class Stage2Model(Protocol):
     def solve_least_scale(self) -> RelaxedSolution | None: ...
 
 
+EVERY_TOLERANCE = 1e-9
+"""Relative: ``p_min / T`` this close above a whole number ``j`` counts as ``j`` (``T = p_min / j``)."""
+
+
+def aligned_every(runs: int, length: float, min_period_ms: float) -> int:
+    """``k``: the fewest schedule periods between a shared subchain's triggers (catan-model.md section 4).
+
+    Its head is triggered at the start of its slot every ``k`` periods, ``k >= n`` (a run takes
+    ``n`` periods) and ``k T >= p_min`` (its rate cap or fixed rate): ``p = k T``.
+    """
+    if min_period_ms <= 0:
+        return runs
+    return max(runs, math.ceil(min_period_ms / length * (1 - EVERY_TOLERANCE)))
+
+
+def length_candidates(length: float, members: list[tuple[int, float]]) -> list[float]:
+    """The schedule lengths ``T >= length`` worth trying on one core with these runs, ascending.
+
+    ``members`` are its non-batch subchains' ``(n, p_min)``.  With every ``n`` fixed, each term
+    and bound grows with ``T`` except where a member's ``k = max(n, ceil(p_min / T))`` drops,
+    at ``T = p_min / j``: the best ``T`` is the shortest that fits, or one of those breakpoints.
+    """
+    found = {length}
+    for runs, min_period in members:
+        if min_period <= 0:
+            continue
+        most = math.floor(min_period / length * (1 + EVERY_TOLERANCE))
+        found.update(min_period / j for j in range(max(runs, 1), most + 1) if min_period / j > length)
+    return sorted(found)
+
+
 def schedule_length(
     core: SharedCore, fractions: Mapping[str, float], by_name: Mapping[str, Subchain], schedule: Schedule
 ) -> float:

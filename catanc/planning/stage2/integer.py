@@ -63,6 +63,15 @@ def most_runs(compute_ms: float, schedule: Schedule) -> int:
     return max(1, math.floor(compute_ms / min(schedule.min_slice_ms, compute_ms) + 1e-9))
 
 
+def closed_form(model: Stage2Model, problem: Problem) -> WholeRuns | OneBatchRuns | None:
+    """Fixed runs in closed form: with no batch subchain, or one (its fraction then solved for exactly)."""
+    if WholeRuns.applies(model, problem):
+        return WholeRuns(model, problem)
+    if OneBatchRuns.applies(model, problem):
+        return OneBatchRuns(model, problem)
+    return None
+
+
 def solve_integer(
     model: Stage2Model,
     problem: Problem,
@@ -106,11 +115,8 @@ def solve_integer(
     root: Box = {name: (1, most_runs(compute[name], model.schedule)) for name in model.integral}
     nodes = 0
     tolerance = max(PRUNE_TOLERANCE, gap)
-    whole = WholeRuns(model, problem) if WholeRuns.applies(model, problem) else None
-    # Fixed runs in closed form: with no batch subchain, or one (its fraction then solved for exactly).
-    fixed: WholeRuns | OneBatchRuns | None = whole
-    if whole is None and OneBatchRuns.applies(model, problem):
-        fixed = OneBatchRuns(model, problem)
+    fixed = closed_form(model, problem)
+    whole = fixed if isinstance(fixed, WholeRuns) else None
     if whole is not None and WholeRuns.size(root) <= enumerate_up_to:
         found = whole.best(root, scale, least_scale=least_scale)
         if found is None or (cutoff is not None and found.solution.objective >= cutoff):
@@ -129,16 +135,20 @@ def solve_integer(
     best: tuple[float, Box, RelaxedSolution] | None = None
     threshold = math.inf if cutoff is None else cutoff  # prune boxes whose bound is not below this
 
-    def offer(box: Box) -> None:
+    def offer(box: Box) -> float:
+        """Evaluate the box's point exactly (every n fixed); its value (inf: infeasible)."""
         nonlocal best, threshold
         exact: RelaxedSolution | Open | None = OPEN
         if fixed is not None:  # every n fixed and at most one batch subchain: no solver needed
-            exact = fixed.solve({name: low for name, (low, _) in box.items()}, scale, least_scale=least_scale)
+            exact = fixed.fixed_runs({name: low for name, (low, _) in box.items()}, scale, least_scale=least_scale)
         if isinstance(exact, Open):
             exact = relax(box)
-        if exact is not None and exact.objective < min(threshold, best[0] if best else math.inf):
+        if exact is None:
+            return math.inf
+        if exact.objective < min(threshold, best[0] if best else math.inf):
             best = (exact.objective, box, exact)
             threshold = exact.objective
+        return exact.objective
 
     if start is not None and set(start) == set(model.integral):
         offer({name: (min(max(n, 1), root[name][1]),) * 2 for name, n in start.items()})
@@ -159,13 +169,24 @@ def solve_integer(
             continue
         branch = _most_fractional(solution, model.integral, box, rank)
         if branch is None:  # whole already: evaluate exactly with n fixed
-            offer({name: (r, r) for name, r in _nearest(solution, model.integral, box).items()})
-            continue
-        name, runs = branch
-        low, high = box[name]
-        below = {**box, name: (low, math.floor(runs))}
-        above = {**box, name: (math.ceil(runs), high)}
-        children = [below, above] if runs - math.floor(runs) < 0.5 else [above, below]
+            point = _nearest(solution, model.integral, box)
+            value = offer({name: (r, r) for name, r in point.items()})
+            # Where a rate cap makes some k exceed n the relaxation (k continuous) may be below the
+            # point's value; other points of the box may then do better: split around the point.
+            wide = [name for name in model.integral if box[name][0] < box[name][1]]
+            if value <= solution.objective * (1 + tolerance) or not wide:
+                continue
+            name = max(wide, key=lambda name: (rank[name], box[name][1] - box[name][0]))
+            low, high = box[name]
+            at = point[name]
+            parts = [(low, at - 1), (at, at), (at + 1, high)]
+            children = [{**box, name: part} for part in parts if part[0] <= part[1]]
+        else:
+            name, runs = branch
+            low, high = box[name]
+            below = {**box, name: (low, math.floor(runs))}
+            above = {**box, name: (math.ceil(runs), high)}
+            children = [below, above] if runs - math.floor(runs) < 0.5 else [above, below]
         for child in reversed(children):  # the nearer child is explored first
             relaxed = relax(child)
             if relaxed is not None and relaxed.objective < threshold * (1 - tolerance):

@@ -40,13 +40,17 @@ from enum import Enum
 from typing import Final
 
 from catanc.core.problem import ChainForm, Problem
-from catanc.planning.stage2.base import RelaxedSolution, Stage2Model
+from catanc.planning.stage2.base import RelaxedSolution, Stage2Model, aligned_every, length_candidates
 from catanc.planning.stage2.whole import FEASIBILITY, WholeRuns
 
 Piece = tuple[float, float, float]
 """``(a, b, c)`` of ``a x + b / x + c``."""
 Row = dict[int, float]
 """A piece as weights on the basis pieces (see :func:`_compile`)."""
+
+
+class _OpenError(Exception):
+    """Raised inside a search where the closed form has no unique attained optimum (then: OPEN)."""
 
 
 class Open(Enum):
@@ -179,6 +183,10 @@ class OneBatchRuns:
             _STRUCTURES[model] = structure
         self.structure = structure
 
+    @property
+    def aligned_matters(self) -> bool:
+        return self.whole.aligned_matters
+
     @staticmethod
     def applies(model: Stage2Model, problem: Problem) -> bool:
         """Exactly one shared subchain is batch (more would leave several variables free)."""
@@ -186,29 +194,150 @@ class OneBatchRuns:
 
     def solve(self, runs: dict[str, int], scale: float, *, least_scale: bool) -> RelaxedSolution | Open | None:
         """The relaxation's optimum with these runs (None: they miss the scaled bounds; OPEN: ask the solver)."""
-        pieces = self._pieces(runs)
-        if pieces is None:
+        expressions = self._convex(runs, None, None)
+        if expressions is None:
             return OPEN
-        objective, *bounds = self._expressions(pieces)
-        limits = self.structure.limits
-        x: float | Open | None
-        if least_scale:
-            scaled = [bound.scaled(1.0 / limit) for bound, limit in zip(bounds, limits, strict=True)]
-            x = _least_scale_point(scaled, self.least_fraction)
-        else:
-            allowed = [limit * scale * (1 + MARGIN) for limit in limits]
-            x = _optimum_point(objective, bounds, allowed, self.least_fraction)
+        x = self._choose(expressions, scale, least_scale=least_scale, window=(self.least_fraction, math.inf))
         if x is None or isinstance(x, Open):
             return x
-        return self.whole.solve(runs, scale, least_scale=least_scale, batch={self.batch: x})
+        return self.whole.solve(runs, scale, least_scale=least_scale, batch={self.batch: x}, aligned=False)
 
-    def _pieces(self, runs: dict[str, int]) -> list[Piece] | None:
+    def fixed_runs(self, runs: dict[str, int], scale: float, *, least_scale: bool) -> RelaxedSolution | Open | None:
+        """The exact optimum with these runs (None: they miss the scaled bounds; OPEN: ask the solver).
+
+        Where a shared subchain's ``k`` can exceed its ``n`` (a rate cap or a fixed rate), the
+        relaxation is only a bound: the lengths of the other cores are searched as
+        :meth:`WholeRuns.exact` does, and the batch core's ``T`` (so ``x``) interval by interval,
+        where every ``k`` on it is constant (between ``T = p_min / j`` breakpoints), outward from
+        the relaxed optimum until the relaxation over an interval reaches the best found (the
+        relaxation is convex in ``x``, so these bounds only grow outward).
+        """
+        if not self.whole.aligned_matters:
+            return self.solve(runs, scale, least_scale=least_scale)
+        try:
+            return self.whole.exact(
+                runs,
+                scale,
+                least_scale=least_scale,
+                fixed_cores=frozenset({self.core.core}),
+                leaf=lambda lengths: self._batch_core(runs, scale, lengths, least_scale=least_scale),
+                relaxed_leaf=lambda lengths: self._relaxed(runs, scale, lengths, least_scale=least_scale),
+            )
+        except _OpenError:
+            return OPEN
+
+    def _relaxed(
+        self, runs: dict[str, int], scale: float, lengths: dict[int, float], *, least_scale: bool
+    ) -> float | None:
+        """The relaxation's optimum over ``x`` with the other cores at ``lengths`` (a lower bound)."""
+        expressions = self._convex(runs, lengths, None)
+        if expressions is None:
+            raise _OpenError
+        x = self._choose(expressions, scale, least_scale=least_scale, window=(self.least_fraction, math.inf))
+        if isinstance(x, Open):
+            raise _OpenError
+        return None if x is None else self._value(expressions, x, least_scale=least_scale)
+
+    def _batch_core(
+        self, runs: dict[str, int], scale: float, lengths: dict[int, float], *, least_scale: bool
+    ) -> RelaxedSolution | None:
+        """The best ``x`` with the other cores at ``lengths``, interval by interval of the batch core's ``T``."""
+        relaxed = self._convex(runs, lengths, None)
+        if relaxed is None:
+            raise _OpenError
+        centre = self._choose(relaxed, scale, least_scale=least_scale, window=(self.least_fraction, math.inf))
+        if centre is None:
+            return None
+        if isinstance(centre, Open):
+            raise _OpenError
+        windows = self._windows(runs)
+        first = max(index for index, (low, _, _) in enumerate(windows) if low <= centre)
+        best: RelaxedSolution | None = None
+        for order in (windows[first:], windows[:first][::-1]):  # outward from the relaxed optimum
+            for low, high, every in order:
+                bound_x = self._choose(relaxed, scale, least_scale=least_scale, window=(low, high))
+                if bound_x is None:
+                    break  # the relaxation's feasible x form one interval around ``centre``
+                if isinstance(bound_x, Open):
+                    raise _OpenError
+                if best is not None and self._value(relaxed, bound_x, least_scale=least_scale) >= best.objective:
+                    break
+                exact = self._convex(runs, lengths, every)
+                if exact is None:
+                    raise _OpenError
+                x = self._choose(exact, scale, least_scale=least_scale, window=(low, high))
+                if isinstance(x, Open):
+                    raise _OpenError
+                if x is None:
+                    continue
+                found = self.whole.solve(runs, scale, least_scale=least_scale, batch={self.batch: x}, lengths=lengths)
+                if found is not None and (best is None or found.objective < best.objective):
+                    best = found
+        return best
+
+    def _windows(self, runs: dict[str, int]) -> list[tuple[float, float, dict[str, int]]]:
+        """The batch core's ``x`` intervals on which every ``k`` there is constant: (low, high, k by subchain)."""
+        load, slope = self._load_slope(runs)
+        capped = self.whole.capped(self.core)
+        least = load + slope * self.least_fraction
+        members = [(runs[name], self.whole.by_name[name].min_period_ms) for name in capped]
+        points = length_candidates(least, members)
+        lows = [self.least_fraction] + [(length - load) / slope for length in points[1:]]
+        highs = [*lows[1:], math.inf]
+        return [
+            (low, high, {name: aligned_every(runs[name], length, self.whole.by_name[name].min_period_ms)
+                         for name in capped})
+            for low, high, length in zip(lows, highs, points, strict=True)
+        ]  # fmt: skip
+
+    def _load_slope(self, runs: dict[str, int]) -> tuple[float, float]:
+        """The batch core's ``T = load + slope x``."""
+        fractions = {name: 1.0 / runs[name] for name in self.core.subchains if name != self.batch}
+        fractions[self.batch] = 0.0
+        load = self.whole.length(self.core, fractions)
+        return load, self.whole.by_name[self.batch].compute_ms / self.usable
+
+    def _convex(
+        self, runs: dict[str, int], lengths: dict[int, float] | None, every: dict[str, int] | None
+    ) -> list[_Convex] | None:
+        """The objective and each bound in ``x`` (None: ``T / x`` is constant).
+
+        ``every`` None: the relaxation (``p = max(n T, p_min)``); else the batch core's ``k``
+        (the other cores' follow from their ``T``).
+        """
+        pieces = self._pieces(runs, lengths, every)
+        return None if pieces is None else self._expressions(pieces)
+
+    def _choose(
+        self, expressions: list[_Convex], scale: float, *, least_scale: bool, window: tuple[float, float]
+    ) -> float | Open | None:
+        objective, *bounds = expressions
+        limits = self.structure.limits
+        if least_scale:
+            scaled = [bound.scaled(1.0 / limit) for bound, limit in zip(bounds, limits, strict=True)]
+            return _least_scale_point(scaled, *window)
+        allowed = [limit * scale * (1 + MARGIN) for limit in limits]
+        return _optimum_point(objective, bounds, allowed, *window)
+
+    def _value(self, expressions: list[_Convex], x: float, *, least_scale: bool) -> float:
+        objective, *bounds = expressions
+        if least_scale:
+            limits = self.structure.limits
+            return max([1.0, *(bound.value(x) / limit for bound, limit in zip(bounds, limits, strict=True))])
+        return objective.value(x)
+
+    def _pieces(
+        self, runs: dict[str, int], lengths: dict[int, float] | None = None, every: dict[str, int] | None = None
+    ) -> list[Piece] | None:
         """Every slot's piece for these runs and the problem's compute times (None: T / x is constant)."""
         by_name = self.whole.by_name
         fractions = {name: 1.0 / runs[name] for name in self.whole.shared if name != self.batch}
         fractions[self.batch] = 0.0
-        lengths = {core.core: self.whole.length(core, fractions) for core in self.whole.layout.shared}
-        load = lengths[self.core.core]  # A / u: T without the batch subchain's slice
+        chosen = {
+            core.core: max(self.whole.length(core, fractions), (lengths or {}).get(core.core, 0.0))
+            for core in self.whole.layout.shared
+        }
+        load = chosen[self.core.core]  # A / u: T without the batch subchain's slice
         slope = by_name[self.batch].compute_ms / self.usable  # c_b / u
         if load <= 0:
             return None
@@ -221,11 +350,15 @@ class OneBatchRuns:
                 continue
             if name == self.batch:
                 latency = (0.0, load, slope)
-            elif core == self.core.core:
-                latency = (runs[name] * slope, 0.0, runs[name] * load)
+                basis += [latency, latency]
+                continue
+            n = runs[name]
+            if core == self.core.core:
+                k = n if every is None else every.get(name, n)
+                basis += [(n * slope, 0.0, n * load), (k * slope, 0.0, k * load)]
             else:
-                latency = (0.0, 0.0, runs[name] * lengths[core])
-            basis += [latency, latency]
+                k = n if every is None else aligned_every(n, chosen[core], by_name[name].min_period_ms)
+                basis += [(0.0, 0.0, n * chosen[core]), (0.0, 0.0, k * chosen[core])]
         basis.append((slope, 0.0, load))
         pieces: list[Piece] = []
         for weights, constant in self.structure.slots:
@@ -289,6 +422,10 @@ class _Convex:
             a, b, c = a + top[0], b + top[1], c + top[2]
         return a, b, c
 
+    def value(self, x: float) -> float:
+        a, b, c = self.at(x)
+        return a * x + b / x + c
+
     def edges(self, least: float) -> list[float]:
         """``least``, the breakpoints above it (where two pieces of a maximum cross), then infinity."""
         crossings: set[float] = set()
@@ -348,12 +485,15 @@ def _sublevel(bound: _Convex, limit: float, least: float) -> tuple[float, float]
     return (low, high) if low <= high else None
 
 
-def _optimum_point(objective: _Convex, bounds: list[_Convex], limits: list[float], least: float) -> float | Open | None:
-    """The objective's least ``x`` where every bound holds (None: nowhere; OPEN: not one attained point).
+def _optimum_point(
+    objective: _Convex, bounds: list[_Convex], limits: list[float], least: float, most: float = math.inf
+) -> float | Open | None:
+    """The objective's least ``x`` in ``[least, most]`` where every bound holds (None: nowhere; OPEN: not
+    one attained point).
 
     On an interval a convex function is least at its unconstrained minimiser clipped to it.
     """
-    low, high = least, math.inf
+    low, high = least, most
     for bound, limit in zip(bounds, limits, strict=True):
         allowed = _sublevel(bound, limit, least)
         if allowed is None:
@@ -368,15 +508,16 @@ def _optimum_point(objective: _Convex, bounds: list[_Convex], limits: list[float
     return x
 
 
-def _least_scale_point(bounds: list[_Convex], least: float) -> float | Open:
-    """The ``x`` needing the least scale: ``max(1, max_j bound_j)``, least (bounds divided by their limits).
+def _least_scale_point(bounds: list[_Convex], least: float, most: float = math.inf) -> float | Open:
+    """The ``x`` in ``[least, most]`` needing the least scale: ``max(1, max_j bound_j)``, least (bounds
+    divided by their limits).
 
     On each segment every bound is one piece, and the maximum of convex pieces is least where
     one is stationary, two cross (the constant 1 among them), or at an end.  A least value
     approached at ``x = 0`` or ``x = inf`` is not attained: OPEN.
     """
-    crossings = {x for bound in bounds for x in bound.edges(least)[1:-1]}
-    edges = [least, *sorted(crossings), math.inf]
+    crossings = {x for bound in bounds for x in bound.edges(least)[1:-1] if x < most}
+    edges = [least, *sorted(crossings), most]
     best: tuple[float, float] | None = None
     limits: list[float] = []  # the least scale approached at x = 0 (where no slice bounds x), then at inf
     last: list[Piece] = []
@@ -397,10 +538,10 @@ def _least_scale_point(bounds: list[_Convex], least: float) -> float | Open:
                 if best is None or needed < best[0]:
                     best = (needed, x)
     assert best is not None  # the last segment's sample is a candidate
-    # Where no bound grows with x on the last segment, the least scale may lie at x = inf.
-    limits.append(math.inf if any(a > 0 for a, _, _ in last) else max(c for _, _, c in last))
+    if math.isinf(most):  # where no bound grows with x on the last segment, the least scale may lie at x = inf
+        limits.append(math.inf if any(a > 0 for a, _, _ in last) else max(c for _, _, c in last))
     needed, x = best
-    return OPEN if needed > min(limits) * (1 + FLAT) else x
+    return OPEN if limits and needed > min(limits) * (1 + FLAT) else x
 
 
 def _crossings(first: Piece, second: Piece) -> list[float]:

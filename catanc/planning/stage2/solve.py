@@ -7,8 +7,18 @@
   if any integer plan meets them, else at the smallest scale one can meet.
 
 Every number of the result is re-derived from the schedule itself (``T``
-from the fractions, ``p = max(T/f, p_min)``) and the objective re-evaluated
-by :mod:`catanc.core.metrics`, so a result reports what its schedule would do.
+from the fractions, or the breakpoint ``p_min / k`` the search chose above
+it; ``p = k T`` with ``k = max(n, ceil(p_min / T))`` for a non-batch shared
+subchain, triggered at its slot every ``k`` periods; ``p = max(T/f, p_min)``
+for a batch one) and the objective re-evaluated by :mod:`catanc.core.metrics`, so
+a result reports what its schedule would do.
+
+A fixed rate is a rate cap and a rate floor at once: when the bounds are
+scaled by ``s``, its floor scales as every rate floor does and its cap
+stays, so its period lies in ``[p_fix, s p_fix]`` (never faster than the
+spec says).  Two fixed rates on one core that no common ``T`` serves
+(``T = p_1 / k_1 = p_2 / k_2`` with both slots fitting) are therefore
+planned at the least scale, with a warning naming them (:func:`fixed_rate_conflicts`).
 
 :func:`lower_bound` bounds an allocation's result from below without a
 solver, so the planner can skip allocations that cannot win.
@@ -17,13 +27,14 @@ solver, so the planner can skip allocations that cannot win.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from catanc.core.metrics import Timing, bound_scale, capped_dedicated, objective
 from catanc.core.problem import Problem
 from catanc.errors import InfeasibleError
-from catanc.planning.stage2.base import Layout, Stage2Model, schedule_length
-from catanc.planning.stage2.integer import Effort, IntegerSolution, solve_integer
+from catanc.planning.stage2.base import Layout, Stage2Model, aligned_every, schedule_length
+from catanc.planning.stage2.integer import Effort, IntegerSolution, closed_form, solve_integer
+from catanc.planning.stage2.onebatch import Open
 from catanc.spec.language import Schedule
 
 SCALE_PRECISION = 1e-6
@@ -42,6 +53,7 @@ class Stage2Result:
     objective: float  # re-evaluated by the analytic model (ms)
     relaxations: int  # GP solves it took
     gap: float = 0.0  # proven relative distance to this layout's optimum (0 unless the search was capped)
+    every: dict[str, int] = field(default_factory=dict)  # k per non-batch shared subchain: p = k T
 
 
 def dedicated_timings(problem: Problem, layout: Layout) -> tuple[dict[str, Timing], dict[str, int]]:
@@ -232,6 +244,7 @@ def solve_layout(
     timings, threads = dedicated_timings(problem, layout)
     fractions: dict[str, float] = {}
     runs: dict[str, int] = {}
+    every: dict[str, int] = {}
     lengths: dict[int, float] = {}
     relaxations = 0
     search_gap = 0.0
@@ -254,11 +267,19 @@ def solve_layout(
             fractions[name] = 1.0 / n  # exactly whole runs, not the solver's float
         by_name = {sub.name: sub for sub in problem.subchains}
         for core in layout.shared:
-            lengths[core.core] = schedule_length(core, fractions, by_name, schedule)
+            length = schedule_length(core, fractions, by_name, schedule)
+            if any(name in runs and by_name[name].min_period_ms > 0 for name in core.subchains):
+                length = max(length, solution.solution.core_period_ms[core.core])  # a breakpoint p_min / k
+            lengths[core.core] = length
             for name in core.subchains:
-                latency = lengths[core.core] / fractions[name]
-                timings[name] = Timing(max(latency, by_name[name].min_period_ms), latency)
+                sub = by_name[name]
                 threads[name] = 1
+                if name not in runs:  # batch: an average period, on its own clock
+                    latency = length / fractions[name]
+                    timings[name] = Timing(max(latency, sub.min_period_ms), latency)
+                    continue
+                every[name] = aligned_every(runs[name], length, sub.min_period_ms)
+                timings[name] = Timing(every[name] * length, runs[name] * length)
     result = Stage2Result(
         layout=layout,
         timings=timings,
@@ -270,10 +291,39 @@ def solve_layout(
         objective=objective(problem, timings),
         relaxations=relaxations,
         gap=search_gap,
+        every=every,
     )
     if beat is not None and not better(result, beat):
         return None
     return result
+
+
+def fixed_rate_conflicts(problem: Problem, result: Stage2Result) -> list[str]:
+    """A warning per shared core where a fixed rate is not met: the core's fixed rates, as planned.
+
+    A shared core's triggers are aligned with its schedule period, so fixed rates on one core need
+    a common ``T = p_1 / k_1 = p_2 / k_2`` that the slots fit in; where there is none, the plan
+    meets them only with the bounds scaled (a fixed rate's floor scales, its cap does not).
+    """
+    notes = []
+    for core in result.layout.shared:
+        fixed = [
+            problem.subchain(name)
+            for name in core.subchains
+            if name in result.runs and problem.subchain(name).min_period_ms == problem.subchain(name).max_period_ms
+        ]
+        missed = [sub for sub in fixed if result.timings[sub.name].period_ms > sub.min_period_ms * (1 + 1e-6)]
+        if not missed:
+            continue
+        planned = {sub.name: 1000.0 / result.timings[sub.name].period_ms for sub in fixed}
+        rates = ", ".join(
+            f"{sub.name} {1000.0 / sub.min_period_ms:.4g} Hz (planned {planned[sub.name]:.4g})" for sub in fixed
+        )
+        what = "cannot share one schedule period" if len(fixed) > 1 else "cannot be met"
+        notes.append(
+            f"fixed rates on core {core.core} {what} (T = period / k for each, with every slot fitting): {rates}"
+        )
+    return notes
 
 
 def better(result: Stage2Result, than: tuple[float, float]) -> bool:
@@ -321,6 +371,15 @@ def _integer_plan(
 
 
 def _fixed_plan(model: Stage2Model, runs: dict[str, int], scale: float) -> IntegerSolution | None:
+    """The plan with these runs: the model's relaxation, or the exact closed form where some ``k`` can exceed
+    ``n`` (the relaxation then leaves ``k`` continuous: a bound, not a plan)."""
+    closed = closed_form(model, model.problem)
+    if closed is not None and closed.aligned_matters:
+        found = closed.fixed_runs(runs, scale, least_scale=False)
+        if found is None:
+            return None
+        if not isinstance(found, Open):
+            return IntegerSolution(dict(runs), found, found.objective, root_bound=found.objective, nodes=0)
     model.set_box({name: (n, n) for name, n in runs.items()})
     solution = model.solve(scale)
     if solution is None:

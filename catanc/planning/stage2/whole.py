@@ -1,22 +1,32 @@
 """Stage II with every ``n_i = 1/f_i`` fixed, in closed form (no batch subchain on a shared core).
 
-With every ``f`` fixed, each term and bound only grows with the schedule
-length ``T``, so the relaxation's optimum takes the shortest ``T`` that fits
-the slices, switches and slack, then ``p = max(T n, p_min)`` and latency
-``T n``: what the GP's constraints say, solved exactly.  That gives
+A shared non-batch subchain's head is triggered at its slot every ``k_i``
+periods (catan-model.md section 4): latency ``n_i T``, period ``k_i T`` with
+``k_i = max(n_i, ceil(p_min / T))`` (:func:`~catanc.planning.stage2.base.aligned_every`:
+a longer ``k`` only lengthens periods).  With every ``n`` fixed, each term
+and bound grows with each core's ``T`` except where some ``k_i`` drops, at
+``T = p_min_i / j``; so the optimum takes, per core, the shortest ``T`` that
+fits the slices, switches and slack, or one of those breakpoints above it
+(:func:`~catanc.planning.stage2.base.length_candidates`).  The relaxation (the GP's
+``p >= max(T n, p_min)``, ``k`` continuous) is a lower bound that only grows
+with ``T`` too, so the candidates are tried in ascending order and the
+search stops where the relaxed value reaches the best found.  That gives
 
 - :class:`WholeRuns.solve`: one integer vector, evaluated without a solver
   (the leaves of the branch and bound);
 - :class:`WholeRuns.best`: every integer vector of a small box at once, as
   numpy arrays: the exact integer optimum with no solver at all, used when
   the box holds at most :data:`ENUMERATE_UP_TO` vectors (VR on one core: 33).
+  Those arrays are the relaxation; with rate caps on shared subchains the
+  vectors are then evaluated exactly in order of their relaxed value until
+  that reaches the best exact value.
 """
 
 from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,7 +34,14 @@ import numpy.typing as npt
 
 from catanc.core.metrics import Timing, bound_scale, capped_dedicated, objective
 from catanc.core.problem import Problem
-from catanc.planning.stage2.base import RelaxedSolution, SharedCore, Stage2Model, schedule_length
+from catanc.planning.stage2.base import (
+    RelaxedSolution,
+    SharedCore,
+    Stage2Model,
+    aligned_every,
+    length_candidates,
+    schedule_length,
+)
 
 ENUMERATE_UP_TO = 4096
 """Evaluate every integer vector at once when a box holds at most this many (a few hundred µs)."""
@@ -66,35 +83,128 @@ class WholeRuns:
         return schedule_length(core, fractions, self.by_name, self.schedule)
 
     def solve(
-        self, runs: dict[str, int], scale: float, *, least_scale: bool, batch: Mapping[str, float] | None = None
+        self,
+        runs: dict[str, int],
+        scale: float,
+        *,
+        least_scale: bool,
+        batch: Mapping[str, float] | None = None,
+        lengths: Mapping[int, float] | None = None,
+        aligned: bool = True,
     ) -> RelaxedSolution | None:
-        """The relaxation's optimum with these runs (None: they miss the scaled bounds).
+        """The plan with these runs at these schedule lengths (None: it misses the scaled bounds).
 
         ``batch`` gives each batch subchain's fraction, chosen by the caller
         (:mod:`catanc.planning.stage2.onebatch`); without batch subchains it is empty.
+        ``lengths`` gives some cores' ``T`` (at least what fits; the rest: what fits).
+        ``aligned=False`` scores the relaxation instead (``p = max(n T, p_min)``).
         """
         batch = batch or {}
         timings = dict(self.dedicated)
-        lengths: dict[int, float] = {}
+        chosen: dict[int, float] = {}
         fractions = {name: batch[name] if name in batch else 1.0 / runs[name] for name in self.shared}
         for core in self.layout.shared:
-            lengths[core.core] = self.length(core, fractions)
+            fit = self.length(core, fractions)
+            length = max(fit, lengths[core.core]) if lengths is not None and core.core in lengths else fit
+            chosen[core.core] = length
             for name in core.subchains:
-                latency = lengths[core.core] / batch[name] if name in batch else lengths[core.core] * runs[name]
-                timings[name] = Timing(max(latency, self.by_name[name].min_period_ms), latency)
+                sub = self.by_name[name]
+                if name in batch:
+                    latency = length / batch[name]
+                    timings[name] = Timing(max(latency, sub.min_period_ms), latency)
+                    continue
+                latency = length * runs[name]
+                if aligned:
+                    period = aligned_every(runs[name], length, sub.min_period_ms) * length
+                else:
+                    period = max(latency, sub.min_period_ms)
+                timings[name] = Timing(period, latency)
         needed = bound_scale(self.problem, timings)
         if least_scale:
             value = max(1.0, needed)
         elif needed > scale * (1 + FEASIBILITY):
             return None
         else:
-            value = objective(self.problem, timings) if self.problem.weighted else math.fsum(lengths.values())
+            value = objective(self.problem, timings) if self.problem.weighted else math.fsum(chosen.values())
         return RelaxedSolution(
-            core_period_ms=lengths,
+            core_period_ms=chosen,
             fraction=fractions,
             period_ms={name: timings[name].period_ms for name in self.shared},
             objective=value,
         )
+
+    def fixed_runs(self, runs: dict[str, int], scale: float, *, least_scale: bool) -> RelaxedSolution | None:
+        """The exact optimum with these runs: over the lengths where some ``k`` can exceed ``n``."""
+        if self.aligned_matters:
+            return self.exact(runs, scale, least_scale=least_scale)
+        return self.solve(runs, scale, least_scale=least_scale)
+
+    def capped(self, core: SharedCore) -> list[str]:
+        """The core's non-batch subchains with a rate cap or a fixed rate (their ``k`` may exceed ``n``)."""
+        subs = [self.by_name[name] for name in core.subchains]
+        return [sub.name for sub in subs if not sub.batch and sub.min_period_ms > 0]
+
+    @property
+    def aligned_matters(self) -> bool:
+        """Whether some shared ``k`` can exceed its ``n``: only then does the relaxation differ."""
+        return any(self.capped(core) for core in self.layout.shared)
+
+    def exact(
+        self,
+        runs: dict[str, int],
+        scale: float,
+        *,
+        least_scale: bool,
+        batch: Mapping[str, float] | None = None,
+        lengths: Mapping[int, float] | None = None,
+        fixed_cores: frozenset[int] = frozenset(),
+        leaf: Callable[[dict[int, float]], RelaxedSolution | None] | None = None,
+        relaxed_leaf: Callable[[dict[int, float]], float | None] | None = None,
+    ) -> RelaxedSolution | None:
+        """The best plan with these runs over every core's ``T`` (the module's search); None: infeasible.
+
+        Cores in ``fixed_cores`` keep the ``T`` that fits (a batch core's, chosen by the caller);
+        ``leaf`` and ``relaxed_leaf`` score a choice of lengths exactly and relaxed (default: this
+        module's :meth:`solve`; the relaxed one a lower bound that grows with every ``T``).
+        """
+        if leaf is None:
+
+            def leaf(chosen: dict[int, float]) -> RelaxedSolution | None:
+                return self.solve(runs, scale, least_scale=least_scale, batch=batch, lengths=chosen)
+
+        if relaxed_leaf is None:
+
+            def relaxed_leaf(chosen: dict[int, float]) -> float | None:
+                found = self.solve(runs, scale, least_scale=least_scale, batch=batch, lengths=chosen, aligned=False)
+                return None if found is None else found.objective
+
+        fractions = {name: 1.0 / runs[name] for name in self.shared if name in runs}  # a searched core's
+        searched = [core for core in self.layout.shared if core.core not in fixed_cores and self.capped(core)]
+        options = [
+            length_candidates(
+                self.length(core, fractions),
+                [(runs[name], self.by_name[name].min_period_ms) for name in self.capped(core)],
+            )
+            for core in searched
+        ]
+        best: RelaxedSolution | None = None
+
+        def visit(level: int, chosen: dict[int, float]) -> None:
+            nonlocal best
+            if level == len(searched):
+                found = leaf(chosen)
+                if found is not None and (best is None or found.objective < best.objective):
+                    best = found
+                return
+            for length in options[level]:
+                trial = {**chosen, searched[level].core: length}
+                bound = relaxed_leaf(trial)  # the cores not chosen yet at the least T: a lower bound
+                if bound is None or (best is not None and bound >= best.objective):
+                    break  # and every longer T of this core: the relaxation only grows with it
+                visit(level + 1, trial)
+
+        visit(0, dict(lengths or {}))
+        return best
 
     def best(self, box: dict[str, tuple[int, int]], scale: float, *, least_scale: bool) -> Enumerated | None:
         """The best integer vector in ``box`` by evaluating them all at once; None if none is feasible.
@@ -145,6 +255,8 @@ class WholeRuns:
             else:
                 value = sum(lengths, np.zeros(count))
             value = np.where(needed <= scale * (1 + FEASIBILITY), value, np.inf)
+        if self.aligned_matters:  # ``value`` is the relaxation: evaluate exactly, the most promising first
+            return self._best_aligned(grid, value, scale, least_scale=least_scale)
         chosen = int(np.argmin(value))
         if not math.isfinite(float(value[chosen])):
             return None
@@ -153,6 +265,19 @@ class WholeRuns:
         if solution is None:  # pragma: no cover - the vector was feasible above
             return None
         return Enumerated(runs, solution, len(grid))
+
+    def _best_aligned(self, grid: Floats, relaxed: Floats, scale: float, *, least_scale: bool) -> Enumerated | None:
+        """The best vector by :meth:`exact`, tried in order of its relaxed value until that reaches the best."""
+        best: tuple[float, int, dict[str, int], RelaxedSolution] | None = None
+        for row in np.argsort(relaxed, kind="stable"):
+            bound = float(relaxed[row])
+            if not math.isfinite(bound) or (best is not None and bound > best[0]):
+                break
+            runs = {name: int(grid[row, index]) for index, name in enumerate(self.shared)}
+            found = self.exact(runs, scale, least_scale=least_scale)
+            if found is not None and (best is None or (found.objective, int(row)) < (best[0], best[1])):
+                best = (found.objective, int(row), runs, found)
+        return None if best is None else Enumerated(best[2], best[3], len(grid))
 
     @staticmethod
     def size(box: dict[str, tuple[int, int]]) -> int:
