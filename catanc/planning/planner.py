@@ -20,12 +20,14 @@ would do.  :class:`catanc.planning.replan.Replanner` re-plans with new compute t
 from __future__ import annotations
 
 import itertools
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Literal
 
 from catanc.core.metrics import chain_metrics_of
 from catanc.core.problem import Problem, build_problem
 from catanc.errors import InfeasibleError, UsageError
+from catanc.planning.order import data_flow_order, flow_weights
 from catanc.planning.stage1 import Allocation, Stage1Result, allocate, next_best
 from catanc.planning.stage1.exhaustive import every_allocation
 from catanc.planning.stage2.base import Layout, SharedCore, Stage2Model
@@ -312,7 +314,8 @@ def _could_beat(bound: tuple[float, float], best: Stage2Result) -> bool:
 
 
 def ordered_layout(layout: Layout, schedule: Schedule, importance: dict[str, float], problem: Problem) -> Layout:
-    """Each shared core's subchains in schedule order: the spec's ``order``, then by weight."""
+    """Each shared core's subchains in the spec's ``order``, then by weight (the data flow's order, chosen
+    once the slices are known, starts from this one: :func:`slot_order`)."""
     position = {sub.name: index for index, sub in enumerate(problem.subchains)}
     given = {name: index for index, name in enumerate(schedule.order or [])}
 
@@ -323,6 +326,16 @@ def ordered_layout(layout: Layout, schedule: Schedule, importance: dict[str, flo
 
     shared = tuple(SharedCore(core.core, tuple(sorted(core.subchains, key=key))) for core in layout.shared)
     return Layout(layout.dedicated, shared)
+
+
+def slot_order(core: SharedCore, result: Stage2Result, problem: Problem, schedule: Schedule) -> tuple[str, ...]:
+    """The order of the core's slots: the spec's where it names them, else the data flow's with these slices."""
+    given = set(schedule.order or [])
+    if given & set(core.subchains):
+        return core.subchains
+    slices = {name: result.fractions[name] * problem.subchain(name).compute_ms for name in core.subchains}
+    weights = flow_weights(problem, core.subchains)
+    return data_flow_order(core.subchains, slices, weights, schedule.switch_ms, result.lengths[core.core])
 
 
 def priorities(problem: Problem, schedule: Schedule, importance: dict[str, float]) -> dict[str, int]:
@@ -344,8 +357,14 @@ def assemble(
     first: Stage1Result,
     comparison: Comparison,
     importance: dict[str, float],
+    orders: Mapping[int, tuple[str, ...]] | None = None,
 ) -> Plan:
-    """The plan of one Stage II result: per subchain, per shared core, per chain, and warnings."""
+    """The plan of one Stage II result: per subchain, per shared core, per chain, and warnings.
+
+    ``orders`` keeps each core's slot order where it holds the same subchains (a re-solve keeps
+    the order its plan was made with: :func:`slot_order` enumerates orders).
+    """
+    kept = dict(orders or {})
     warnings = []
     if not first.optimal:  # Stage I's own bound scale is an estimate: the plan's below is what counts
         gap = "unknown" if first.gap is None else f"{first.gap:.2%}"
@@ -390,7 +409,14 @@ def assemble(
         constraint_scale=result.scale,
         subchains=subchains,
         shared_cores=tuple(
-            CorePlan(core.core, result.lengths[core.core], core.subchains) for core in result.layout.shared
+            CorePlan(
+                core.core,
+                result.lengths[core.core],
+                kept[core.core]
+                if sorted(kept.get(core.core, ())) == sorted(core.subchains)
+                else slot_order(core, result, problem, schedule),
+            )
+            for core in result.layout.shared
         ),
         chains=tuple(chains),
         stage1=first,

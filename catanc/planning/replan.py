@@ -117,6 +117,7 @@ class Replanner:
                 allocations=1, planned=1, complete=True, two_stage_objective=None, two_stage_scale=None
             ),
             importance=self._importance,
+            orders={core.core: core.order for core in current.shared_cores},
         )
         return self.plan
 
