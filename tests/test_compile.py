@@ -13,6 +13,7 @@ import hashlib
 import json
 import math
 import os
+import py_compile
 import re
 import shlex
 import subprocess
@@ -418,6 +419,24 @@ def test_compile_then_check_is_current(robot: Path) -> None:
     check = runner.invoke(app, ["compile", "robot.yaml", "-k", "2", "--check"])
     assert check.exit_code == ExitCode.OK, check.output
     assert "out/robot/cores-2: up to date" in check.stdout
+
+
+def test_the_bytecode_cache_python_writes_beside_launch_py_is_not_a_change(robot: Path) -> None:
+    assert runner.invoke(app, ["compile", "robot.yaml", "-k", "2"]).exit_code == ExitCode.OK
+    folder = Path("out/robot/cores-2")
+    # What ros2 launch's SourceFileLoader leaves: __pycache__/launch.cpython-XY.pyc, written by Python itself.
+    written = py_compile.compile(str(folder / "launch.py"), doraise=True)
+    assert written is not None
+    cached = Path(written)
+    assert cached.parent == folder / "__pycache__"
+    check = runner.invoke(app, ["compile", "robot.yaml", "-k", "2", "--check"])
+    assert check.exit_code == ExitCode.OK, check.output
+    assert "out/robot/cores-2: up to date" in check.stdout
+    robot.write_text(DEPLOYED.replace("compute_ms: 30", "compute_ms: 35"))
+    result = runner.invoke(app, ["compile", "robot.yaml", "-k", "2"])
+    assert result.exit_code == ExitCode.OK, result.output
+    assert "updated: changed PLAN.md" in result.stdout
+    assert sorted(p.name for p in folder.iterdir()) == sorted(FILES)  # the stale cache went with the old folder
 
 
 def test_check_reports_drift_and_never_writes(robot: Path) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import py_compile
 import stat
 from pathlib import Path
 
@@ -192,3 +193,32 @@ def test_compare_never_writes(tmp_path: Path) -> None:
     with pytest.raises(NotCompiledError) as caught:
         ensure_comparable(result)
     assert caught.value.exit_code == ExitCode.NOT_COMPILED
+
+
+def test_a_pycache_folder_is_neither_compared_nor_kept(tmp_path: Path) -> None:
+    folder = tmp_path / "cores-1"
+    write(folder, FILES)
+    written = py_compile.compile(str(folder / "launch.py"), doraise=True)
+    assert written is not None
+    cached = Path(written)  # Python's own bytecode cache
+    assert cached.parent.name == "__pycache__"
+    comparison = compare(folder, FILES)
+    assert comparison.current
+    assert "__pycache__" not in comparison.statuses
+    write(folder, {**FILES, "PLAN.md": "# other\n"})
+    assert sorted(tree(folder)) == sorted(FILES)
+    assert leftovers(tmp_path, folder) == []
+
+
+@pytest.mark.parametrize(("name", "make"), [("__pycache__", "file"), ("__pycache__x", "folder"), ("cache", "folder")])
+def test_only_a_folder_named_pycache_is_ignored(tmp_path: Path, name: str, make: str) -> None:
+    folder = tmp_path / "cores-1"
+    write(folder, FILES)
+    if make == "file":
+        (folder / name).write_text("mine\n")
+    else:
+        (folder / name).mkdir()
+    assert compare(folder, FILES).statuses[name] is Status.EXTRA
+    with pytest.raises(OutputBlockedError, match=name):
+        write(folder, {**FILES, "PLAN.md": "# other\n"})
+    assert (folder / name).exists()

@@ -6,7 +6,9 @@ the target, which then replaces the target in one ``rename`` (an atomic
 exchange with ``renameat2`` where the file system has it), so an
 interrupted compile leaves the old folder or the new one, never a mix.  A
 folder holding anything catanc did not write is never replaced: a user's
-file is never lost.
+file is never lost.  The one exception is a ``__pycache__`` folder, which
+Python writes next to ``launch.py`` when ``ros2 launch`` imports it: a cache,
+neither compared nor kept.
 """
 
 from __future__ import annotations
@@ -26,6 +28,9 @@ from pathlib import Path
 
 from catanc.artifacts.emit import EXECUTABLE
 from catanc.errors import NotCompiledError, OutputBlockedError, OutputError, UsageError
+
+CACHE_FOLDERS = frozenset({"__pycache__"})
+"""Folders Python writes beside launch.py: never a change for ``--check``, dropped when the folder is replaced."""
 
 
 class Status(Enum):
@@ -80,6 +85,8 @@ def _read_folder(folder: Path) -> dict[str, tuple[bytes, bool]] | None:
     try:
         for entry in sorted(os.scandir(folder), key=lambda e: e.name):
             mode = entry.stat(follow_symlinks=False).st_mode
+            if entry.name in CACHE_FOLDERS and stat.S_ISDIR(mode):
+                continue  # a file or link of that name is still someone's, reported as extra
             if not stat.S_ISREG(mode):
                 found[entry.name] = (b"", False)  # reported as extra; never read
                 continue
