@@ -37,6 +37,7 @@ class ExitCode(IntEnum):
     OUTPUT = 5  # output folder cannot be written or read
     OUTPUT_BLOCKED = 6  # a file, link or someone else's files where the output folder goes
     NOT_COMPILED = 7  # `compile --check` found no output folder
+    MACHINE = 8  # `catanc doctor`: this machine lacks something the plan needs
     INTERNAL = 70  # a bug in catanc (EX_SOFTWARE)
 
 

@@ -446,6 +446,34 @@ def run_(
     _stdout().print(f"log: {log_path}", markup=False)
 
 
+@app.command()
+@_reporting
+def doctor(
+    table_path: Annotated[
+        Path | None,
+        typer.Argument(
+            metavar="[RUNTIME_JSON]",
+            help="A runtime table: check for its plan (default: what `catanc run` needs for any plan).",
+            show_default=False,
+        ),
+    ] = None,
+) -> None:
+    """Check this machine for what a plan needs (privileges, real-time budgets, CPUs, tools); say how to fix each."""
+    from catanc.doctor import ENFORCER_ONLY, Verdict, diagnose, needs_of, read_machine, render
+    from catanc.runtime.table import load_table
+
+    if table_path is None:
+        needs, title = ENFORCER_ONLY, "catanc doctor: what `catanc run` needs for any plan"
+    else:
+        table = load_table(table_path)
+        needs = needs_of(table)
+        title = f"catanc doctor: {table_path} ({table.app}, {table.cores} core{'s' if table.cores > 1 else ''})"
+    findings = diagnose(needs, read_machine(needs))
+    sys.stdout.write(render(findings, title))
+    if any(finding.verdict is Verdict.FAIL for finding in findings):
+        raise typer.Exit(int(ExitCode.MACHINE))
+
+
 @app.command(name="set-cores")
 @_reporting
 def set_cores_(
