@@ -87,6 +87,7 @@ REQUIRED_CATEGORIES = [
     "unknown_node_constraint",
     "unknown_node_baseline",
     "unknown_node_deploy",
+    "deploy_callback_group",
     "cycle",
     "cycle_self_loop",
     "subchain_not_path",

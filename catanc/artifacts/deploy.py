@@ -23,7 +23,7 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from catanc.core.priorities import resting_fifo
+from catanc.core.priorities import resting_fifo, static_policy
 from catanc.errors import FieldPath
 from catanc.spec.language import Deploy, Spec
 
@@ -35,6 +35,13 @@ RESERVED_PREFIX = "catan"  # params.yaml's own parameters live under ``catan.``
 ROS_NAME_TOKEN = r"[A-Za-z_][A-Za-z0-9_]*"
 ROS_NODE_PATTERN = re.compile(rf"/?{ROS_NAME_TOKEN}(/{ROS_NAME_TOKEN})*")
 PARAMETER_PATTERN = re.compile(rf"{ROS_NAME_TOKEN}(\.{ROS_NAME_TOKEN})*")
+
+PERIOD_NS = "{period_ns}"
+"""In a callback group ID, the timer period the plan gives the node, in nanoseconds."""
+CALLBACK_PATTERN = re.compile(
+    rf"(Subscription|Service|Client)\((/{ROS_NAME_TOKEN})+\)|Timer\(([0-9]+|\{{period_ns\}})\)|Waitable"
+)
+"""One callback of a cie_thread_configurator callback group ID (its README: "CallbackGroup ID format")."""
 
 ParamValue = bool | int | float | str | list[int] | list[float] | list[str]
 ParamTree = dict[str, Any]  # nested: {"local_map": {"update_frequency": 135.0}}
@@ -103,6 +110,7 @@ def deploy_problems(spec: Spec) -> Iterator[tuple[FieldPath, str]]:
                 split_command(entry.command)
             except ValueError as exc:
                 yield (*where, "command"), f"cannot split the command into arguments: {exc}"
+        yield from _callback_group_problems(spec, name, entry)
         if (entry.package is None) != (entry.executable is None):
             missing = "executable" if entry.executable is None else "package"
             yield where, f"a ROS process needs both package and executable: {missing} is missing"
@@ -136,6 +144,42 @@ def deploy_problems(spec: Spec) -> Iterator[tuple[FieldPath, str]]:
             elif node is not None and not node.scheduled and node.rate_hz is None:
                 yield path, f"node {name!r} is unscheduled and has no rate_hz: there is no rate to set"
             taken[param] = name
+
+
+def _callback_group_problems(spec: Spec, name: str, entry: Deploy) -> Iterator[tuple[FieldPath, str]]:
+    group = entry.callback_group
+    if group is None:
+        return
+    path: FieldPath = ("deploy", name, "callback_group")
+    node, *callbacks = group.split("@")
+    if not callbacks or not node.startswith("/") or not ROS_NODE_PATTERN.fullmatch(node):
+        yield (
+            path,
+            f"{group!r} is not a callback group ID: the node's full name, then each callback after '@' "
+            "(e.g. /local_mapper@Timer({period_ns})@Subscription(/scan))",
+        )
+        return
+    bad = next((callback for callback in callbacks if not CALLBACK_PATTERN.fullmatch(callback)), None)
+    if bad is not None:
+        yield (
+            path,
+            f"{bad!r} is not a callback: Subscription(/topic), Service(/name), Client(/name), "
+            f"Timer(<period in ns>) or Timer({PERIOD_NS}), or Waitable",
+        )
+        return
+    if entry.ros_node is None:
+        yield path, "callback_group needs ros_node (the ROS node whose thread it is)"
+        return
+    if node != qualified(entry.ros_node):
+        yield path, f"the callback group is {node}'s, but ros_node is {qualified(entry.ros_node)}"
+    spec_node = spec.nodes.get(name)
+    own_clock = spec_node is not None and not spec_node.scheduled and spec_node.rate_hz is not None
+    if PERIOD_NS in group and entry.rate_param is None and not own_clock:
+        yield (
+            path,
+            f"{PERIOD_NS} is the timer period the plan sets through rate_param, and node {name!r} has none "
+            "(nor a clock of its own, rate_hz)",
+        )
 
 
 def _clash(param: str, taken: dict[str, str]) -> str | None:
@@ -294,3 +338,74 @@ def nest(flat: dict[str, ParamValue]) -> ParamTree:
             raise ValueError(f"parameter {name!r} is also a group of parameters")
         level[leaf] = flat[name]
     return tree
+
+
+# --------------------------------------------------------------------------- callback groups (cie_thread_configurator)
+
+
+@dataclass(frozen=True)
+class CallbackGroup:
+    """One thread of a callback-isolated executor, as the plan places it without the enforcer."""
+
+    id: str  # with the timer period filled in
+    nodes: tuple[str, ...]  # DAG nodes whose callbacks it runs, in spec order
+    cpus: tuple[int, ...]
+    policy: str  # SCHED_FIFO or SCHED_OTHER (catanc.core.priorities.static_policy)
+    priority: int  # SCHED_FIFO priority; 0 under SCHED_OTHER
+
+
+def callback_groups(spec: Spec, plan: Plan) -> tuple[CallbackGroup, ...]:
+    """The callback groups the spec names, sorted by ID; the spec must have passed :func:`deploy_problems`.
+
+    Nodes sharing one ID share one thread: it gets the union of their CPUs and the strongest of
+    their policies (a node on its own clock over a dedicated subchain over a shared core).
+    """
+    membership = {node: sub.name for sub in plan.subchains.values() for node in sub.nodes}
+    grouped: dict[str, list[str]] = {}
+    for name in spec.nodes:
+        entry = spec.deploy.get(name)
+        if entry is None or entry.callback_group is None:
+            continue
+        group = entry.callback_group
+        if PERIOD_NS in group:
+            period_ns = timer_period_ns(spec, plan, name, membership)
+            assert period_ns is not None  # deploy_problems: rate_param or a clock of its own
+            group = group.replace(PERIOD_NS, str(period_ns))
+        grouped.setdefault(group, []).append(name)
+    found = []
+    for group_id in sorted(grouped):
+        nodes = tuple(grouped[group_id])
+        cpus: set[int] = set()
+        policies = []
+        for node in nodes:
+            node_cpus, _ = _placement(plan, node, membership)
+            cpus.update(node_cpus)
+            shared = plan.subchains[membership[node]].shared if node in membership else None
+            policies.append(static_policy(shared))
+        policy, priority = max(policies, key=lambda pair: (pair[0] == "SCHED_FIFO", pair[1]))
+        found.append(CallbackGroup(group_id, nodes, tuple(sorted(cpus)), policy, priority))
+    return tuple(found)
+
+
+def timer_period_ns(spec: Spec, plan: Plan, node: str, membership: dict[str, str]) -> int | None:
+    """The period, in whole nanoseconds, of the timer a node makes from its rate parameter (or its own rate_hz).
+
+    As rclcpp code does it in double precision: ``1.0 / rate`` seconds for a rate in hertz, the
+    period as given in seconds or milliseconds, truncated to nanoseconds
+    (``std::chrono::duration_cast``, ``rclcpp::Duration::from_seconds``).
+    """
+    entry = spec.deploy[node]
+    period = node_period_ms(spec, plan, node, membership)
+    if entry.rate_param is not None and period is not None:
+        return timer_ns(rate_value(period, entry.rate_unit), entry.rate_unit)
+    rate = spec.nodes[node].rate_hz
+    return timer_ns(rate, "hz") if rate is not None else None
+
+
+def timer_ns(value: float, unit: str) -> int:
+    """A timer's period in whole nanoseconds from a rate in hertz or a period in seconds or milliseconds."""
+    if unit == "hz":
+        return int((1.0 / value) * 1e9)
+    if unit == "s":
+        return int(value * 1e9)
+    return int(value * 1e6)

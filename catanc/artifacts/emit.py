@@ -1,7 +1,8 @@
 """The emit stage: a plan as the files a team deploys and commits.
 
 :func:`emit` is pure: ``{relative path: text}`` for the five files of
-interfaces.md's output folder.  Writing, dry-running and comparing them is
+interfaces.md's output folder, and ``cie_thread_configurator.yaml`` where the
+spec maps nodes to ROS 2 callback groups.  Writing, dry-running and comparing them is
 :mod:`catanc.artifacts.output`'s job.  Every file is deterministic: sorted names,
 the table's fixed float precision, ``\\n`` line endings, a final newline,
 and a header naming the catanc version, the command that regenerates it
@@ -21,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 import jinja2
 import yaml
 
-from catanc.artifacts.deploy import Process, processes
+from catanc.artifacts.deploy import Process, callback_groups, processes
 from catanc.artifacts.runtime_table import plan_payload
 from catanc.errors import ExitCode
 from catanc.explain.analysis import explain_plan, render_markdown
@@ -36,7 +37,11 @@ RUNTIME_FORMAT = "catanc-runtime/1"
 """``runtime.json``'s ``format``: the enforcer refuses a table of another format."""
 
 FILES = ("PLAN.md", "launch.py", "launch.sh", "params.yaml", "runtime.json")
-"""The output folder holds exactly these (interfaces.md)."""
+"""The output folder holds exactly these (interfaces.md), and THREAD_CONFIGURATOR where the spec asks for it."""
+THREAD_CONFIGURATOR = "cie_thread_configurator.yaml"
+"""callback_isolated_executor's thread settings, written when the spec names callback groups."""
+GENERATED = frozenset({*FILES, THREAD_CONFIGURATOR})
+"""Every name catanc writes into an output folder: one it wrote before is never someone else's file."""
 
 EXECUTABLE = frozenset({"launch.sh"})
 
@@ -90,6 +95,9 @@ def emit(
         ),
         "PLAN.md": _render("PLAN.md.j2", context, report=render_markdown(report).rstrip()),
     }
+    groups = callback_groups(spec, plan)
+    if groups:
+        files[THREAD_CONFIGURATOR] = _render(f"{THREAD_CONFIGURATOR}.j2", context, groups=groups)
     return dict(sorted(files.items()))
 
 

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
 
-from catanc.artifacts.emit import EXECUTABLE
+from catanc.artifacts.emit import EXECUTABLE, GENERATED
 from catanc.errors import NotCompiledError, OutputBlockedError, OutputError, UsageError
 
 CACHE_FOLDERS = frozenset({"__pycache__"})
@@ -144,7 +144,7 @@ def _diff(path: Path, old: str, new: str, existed: bool) -> str:
 def write(folder: Path, files: Mapping[str, str]) -> Comparison:
     """Make ``folder`` hold exactly ``files``, atomically; returns what changed (nothing written if nothing did)."""
     before = compare(folder, files)
-    foreign = before.of(Status.EXTRA)
+    foreign = [name for name in before.of(Status.EXTRA) if name not in GENERATED]
     if foreign:
         raise OutputBlockedError(
             f"{folder}: holds files catanc did not write ({', '.join(foreign)}); the output folder is replaced as "

@@ -562,6 +562,12 @@ class Deploy(_Model):
     package: str | None = Field(default=None, description="ROS 2 package (for launch.py).")
     executable: str | None = Field(default=None, description="ROS 2 executable (for launch.py).")
     command: str | None = Field(default=None, description="Shell-free command line that starts the process.")
+    callback_group: str | None = Field(
+        default=None,
+        description="The node's ROS 2 callback group as callback_isolated_executor's cie_thread_configurator "
+        "names it (/node@Timer(<ns>)@Subscription(<topic>)...; {period_ns} stands for the planned timer period); "
+        "compile then also writes cie_thread_configurator.yaml.",
+    )
 
 
 # --------------------------------------------------------------------------- spec
