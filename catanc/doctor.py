@@ -23,7 +23,7 @@ from enum import Enum
 from pathlib import Path
 
 from catanc.core.priorities import ENFORCER_FIFO
-from catanc.errors import CatancError
+from catanc.errors import CatancError, Diagnostic, SpecError
 from catanc.runtime.sched import check_fifo_allowed, fix_message, format_cpus, privilege_facts
 from catanc.runtime.table import RuntimeTable
 
@@ -108,11 +108,16 @@ class Machine:
 
 
 def needs_of(table: RuntimeTable) -> Needs:
-    """What ``table``'s plan asks for."""
-    priorities = [int(process.get("priority", 0)) for process in table.processes]
-    cpus = {int(cpu) for process in table.processes for cpu in process.get("cpus", [])}
-    subchains = table.plan.get("subchains", {})
-    dedicated = tuple(sorted(name for name, sub in subchains.items() if not sub.get("shared", True)))
+    """What ``table``'s plan asks for; :class:`SpecError` if its processes or subchains are malformed."""
+    try:
+        priorities = [int(process.get("priority", 0)) for process in table.processes]
+        cpus = {int(cpu) for process in table.processes for cpu in process.get("cpus", [])}
+        subchains = table.plan.get("subchains", {})
+        dedicated = tuple(sorted(name for name, sub in subchains.items() if not sub.get("shared", True)))
+    except (AttributeError, TypeError, ValueError):
+        raise SpecError(
+            [Diagnostic(None, "", f"{table.path}: processes or plan.subchains are not as catanc compile writes them")]
+        ) from None
     return Needs(
         fifo_priority=max([ENFORCER_FIFO, *priorities]),
         cores=table.cores,

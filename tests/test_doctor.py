@@ -427,6 +427,17 @@ def test_a_bad_table_is_a_compiler_style_error(tmp_path: Path) -> None:
     assert result.stdout == ""
 
 
+def test_a_table_with_broken_processes_is_a_bad_input_error(tmp_path: Path) -> None:
+    data = json.loads(TABLE.read_text())
+    data["processes"][0]["cpus"] = ["zero"]
+    bad = tmp_path / "runtime.json"
+    bad.write_text(json.dumps(data))
+    result = doctor([], str(bad))
+    assert result.returncode == ExitCode.BAD_INPUT, result.stdout + result.stderr
+    assert "processes or plan.subchains are not as catanc compile writes them" in result.stderr
+    assert "Traceback" not in result.stderr
+
+
 def test_without_a_table_it_checks_for_any_plan() -> None:
     assert ENFORCER_ONLY.fifo_priority == 4
     assert ENFORCER_ONLY.cpus == frozenset()
