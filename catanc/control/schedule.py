@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING
 from catanc.core.priorities import resting_fifo
 from catanc.core.problem import Problem
 from catanc.core.speedup import threads_and_speedup
+from catanc.planning.order import slot_starts
 from catanc.spec.language import Schedule
 
 if TYPE_CHECKING:
@@ -121,14 +122,10 @@ def runtime_schedule(plan: Plan, problem: Problem, schedule: Schedule) -> Runtim
         )
     shared = []
     for core in sorted(plan.shared_cores, key=lambda c: c.core):
-        slots = []
-        offset = 0.0
-        for name in core.order:
-            offset += schedule.switch_ms
-            slice_ms = plan.subchains[name].fraction * compute[name]
-            slots.append(Slot(name, offset, slice_ms))
-            offset += slice_ms
-        shared.append(CoreSchedule(core.core, core.period_ms, schedule.switch_ms, tuple(slots)))
+        slices = {name: plan.subchains[name].fraction * compute[name] for name in core.order}
+        starts = slot_starts(core.order, slices, schedule.switch_ms)
+        slots = tuple(Slot(name, starts[name], slices[name]) for name in core.order)
+        shared.append(CoreSchedule(core.core, core.period_ms, schedule.switch_ms, slots))
     return RuntimeSchedule(plan.cores, subchains, tuple(shared))
 
 

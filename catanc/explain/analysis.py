@@ -41,6 +41,7 @@ from catanc.core.problem import Chain, Executor, Problem, Subchain
 from catanc.errors import Diagnostic
 from catanc.explain.enforceable import short_slots
 from catanc.planning.baseline import BaselineEvaluation, BaselineGap, TermValue, evaluate_baseline, objective_terms
+from catanc.planning.order import slot_starts
 from catanc.planning.stage1.estimate import Allocation
 from catanc.spec.language import Schedule, Spec
 from catanc.text import plural
@@ -291,15 +292,15 @@ def runs_per_period(sub: SubchainPlan, batch: bool) -> int | None:
 
 def _shared_view(core: CorePlan, plan: Plan, by_name: dict[str, Subchain], schedule: Schedule) -> SharedCoreView:
     """One period of a shared core: before each slice the switch to it, after the last the idle slack."""
+    slices = {name: plan.subchains[name].fraction * by_name[name].compute_ms for name in core.order}
+    starts = slot_starts(core.order, slices, schedule.switch_ms)
     segments = []
-    offset = 0.0
+    end = 0.0  # of the previous slot: where the switch to the next begins
     for name in core.order:
-        segments.append(Segment("switch", name, offset, schedule.switch_ms))
-        offset += schedule.switch_ms
-        slice_ms = plan.subchains[name].fraction * by_name[name].compute_ms
-        segments.append(Segment("slice", name, offset, slice_ms))
-        offset += slice_ms
-    segments.append(Segment("idle", None, offset, max(0.0, core.period_ms - offset)))
+        segments.append(Segment("switch", name, end, schedule.switch_ms))
+        segments.append(Segment("slice", name, starts[name], slices[name]))
+        end = starts[name] + slices[name]
+    segments.append(Segment("idle", None, end, max(0.0, core.period_ms - end)))
     return SharedCoreView(core.core, core.period_ms, core.order, tuple(segments))
 
 
