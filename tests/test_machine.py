@@ -125,6 +125,11 @@ def test_missing_unreadable_and_binary_profiles(tmp_path: Path) -> None:
     binary.write_bytes(b"format: \xff\xfe\n")
     with pytest.raises(ProfileError, match="not UTF-8"):
         read_machine(binary)
+    later = tmp_path / "later.yaml"
+    later.write_bytes(b"format: catanc-machine/1\nhost: ab\xffc\n")  # the bad byte: line 2, column 9
+    with pytest.raises(ProfileError) as caught:
+        read_machine(later)
+    assert str(caught.value).startswith(f"{later}:2:9: ")
 
 
 def test_an_overhead_that_takes_the_whole_rt_limit_cannot_be_planned(tmp_path: Path) -> None:

@@ -17,9 +17,9 @@ from typing import Annotated, Any, Union, get_args, get_origin
 from pydantic import BaseModel, Tag, ValidationError
 
 from catanc.core.problem import build_problem
-from catanc.errors import Diagnostic, FieldPath, Location, SpecError, close_matches, did_you_mean, format_path
+from catanc.errors import Diagnostic, FieldPath, SpecError, close_matches, did_you_mean, format_path
 from catanc.spec.language import ARROW_EDGE_PATTERN, SPEC_VERSIONS, Spec
-from catanc.spec.source import SourceMap, parse_yaml
+from catanc.spec.source import SourceMap, parse_yaml, read_text
 
 _TYPE_NAMES = {
     "float_type": "a number",
@@ -54,19 +54,8 @@ class SpecFile:
 
 def read_spec(path: str | Path) -> SpecFile:
     """:func:`load_spec`, also returning the file's sha256 (output headers name it)."""
-    file = str(path)
-    try:
-        raw = Path(path).read_bytes()
-    except OSError as exc:
-        reason = exc.strerror or str(exc)
-        raise SpecError([Diagnostic(None, "", f"{file}: cannot read spec: {reason}")]) from None
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        line = raw[: exc.start].count(b"\n") + 1
-        location = Location(file, line, exc.start - (raw.rfind(b"\n", 0, exc.start) + 1) + 1)
-        raise SpecError([Diagnostic(location, "", "the file is not UTF-8 text")]) from None
-    return SpecFile(parse_spec(text, file), hashlib.sha256(raw).hexdigest())
+    raw, text = read_text(path, "spec")
+    return SpecFile(parse_spec(text, str(path)), hashlib.sha256(raw).hexdigest())
 
 
 def parse_spec(text: str, file: str = "<spec>") -> Spec:

@@ -41,7 +41,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from catanc.errors import Diagnostic, FieldPath, Location, SpecError, format_path
 from catanc.spec.language import Schedule, Spec, field_error
-from catanc.spec.source import SourceMap, parse_yaml
+from catanc.spec.source import SourceMap, parse_yaml, read_text
 
 MACHINE_FORMAT = "catanc-machine/1"
 """The ``format`` this catanc reads and writes."""
@@ -200,15 +200,7 @@ def read_machine(path: str | Path) -> MachineFile:
     """Read and check a profile; raise :class:`ProfileError` naming the file and field on any problem."""
     file = str(path)
     try:
-        raw = Path(path).read_bytes()
-    except OSError as exc:
-        reason = exc.strerror or str(exc)
-        raise ProfileError([Diagnostic(None, "", f"{file}: cannot read machine profile: {reason}")]) from None
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError:
-        raise ProfileError([Diagnostic(Location(file, 1, 1), "", "the file is not UTF-8 text")]) from None
-    try:
+        raw, text = read_text(path, "machine profile")
         parsed = parse_yaml(text, file)
     except SpecError as exc:
         raise ProfileError(exc.diagnostics) from None

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import yaml
@@ -59,6 +60,22 @@ class ParsedYaml:
     data: Any
     source: SourceMap
     problems: list[Diagnostic]  # duplicate keys, keys YAML reads as booleans
+
+
+def read_text(path: str | Path, what: str) -> tuple[bytes, str]:
+    """A file's bytes and their UTF-8 text; a :class:`SpecError` naming the file (and where the bad byte is)."""
+    file = str(path)
+    try:
+        raw = Path(path).read_bytes()
+    except OSError as exc:
+        reason = exc.strerror or str(exc)
+        raise SpecError([Diagnostic(None, "", f"{file}: cannot read {what}: {reason}")]) from None
+    try:
+        return raw, raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].count(b"\n") + 1
+        location = Location(file, line, exc.start - (raw.rfind(b"\n", 0, exc.start) + 1) + 1)
+        raise SpecError([Diagnostic(location, "", "the file is not UTF-8 text")]) from None
 
 
 def parse_yaml(text: str, file: str) -> ParsedYaml:
