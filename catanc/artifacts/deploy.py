@@ -2,8 +2,8 @@
 
 A *process* is one ROS node (every DAG node naming the same ``ros_node``
 runs in it, as nav2d's Mapper hosts GL and GM) or, for a DAG node without
-``ros_node``, that node alone.  :func:`deploy_problems` checks the section
-(run by ``catanc validate``); :func:`processes` turns a plan into the
+``ros_node``, that node alone.  :mod:`catanc.spec.deploy_checks` checks the
+section when the spec loads; :func:`processes` turns a plan into the
 processes the launchers start, each with the CPUs and the SCHED_FIFO
 priority catan-model.md section 6 gives its nodes, and the ROS parameters
 ``params.yaml`` sets.
@@ -17,31 +17,17 @@ a process has one affinity and one policy; ``catanc run`` pins per thread.
 
 from __future__ import annotations
 
-import re
-import shlex
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from catanc.artifacts.runtime_table import RATE_DIGITS, ms
 from catanc.core.priorities import resting_fifo, static_policy
-from catanc.errors import FieldPath
-from catanc.spec.language import Deploy, Spec
+from catanc.spec.deploy_checks import PERIOD_NS, RESERVED_PREFIX, process_key, qualified, split_command
+from catanc.spec.language import Spec
 
 if TYPE_CHECKING:
     from catanc.planning.planner import Plan
-
-RESERVED_PREFIX = "catan"  # params.yaml's own parameters live under ``catan.``
-
-ROS_NAME_TOKEN = r"[A-Za-z_][A-Za-z0-9_]*"
-ROS_NODE_PATTERN = re.compile(rf"/?{ROS_NAME_TOKEN}(/{ROS_NAME_TOKEN})*")
-PARAMETER_PATTERN = re.compile(rf"{ROS_NAME_TOKEN}(\.{ROS_NAME_TOKEN})*")
-
-PERIOD_NS = "{period_ns}"
-"""In a callback group ID, the timer period the plan gives the node, in nanoseconds."""
-CALLBACK_PATTERN = re.compile(
-    rf"(Subscription|Service|Client)\((/{ROS_NAME_TOKEN})+\)|Timer\(([0-9]+|\{{period_ns\}})\)|Waitable"
-)
-"""One callback of a cie_thread_configurator callback group ID (its README: "CallbackGroup ID format")."""
 
 ParamValue = bool | int | float | str | list[int] | list[float] | list[str]
 ParamTree = dict[str, Any]  # nested: {"local_map": {"update_frequency": 135.0}}
@@ -71,129 +57,6 @@ class Process:
     def name(self) -> str:
         assert self.ros_node is not None
         return self.ros_node.rsplit("/", 1)[1]
-
-
-# --------------------------------------------------------------------------- checking the spec
-
-
-def qualified(ros_node: str) -> str:
-    """``Operator`` -> ``/Operator``."""
-    return ros_node if ros_node.startswith("/") else "/" + ros_node
-
-
-def process_key(name: str, entry: Deploy) -> str:
-    return qualified(entry.ros_node) if entry.ros_node is not None else name
-
-
-def split_command(command: str) -> list[str]:
-    """``command`` split into arguments as a POSIX shell would, without running a shell; ValueError if it cannot."""
-    argv = shlex.split(command, comments=False, posix=True)
-    if not argv:
-        raise ValueError("the command is empty")
-    return argv
-
-
-def deploy_problems(spec: Spec) -> Iterator[tuple[FieldPath, str]]:
-    """Every problem of the ``deploy`` section, as ``(field path, message)``; node names are checked elsewhere."""
-    first_of: dict[str, dict[str, tuple[str, str]]] = {}  # process -> field -> (node, value)
-    params_of: dict[str, dict[str, str]] = {}  # process -> parameter -> node
-    for name, entry in spec.deploy.items():
-        where: FieldPath = ("deploy", name)
-        if entry.ros_node is not None and not ROS_NODE_PATTERN.fullmatch(entry.ros_node):
-            yield (
-                (*where, "ros_node"),
-                f"{entry.ros_node!r} is not a ROS node name (letters, digits and '_' per part, "
-                "parts separated by '/', e.g. /nav/local_mapper)",
-            )
-        if entry.command is not None:
-            try:
-                split_command(entry.command)
-            except ValueError as exc:
-                yield (*where, "command"), f"cannot split the command into arguments: {exc}"
-        yield from _callback_group_problems(spec, name, entry)
-        if (entry.package is None) != (entry.executable is None):
-            missing = "executable" if entry.executable is None else "package"
-            yield where, f"a ROS process needs both package and executable: {missing} is missing"
-        if entry.ros_node is None and (entry.package is not None or entry.rate_param is not None):
-            yield where, "package/executable and rate_param need ros_node (the ROS node they belong to)"
-        key = process_key(name, entry)
-        firsts = first_of.setdefault(key, {})
-        for field in ("command", "package", "executable"):
-            value = getattr(entry, field)
-            if value is None:
-                continue
-            if field in firsts and firsts[field][1] != value:
-                other = firsts[field][0]
-                yield (
-                    (*where, field),
-                    f"{key} already has {field} {firsts[field][1]!r} (from {other}); the nodes of one "
-                    f"ROS node share one process: give {field} once",
-                )
-            firsts.setdefault(field, (name, value))
-        if entry.rate_param is not None:
-            path = (*where, "rate_param")
-            param = entry.rate_param
-            node = spec.nodes.get(name)
-            taken = params_of.setdefault(key, {})
-            if not PARAMETER_PATTERN.fullmatch(param):
-                yield path, f"{param!r} is not a ROS parameter name (e.g. local_map.update_frequency)"
-            elif param.split(".")[0] == RESERVED_PREFIX:
-                yield path, f"parameters under {RESERVED_PREFIX!r} are catanc's own; pick another name"
-            elif (clash := _clash(param, taken)) is not None:
-                yield path, f"{key} already sets {clash!r} (for {taken[clash]}): {clash_reason(param, clash)}"
-            elif node is not None and not node.scheduled and node.rate_hz is None:
-                yield path, f"node {name!r} is unscheduled and has no rate_hz: there is no rate to set"
-            taken[param] = name
-
-
-def _callback_group_problems(spec: Spec, name: str, entry: Deploy) -> Iterator[tuple[FieldPath, str]]:
-    group = entry.callback_group
-    if group is None:
-        return
-    path: FieldPath = ("deploy", name, "callback_group")
-    node, *callbacks = group.split("@")
-    if not callbacks or not node.startswith("/") or not ROS_NODE_PATTERN.fullmatch(node):
-        yield (
-            path,
-            f"{group!r} is not a callback group ID: the node's full name, then each callback after '@' "
-            "(e.g. /local_mapper@Timer({period_ns})@Subscription(/scan))",
-        )
-        return
-    bad = next((callback for callback in callbacks if not CALLBACK_PATTERN.fullmatch(callback)), None)
-    if bad is not None:
-        yield (
-            path,
-            f"{bad!r} is not a callback: Subscription(/topic), Service(/name), Client(/name), "
-            f"Timer(<period in ns>) or Timer({PERIOD_NS}), or Waitable",
-        )
-        return
-    if entry.ros_node is None:
-        yield path, "callback_group needs ros_node (the ROS node whose thread it is)"
-        return
-    if node != qualified(entry.ros_node):
-        yield path, f"the callback group is {node}'s, but ros_node is {qualified(entry.ros_node)}"
-    spec_node = spec.nodes.get(name)
-    own_clock = spec_node is not None and not spec_node.scheduled and spec_node.rate_hz is not None
-    if PERIOD_NS in group and entry.rate_param is None and not own_clock:
-        yield (
-            path,
-            f"{PERIOD_NS} is the timer period the plan sets through rate_param, and node {name!r} has none "
-            "(nor a clock of its own, rate_hz)",
-        )
-
-
-def _clash(param: str, taken: dict[str, str]) -> str | None:
-    """A parameter of the same process that ``param`` equals or nests with (``a`` and ``a.b``)."""
-    for other in sorted(taken):
-        if other == param or other.startswith(param + ".") or param.startswith(other + "."):
-            return other
-    return None
-
-
-def clash_reason(param: str, other: str) -> str:
-    if param == other:
-        return "one rate parameter per node"
-    return "a parameter cannot also be a group of parameters"
 
 
 # --------------------------------------------------------------------------- applying a plan
@@ -245,9 +108,6 @@ def _first(values: Iterable[str | None]) -> str | None:
 
 def node_period_ms(spec: Spec, plan: Plan, node: str, membership: dict[str, str]) -> float | None:
     """The period the plan gives ``node``: its subchain's, or its own clock's; None for a rate-less sink."""
-    # Imported here: at the top it would be circular (problem -> deploy -> table -> problem).
-    from catanc.artifacts.runtime_table import ms  # noqa: PLC0415
-
     if node in membership:
         return ms(plan.subchains[membership[node]].period_ms)
     rate = spec.nodes[node].rate_hz
@@ -256,8 +116,6 @@ def node_period_ms(spec: Spec, plan: Plan, node: str, membership: dict[str, str]
 
 def rate_value(period_ms: float, unit: str) -> float:
     """A node's rate parameter: in hertz, or its period in seconds or milliseconds."""
-    from catanc.artifacts.runtime_table import RATE_DIGITS, ms  # noqa: PLC0415
-
     if unit == "hz":
         return round(1000.0 / period_ms, RATE_DIGITS)
     if unit == "s":

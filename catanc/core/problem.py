@@ -17,10 +17,10 @@ from functools import cached_property
 
 import networkx as nx
 
-from catanc.artifacts.deploy import deploy_problems
 from catanc.core import graph
 from catanc.core.speedup import best_speedup
 from catanc.errors import Diagnostic, FieldPath, SpecError, UsageError, close_matches, did_you_mean, format_path
+from catanc.spec.deploy_checks import deploy_problems
 from catanc.spec.language import (
     ChainConstraint,
     ChainsConstraint,
