@@ -128,6 +128,10 @@ class PrivilegeError(CatancError):
     exit_code = ExitCode.NO_PRIVILEGE
 
 
+class SchedError(CatancError):
+    """A scheduling call failed for a reason other than privileges or a vanished thread."""
+
+
 class OutputError(CatancError):
     """An output folder cannot be written or read."""
 

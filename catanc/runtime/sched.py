@@ -31,7 +31,7 @@ from pathlib import Path
 from types import FrameType, TracebackType
 from typing import Any, Self, TypeVar
 
-from catanc.errors import CatancError, PrivilegeError
+from catanc.errors import PrivilegeError, SchedError
 from catanc.runtime.watchdog import Watchdog, thread_start_time
 
 SCHED_DEADLINE = 6  # not in the os module; os.sched_setscheduler cannot set it back
@@ -49,10 +49,6 @@ POLICY_NAMES = {
 CAP_SYS_NICE = 23
 HANDLED_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 """What :meth:`Restorer.install` handles: they end a process, and it should end with its threads back."""
-
-
-class SchedError(CatancError):
-    """A scheduling call failed for a reason other than privileges or a vanished thread."""
 
 
 class ThreadGone(SchedError):  # noqa: N818 (it is not a failure of catanc: the thread exited)

@@ -46,10 +46,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import IO, TYPE_CHECKING
-
-if TYPE_CHECKING:
-    from catanc.runtime.sched import ThreadPolicy
+from typing import IO, Protocol
 
 WATCHDOG_PRIORITY = 10
 """The watchdog's SCHED_FIFO priority: above app threads (1-3) and the enforcer's threads (4)."""
@@ -68,6 +65,19 @@ PF_EXITING = 0x4  # task flag (``/proc/<pid>/stat`` field 9): the task is in do_
 
 
 # --------------------------------------------------------------------------- shared with catanc.runtime.sched
+
+
+class Policy(Protocol):
+    """A thread's scheduling as the watchdog restores it (:class:`catanc.runtime.sched.ThreadPolicy` is one)."""
+
+    @property
+    def policy(self) -> int: ...
+
+    @property
+    def priority(self) -> int: ...
+
+    @property
+    def cpus(self) -> frozenset[int]: ...
 
 
 def thread_start_time(tid: int) -> int | None:
@@ -330,7 +340,7 @@ class Watchdog:
         self._proc.stdout.close()
         return self
 
-    def remember(self, tid: int, original: ThreadPolicy, start_time: int | None = None) -> None:
+    def remember(self, tid: int, original: Policy, start_time: int | None = None) -> None:
         """Tell the watchdog thread ``tid``'s original; call it before changing the thread.
 
         ``start_time`` identifies the thread (see :func:`thread_start_time`); read now if not given.
@@ -401,7 +411,8 @@ def _read_line(stream: IO[bytes], timeout: float) -> str:
 
 
 def _error(message: str) -> Exception:
-    from catanc.runtime.sched import SchedError  # noqa: PLC0415 (the watchdog process imports nothing from catanc)
+    # Here, not at the top: run as a script (``-I -S``), this file imports nothing from catanc.
+    from catanc.errors import SchedError  # noqa: PLC0415
 
     return SchedError(message)
 
