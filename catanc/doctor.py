@@ -2,7 +2,7 @@
 
 Three steps, as the rest of catanc: :func:`needs_of` reads what a runtime
 table asks for (the SCHED_FIFO priority, the cores and CPUs, the share of
-each CPU its real-time threads keep), :func:`read_machine` reads this
+each CPU its real-time threads keep), :func:`inspect_machine` reads this
 machine's facts at the edge (privileges, RLIMIT_RTPRIO, a real SCHED_FIFO
 probe, ``sched_rt_runtime_us``, the cgroup's real-time budget, the CPUs,
 the tools ``launch.sh`` runs), and :func:`diagnose` compares them without
@@ -295,7 +295,7 @@ def render(findings: Sequence[Finding], title: str) -> str:
 # --------------------------------------------------------------------------- reading this machine
 
 
-def read_machine(needs: Needs) -> Machine:
+def inspect_machine(needs: Needs) -> Machine:
     """This process's facts (the probe tries ``needs.fifo_priority`` for real, on a helper thread)."""
     facts = privilege_facts()
     return Machine(

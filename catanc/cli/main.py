@@ -459,7 +459,7 @@ def doctor(
     ] = None,
 ) -> None:
     """Check this machine for what a plan needs (privileges, real-time budgets, CPUs, tools); say how to fix each."""
-    from catanc.doctor import ENFORCER_ONLY, Verdict, diagnose, needs_of, read_machine, render
+    from catanc.doctor import ENFORCER_ONLY, Verdict, diagnose, inspect_machine, needs_of, render
     from catanc.runtime.table import load_table
 
     if table_path is None:
@@ -468,7 +468,7 @@ def doctor(
         table = load_table(table_path)
         needs = needs_of(table)
         title = f"catanc doctor: {table_path} ({table.app}, {table.cores} core{'s' if table.cores > 1 else ''})"
-    findings = diagnose(needs, read_machine(needs))
+    findings = diagnose(needs, inspect_machine(needs))
     sys.stdout.write(render(findings, title))
     if any(finding.verdict is Verdict.FAIL for finding in findings):
         raise typer.Exit(int(ExitCode.MACHINE))
