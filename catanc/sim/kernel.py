@@ -5,7 +5,7 @@
 exactly that, step for step, so fast that nav2d runs thousands of times
 faster than real time (issue 7).  The Python objects stay as the readable
 statement and as this kernel's oracle: tests hold the two to the same
-results on the example specs and on random apps (tests/test_simulate_kernel.py).
+results on the example specs and on random apps (tests/sim/test_kernel.py).
 Keep them in step: a change to one is a change to both.
 
 Every function here mirrors one Python method, named alike.  The same

@@ -1,0 +1,160 @@
+"""The command line: exit codes, messages, and that it stays a thin shell."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from catanc.cli import app
+from catanc.errors import ExitCode
+
+ROOT = Path(__file__).parents[2]
+runner = CliRunner()
+
+GOOD = """catan: 1
+app: demo
+nodes:
+  cam: {compute_ms: 5}
+  det: {compute_ms: 20}
+  odom: {scheduled: false, rate_hz: 50}
+  motor: {scheduled: false}
+edges: [[cam, det], [odom, det], [det, motor]]
+subchains:
+  main: [cam, det]
+objective:
+  - {chain: [cam, det, motor], weight: 1.0}
+constraints:
+  - {chains: {from: odom}, max_response_ms: 100}
+"""
+
+
+@pytest.fixture
+def good(tmp_path: Path) -> Path:
+    path = tmp_path / "good.yaml"
+    path.write_text(GOOD)
+    return path
+
+
+def test_validate_ok(good: Path) -> None:
+    result = runner.invoke(app, ["validate", str(good)])
+    assert result.exit_code == ExitCode.OK, result.output
+    assert f"{good}: ok: app demo, 4 nodes, 1 subchain, 2 chains" in result.stdout
+
+
+def test_validate_reports_every_file(good: Path, tmp_path: Path) -> None:
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(GOOD.replace("[cam, det], [odom", "[cam, dett], [odom"))
+    result = runner.invoke(app, ["validate", str(bad), str(good)])
+    assert result.exit_code == ExitCode.BAD_INPUT
+    assert f"{bad}:8:15: edges[0][1]: unknown node 'dett' (did you mean 'det'?)" in result.stderr
+    assert f"{good}: ok" in result.stdout
+    assert "Traceback" not in result.output
+
+
+def test_chains_table_and_json(good: Path) -> None:
+    result = runner.invoke(app, ["chains", str(good)])
+    assert result.exit_code == ExitCode.OK, result.output
+    assert "objective[0] w=1" in result.stdout
+    result = runner.invoke(app, ["chains", str(good), "--json"])
+    payload = json.loads(result.stdout)
+    rows = {tuple(row["nodes"]): row for row in payload["chains"]}
+    assert payload["total_source_to_sink"] == 2
+    assert rows[("cam", "det", "motor")]["subchains"] == ["main"]
+    assert rows[("odom", "det", "motor")]["subchains"] == ["odom@50Hz", "main"]
+    assert rows[("odom", "det", "motor")]["used_by"] == ["constraints[0] R<=100ms"]
+
+
+def test_chains_warns_about_dense_dags(tmp_path: Path) -> None:
+    layers = [[f"l{i}x{j}" for j in range(3)] for i in range(12)]
+    names = [n for layer in layers for n in layer]
+    nodes = "\n".join(f"  {n}: {{compute_ms: 1}}" for n in names)
+    edges = ", ".join(f"[{a}, {b}]" for up, low in itertools.pairwise(layers) for a in up for b in low)
+    subchains = "\n".join(f"  s_{n}: [{n}]" for n in names)
+    path = tmp_path / "dense.yaml"
+    path.write_text(f"catan: 1\napp: dense\nnodes:\n{nodes}\nedges: [{edges}]\nsubchains:\n{subchains}\n")
+    result = runner.invoke(app, ["chains", str(path), "--limit", "10", "--json"])
+    assert result.exit_code == ExitCode.OK, result.output
+    assert "531,441 source-to-sink paths; listing the first 10" in result.stderr  # 3**12
+    assert len(json.loads(result.stdout)["chains"]) == 10
+
+
+def test_schema_is_json_schema_of_the_spec() -> None:
+    result = runner.invoke(app, ["schema"])
+    schema = json.loads(result.stdout)
+    assert schema["additionalProperties"] is False
+    assert set(schema["required"]) == {"catan", "app", "nodes"}
+    assert "from" in json.dumps(schema["$defs"]["ChainSelector"])
+
+
+def test_committed_schema_is_current() -> None:
+    committed = (ROOT / "specs" / "catanc.schema.json").read_text()
+    assert committed == runner.invoke(app, ["schema"]).stdout, "regenerate: catanc schema > specs/catanc.schema.json"
+
+
+def test_missing_file_is_a_bad_input(tmp_path: Path) -> None:
+    result = runner.invoke(app, ["validate", str(tmp_path / "nope.yaml")])
+    assert result.exit_code == ExitCode.BAD_INPUT
+    assert "cannot read spec" in result.stderr
+
+
+def test_bugs_get_their_own_exit_code(good: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import catanc.spec.load
+
+    def broken(path: object) -> None:
+        raise RuntimeError("boom")
+
+    monkeypatch.setattr(catanc.spec.load, "load_spec", broken)
+    monkeypatch.delenv("CATANC_DEBUG", raising=False)
+    result = runner.invoke(app, ["chains", str(good)])
+    assert result.exit_code == ExitCode.INTERNAL
+    assert "internal error: RuntimeError: boom" in result.stderr
+    assert "Traceback" not in result.output
+
+
+def test_readme_documents_every_exit_code() -> None:
+    readme = (ROOT / "README.md").read_text()
+    for code in ExitCode:
+        assert re.search(rf"^\|\s*{code.value}\s*\|\s*`{code.name}`", readme, re.MULTILINE), code
+
+
+def test_python_m_catanc_runs_without_heavy_imports(good: Path) -> None:
+    # validate and chains never solve: cvxpy and pulp must stay unimported.
+    code = (
+        "import sys; from catanc.cli import app\n"
+        "try:\n"
+        f"    app(['validate', {str(good)!r}])\n"
+        "except SystemExit as exit:\n"
+        "    assert exit.code == 0, exit.code\n"
+        "heavy = sorted(m for m in ('cvxpy', 'pulp') if m in sys.modules)\n"
+        "assert not heavy, heavy\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)
+    result = subprocess.run(
+        [sys.executable, "-m", "catanc", "validate", str(good)], capture_output=True, text=True, check=False
+    )
+    assert result.returncode == 0, result.stderr
+
+
+def test_allocate_json_and_errors() -> None:
+    nav2d = str(ROOT / "specs" / "nav2d.yaml")
+    result = runner.invoke(app, ["allocate", nav2d, "--cores", "2", "--json"])
+    assert result.exit_code == ExitCode.OK, result.output
+    payload = json.loads(result.stdout)
+    assert payload["optimal"] is True
+    assert payload["cores_used"] == 2
+    assert set(payload["subchains"]) == {"local", "GL", "GM", "GP", "NC"}
+    assert all(row["cores"][0] in (0, 1) for row in payload["subchains"].values())
+    table = runner.invoke(app, ["allocate", nav2d, "-k", "2", "--stage1", "milp", "--solver", "cbc"])
+    assert table.exit_code == ExitCode.OK, table.output
+    assert "optimal, by milp/cbc" in table.stdout
+    bad = runner.invoke(app, ["allocate", nav2d, "-k", "2", "--stage1", "greedy"])
+    assert bad.exit_code == ExitCode.BAD_INPUT
+    assert "unknown Stage I method 'greedy'" in bad.stderr
+    assert runner.invoke(app, ["allocate", nav2d, "-k", "0"]).exit_code == ExitCode.BAD_INPUT

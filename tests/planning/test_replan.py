@@ -1,0 +1,168 @@
+"""Re-planning with drifting compute times: the warm path against fresh, independent solves."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from hypothesis import HealthCheck, example, given, settings
+from hypothesis import strategies as st
+
+from catanc.core.metrics import Timing, bound_scale, objective
+from catanc.errors import UsageError
+from catanc.planning.planner import Plan, plan, plan_problem
+from catanc.planning.replan import RUNTIME_GAP, Replanner
+from catanc.planning.stage2.base import Layout, SharedCore
+from catanc.planning.stage2.relaxed import RelaxedStage2
+from catanc.planning.stage2.solve import solve_layout
+from catanc.spec.load import load_spec
+from tests.planning.test_stage2_integer import enumerate_best
+
+SPECS = Path(__file__).parents[2] / "specs"
+
+
+def layout_of(result: Plan) -> Layout:
+    return Layout(result.allocation.dedicated, tuple(SharedCore(c.core, c.order) for c in result.shared_cores))
+
+
+@pytest.fixture(scope="module")
+def vr() -> Replanner:
+    return Replanner(load_spec(SPECS / "vr_illixr.yaml"), 1, gap=0.0)
+
+
+@pytest.fixture(scope="module")
+def nav() -> Replanner:
+    return Replanner(load_spec(SPECS / "nav2d.yaml"), 2, gap=0.0)  # exact, to compare with fresh solves
+
+
+def test_first_plan_is_the_planners(vr: Replanner, nav: Replanner) -> None:
+    for replanner in (vr, nav):
+        fresh = plan(replanner.spec, replanner.cores)  # cvxpy, the model of record
+        assert replanner.plan.objective == pytest.approx(fresh.objective, rel=1e-6)
+        assert replanner.plan.allocation == fresh.allocation
+
+
+drift = st.floats(0.5, 2.0, allow_nan=False)
+
+
+def spec_times(replanner: Replanner) -> dict[str, float]:
+    """Every scheduled node's compute time as the spec gives it."""
+    return {
+        node: c
+        for sub in replanner.spec_problem.subchains
+        for node, c in zip(sub.nodes, sub.node_compute_ms, strict=True)
+    }
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(factors=st.lists(drift, min_size=6, max_size=6))
+def test_vr_resolve_matches_enumeration(vr: Replanner, factors: list[float]) -> None:
+    # VR's shared core has no batch subchain: the oracle enumerates every integer vector of runs
+    # in closed form (tests/planning/test_stage2_integer.py), with the drifted compute times.
+    new = {node: round(c * factor, 3) for (node, c), factor in zip(spec_times(vr).items(), factors, strict=False)}
+    result = vr.resolve(new)
+    problem = vr.problem
+    expected = enumerate_best(problem, layout_of(result), vr.spec.schedule, 1.0)
+    if expected is None:  # the drift broke the bounds: the plan says by how much, and meets that
+        assert result.constraint_scale > 1
+    else:
+        assert result.objective == pytest.approx(expected, rel=1e-6)
+    timings = {name: Timing(s.period_ms, s.latency_ms) for name, s in result.subchains.items()}
+    assert objective(problem, timings) == pytest.approx(result.objective, rel=1e-9)
+    assert bound_scale(problem, timings) <= result.constraint_scale * (1 + 1e-9)
+
+
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(factors=st.lists(drift, min_size=8, max_size=8))
+def test_nav2d_resolve_matches_a_fresh_cvxpy_solve(nav: Replanner, factors: list[float]) -> None:
+    # GL is a batch subchain on the shared core, so the oracle is the cvxpy model, built afresh.
+    new = {node: c * factor for (node, c), factor in zip(spec_times(nav).items(), factors, strict=False)}
+    result = nav.resolve(new)
+    layout = layout_of(result)
+    fresh = solve_layout(nav.problem, layout, nav.spec.schedule, RelaxedStage2(nav.problem, layout, nav.spec.schedule))
+    assert fresh is not None
+    assert result.constraint_scale == pytest.approx(fresh.scale, rel=1e-6)
+    assert result.objective == pytest.approx(fresh.objective, rel=1e-6)
+
+
+def test_resolve_keeps_the_allocation_and_the_model(nav: Replanner) -> None:
+    before = dict(nav.models)
+    allocation = nav.plan.allocation
+    nav.resolve({"GM": 180.0})
+    nav.resolve({"GP": 90.0})
+    assert nav.plan.allocation == allocation
+    assert nav.models == before  # same layouts, same model objects: nothing rebuilt
+    assert nav.problem.subchain("GM").node_compute_ms == (180.0,)  # earlier updates stay
+    assert nav.problem.subchain("GP").node_compute_ms == (90.0,)
+
+
+def test_reallocate_follows_new_cores_and_times() -> None:
+    spec = load_spec(SPECS / "nav2d.yaml")
+    replanner = Replanner(spec, 1)
+    moved = replanner.reallocate(cores=2)
+    assert moved.cores == 2
+    best = plan(spec, 2).objective  # exact, with cvxpy: the re-plan may be up to the gap above it
+    assert best * (1 - 1e-6) <= moved.objective <= best / (1 - RUNTIME_GAP) * (1 + 1e-6)
+    # Much slower mapping: Stage I sees it too.
+    slower = replanner.reallocate({"GM": 600.0})
+    assert replanner.problem.subchain("GM").node_compute_ms == (600.0,)
+    assert slower.cores == 2
+
+
+@pytest.mark.parametrize(
+    ("times", "fragment"),
+    [
+        ({"LN": 3.0}, "did you mean 'LM'"),
+        ({"odom": 3.0}, "not a scheduled node"),
+        ({"GM": -1.0}, "not a positive finite number"),
+        ({"GM": float("nan")}, "not a positive finite number"),
+        ({"GM": float("inf")}, "not a positive finite number"),
+    ],
+)
+def test_bad_compute_times_are_usage_errors(nav: Replanner, times: dict[str, float], fragment: str) -> None:
+    before = nav.plan
+    with pytest.raises(UsageError, match=fragment):
+        nav.resolve(times)
+    assert nav.plan is before  # nothing changed
+
+
+@settings(max_examples=10, deadline=None)
+@given(factors=st.lists(drift, min_size=8, max_size=8))
+@example(factors=[1.0, 1.5, 1.0, 1.25, 1.78125, 0.69140625, 1.125, 1.0])  # 1.007% above the optimum, 0.997% of the plan
+def test_a_gap_stays_within_it_of_the_exact_plan(factors: list[float]) -> None:
+    """The gap is measured against the plan, as MILP solvers do: (plan - optimum) / plan <= gap."""
+    spec = load_spec(SPECS / "nav2d.yaml")
+    exact, default = Replanner(spec, 2, gap=0.0), Replanner(spec, 2)
+    assert default.gap == RUNTIME_GAP
+    new = {node: c * factor for (node, c), factor in zip(spec_times(exact).items(), factors, strict=False)}
+    best = exact.resolve(new)
+    for replanner, gap in ((default, RUNTIME_GAP), (Replanner(spec, 2, gap=1e-2), 1e-2)):
+        near = replanner.resolve(new)
+        assert best.objective <= near.objective * (1 + 1e-6)
+        assert near.objective * (1 - gap) <= best.objective * (1 + 1e-6)
+
+
+@settings(max_examples=10, deadline=None)
+@given(factors=st.lists(drift, min_size=8, max_size=8), cores=st.sampled_from([1, 2]))
+def test_reallocate_stays_within_the_gap_of_a_fresh_exact_plan(factors: list[float], cores: int) -> None:
+    """Re-allocation searches with the runtime's gap, from the current runs; a fresh exact plan bounds it."""
+    spec = load_spec(SPECS / "nav2d.yaml")
+    replanner = Replanner(spec, cores)
+    new = {node: c * factor for (node, c), factor in zip(spec_times(replanner).items(), factors, strict=False)}
+    near = replanner.reallocate(new)
+    best = plan_problem(replanner.problem, spec.schedule, cores, backend="conic")  # gap 0, no start
+    if best.constraint_scale > 1.0 + 1e-6 or near.constraint_scale > 1.0 + 1e-6:
+        assert near.constraint_scale == pytest.approx(best.constraint_scale, rel=1e-5)
+    assert best.objective <= near.objective * (1 + 1e-6)
+    assert near.objective * (1 - RUNTIME_GAP) <= best.objective * (1 + 1e-6)
+
+
+def test_the_first_plan_is_exact_whatever_the_gap() -> None:
+    spec = load_spec(SPECS / "nav2d.yaml")
+    coarse = Replanner(spec, 2, gap=0.5)
+    assert coarse.plan.objective == pytest.approx(plan(spec, 2).objective, rel=1e-6)
+
+
+def test_gap_out_of_range_is_a_usage_error() -> None:
+    with pytest.raises(UsageError, match="gap must be in"):
+        Replanner(load_spec(SPECS / "face_tracking.yaml"), 1, gap=1.5)

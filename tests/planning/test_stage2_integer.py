@@ -1,0 +1,196 @@
+"""Stage II's integer restoration against enumeration of every integer vector.
+
+The oracle does not use the GP nor the search's breakpoints: it enumerates
+every ``(n, k)``: the runs ``n_i`` of each non-batch shared subchain, and for
+one with a rate cap (or fixed rate) every trigger interval ``k_i >= n_i`` up to
+``ceil(p_min / T_fit)`` (a longer ``k`` leaves ``T`` as it is and only
+lengthens ``p``).  With ``(n, k)`` fixed every term grows with ``T``, so the
+best schedule length is the least that fits the slices and keeps every
+``k_i T >= p_min_i``: ``T = max(T_fit, max_i p_min_i / k_i)`` with
+``T_fit = (sum_i c_i / n_i + m * switch) / (1 - slack)``; then latency
+``n_i T``, period ``k_i T`` (catan-model.md section 4), and the analytic
+model scores the result.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from catanc.core.metrics import Timing, bound_scale, capped_dedicated, evaluate_chain, objective
+from catanc.core.problem import Problem, build_problem
+from catanc.planning.stage1 import allocate
+from catanc.planning.stage2.integer import most_runs, solve_integer
+from catanc.planning.stage2.relaxed import Layout, RelaxedStage2
+from catanc.planning.stage2.whole import ENUMERATE_UP_TO
+from catanc.spec.language import Schedule
+from tests.support.strategies import spec_documents, spec_of
+
+
+def fitted_length(problem: Problem, names: tuple[str, ...], schedule: Schedule, runs: dict[str, int]) -> float:
+    load = sum(problem.subchain(n).compute_ms / runs[n] for n in names)
+    return (load + len(names) * schedule.switch_ms) / (1 - schedule.slack)
+
+
+def closed_form(
+    problem: Problem, layout: Layout, schedule: Schedule, runs: dict[str, int], every: dict[str, int] | None = None
+) -> dict[str, Timing]:
+    """Every subchain's timing with these runs and trigger intervals (``every`` None: ``k = n``)."""
+    every = every or {}
+    by_name = {sub.name: sub for sub in problem.subchains}
+    timings = {name: capped_dedicated(by_name[name], k, problem.slack).timing for name, k in layout.dedicated}
+    for core in layout.shared:
+        ks = {name: every.get(name, runs[name]) for name in core.subchains}
+        length = max(
+            [fitted_length(problem, core.subchains, schedule, runs)]
+            + [by_name[name].min_period_ms / ks[name] for name in core.subchains]
+        )
+        for name in core.subchains:
+            timings[name] = Timing(ks[name] * length, runs[name] * length)
+    return timings
+
+
+def intervals(problem: Problem, layout: Layout, schedule: Schedule, runs: dict[str, int]) -> Iterator[dict[str, int]]:
+    """Every vector of trigger intervals worth trying with these runs."""
+    ranges: dict[str, range] = {}
+    for core in layout.shared:
+        fit = fitted_length(problem, core.subchains, schedule, runs)
+        for name in core.subchains:
+            n, p_min = runs[name], problem.subchain(name).min_period_ms
+            ranges[name] = range(n, max(n, math.ceil(p_min / fit)) + 1)
+    for combo in itertools.product(*ranges.values()):
+        yield dict(zip(ranges, combo, strict=True))
+
+
+def meets_bounds(problem: Problem, timings: dict[str, Timing], scale: float) -> bool:
+    for sub in problem.subchains:
+        if timings[sub.name].period_ms > sub.max_period_ms * scale * (1 + 1e-9):
+            return False
+    for bound in problem.response_bounds:
+        response = evaluate_chain(problem, problem.chains[bound.chain], timings).response_ms
+        if response > bound.max_response_ms * scale * (1 + 1e-9):
+            return False
+    return True
+
+
+def every_plan(problem: Problem, layout: Layout, schedule: Schedule) -> Iterator[dict[str, Timing]]:
+    """The timings of every ``(n, k)`` (no batch subchain shares a core)."""
+    by_name = {sub.name: sub for sub in problem.subchains}
+    names = [name for core in layout.shared for name in core.subchains]
+    ranges = [range(1, most_runs(by_name[name].compute_ms, schedule) + 1) for name in names]
+    for combo in itertools.product(*ranges):
+        runs = dict(zip(names, combo, strict=True))
+        for every in intervals(problem, layout, schedule, runs):
+            yield closed_form(problem, layout, schedule, runs, every)
+
+
+def enumerate_best(problem: Problem, layout: Layout, schedule: Schedule, scale: float) -> float | None:
+    values = [objective(problem, t) for t in every_plan(problem, layout, schedule) if meets_bounds(problem, t, scale)]
+    return min(values, default=None)
+
+
+def enumerate_least_scale(problem: Problem, layout: Layout, schedule: Schedule) -> float:
+    return min(max(1.0, bound_scale(problem, t)) for t in every_plan(problem, layout, schedule))
+
+
+@st.composite
+def small_apps(draw: st.DrawFn) -> tuple[dict[str, Any], int]:
+    document = draw(spec_documents(max_subchains=5, max_threads=1, fixed_rates=True))
+    # A minimum slice of a fifth of the longest subchain keeps every n_i <= 5, so the oracle
+    # enumerates at most 5**5 vectors; slack and switch cost are drawn too.
+    longest = max(
+        sum(document["nodes"][n]["compute_ms"] for n in members) for members in document["subchains"].values()
+    )
+    document["schedule"] = {
+        "min_slice_ms": round(longest / 5 + 0.01, 3),
+        "slack": draw(st.sampled_from([0.0, 0.05])),
+        "switch_ms": draw(st.sampled_from([0.0, 0.12])),
+    }
+    return document, draw(st.integers(1, 2))
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(app=small_apps(), loose=st.booleans())
+def test_branch_and_bound_matches_enumeration(app: tuple[dict[str, Any], int], loose: bool) -> None:
+    document, cores = app
+    spec = spec_of(document)
+    problem = build_problem(spec)
+    layout = Layout.from_allocation(allocate(problem, cores).allocation)
+    if not layout.shared:
+        return
+    scale = 1e6 if loose else 1.0  # loose: bounds out of the way; else as written (maybe infeasible)
+    expected = enumerate_best(problem, layout, spec.schedule, scale)
+    model = RelaxedStage2(problem, layout, spec.schedule)
+    model.set_numbers(problem)
+    # Both ways to the integer optimum: the branch and bound (forced), and evaluating every vector
+    # of the box at once in closed form (the default for boxes this small).
+    for enumerate_up_to in (0, ENUMERATE_UP_TO):
+        found = solve_integer(model, problem, scale, enumerate_up_to=enumerate_up_to)
+        if expected is None:
+            assert found is None
+            continue
+        assert found is not None
+        assert found.objective == pytest.approx(expected, rel=1e-6)
+        # The n_i it reports score, with their best k, what it says they score.
+        best_k = min(
+            objective(problem, t)
+            for every in intervals(problem, layout, spec.schedule, found.runs)
+            if meets_bounds(problem, t := closed_form(problem, layout, spec.schedule, found.runs, every), scale)
+        )
+        assert best_k == pytest.approx(found.objective, rel=1e-6)
+        assert found.root_bound <= found.objective * (1 + 1e-6)
+        # A cutoff above the optimum keeps it; one below leaves nothing; a start changes nothing.
+        above = solve_integer(model, problem, scale, cutoff=expected * (1 + 1e-3), enumerate_up_to=enumerate_up_to)
+        assert above is not None
+        assert above.objective == pytest.approx(expected, rel=1e-6)
+        below = solve_integer(model, problem, scale, cutoff=expected * (1 - 1e-3), enumerate_up_to=enumerate_up_to)
+        assert below is None
+        for start in (found.runs, dict.fromkeys(found.runs, 1)):
+            warm = solve_integer(model, problem, scale, start=start, enumerate_up_to=enumerate_up_to)
+            assert warm is not None
+            assert warm.objective == pytest.approx(expected, rel=1e-6)
+    least = solve_integer(model, problem, least_scale=True, enumerate_up_to=0)
+    assert least is not None
+    assert least.objective == pytest.approx(enumerate_least_scale(problem, layout, spec.schedule), rel=1e-6)
+    if expected is not None:
+        # Stopped early, the search still returns a plan, and the gap it proves brackets the optimum.
+        capped = solve_integer(model, problem, scale, enumerate_up_to=0, node_limit=2)
+        assert capped is not None
+        assert capped.objective >= expected * (1 - 1e-6)
+        assert capped.objective * (1 - capped.gap) <= expected * (1 + 1e-6)
+
+
+# Two one-node subchains a (2 ms), b (4 ms) on one core, no slack or switch cost, periods weighted 1:
+# objective 6 + 4 r + 2 / r with r = n_a / n_b. Slices of at least 0.5 ms allow n_a <= 4, n_b <= 8.
+# Over those, r = 3/4 and 2/3 both give 6 + 3 + 8/3 and 6 + 8/3 + 3 = 11.6667; r = 5/7 (n_a 5) is
+# out of range, so the integer optimum is 11.6667 against the relaxed 6 + 4 sqrt(2) = 11.6569.
+def test_integer_optimum_by_hand() -> None:
+    from catanc.planning.stage2.relaxed import SharedCore
+    from catanc.spec.load import parse_spec
+
+    spec = parse_spec(
+        "catan: 1\napp: two\nnodes: {a: {compute_ms: 2}, b: {compute_ms: 4}}\nsubchains: {A: [a], B: [b]}\n"
+        "objective: [{node: a, weight: 1}, {node: b, weight: 1}]\n"
+        "schedule: {slack: 0, switch_ms: 0, min_slice_ms: 0.5}\n"
+    )
+    problem = build_problem(spec)
+    model = RelaxedStage2(problem, Layout((), (SharedCore(0, ("A", "B")),)), spec.schedule)
+    model.set_numbers(problem)
+    found = solve_integer(model, problem)
+    assert found is not None
+    assert found.objective == pytest.approx(6 + 3 + 8 / 3, rel=1e-7)
+    assert found.runs["A"] / found.runs["B"] in (pytest.approx(3 / 4), pytest.approx(2 / 3))
+    model.set_box({})
+    relaxed = model.solve()
+    assert relaxed is not None
+    assert relaxed.objective == pytest.approx(6 + 4 * math.sqrt(2), rel=1e-6)
+    searched = solve_integer(model, problem, enumerate_up_to=0)
+    assert searched is not None
+    assert searched.objective == pytest.approx(found.objective, rel=1e-7)
+    assert searched.root_bound == pytest.approx(6 + 4 * math.sqrt(2), rel=1e-6)
