@@ -1,10 +1,10 @@
-"""bench/scenarios.py's own arithmetic and spec variants (the runs themselves are catanc's, tested elsewhere)."""
+"""benchmarks/scenarios.py's own arithmetic and spec variants (the runs themselves are catanc's, tested elsewhere)."""
 
 from __future__ import annotations
 
 import pytest
 
-from bench.scenarios import bucket_medians, bucket_periods, spec_file, spec_yaml, with_growth_over, with_rates
+from benchmarks.scenarios import bucket_medians, bucket_periods, spec_file, spec_yaml, with_growth_over, with_rates
 from catanc.spec.load import load_spec
 
 

@@ -59,7 +59,7 @@ def inlined(function: F) -> F:
     helpers and the per-turn ``advance_to``, ``allocate``, ``dispatch``,
     ``read_inputs`` and ``produce`` saves 11-12% of the kernel's
     instructions for ~6 s more of a fresh compile.  Inlining the policies'
-    helpers too saved 3% more for ~45 s more (bench/RESULTS.md, eleventh
+    helpers too saved 3% more for ~45 s more (benchmarks/RESULTS.md, eleventh
     pass), so they stay calls.
     """
     return cast(F, numba.njit(cache=True, nogil=True, inline="always")(function))

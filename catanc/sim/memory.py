@@ -6,7 +6,7 @@ copies that become the results.  glibc serves blocks above a (dynamic)
 threshold with fresh ``mmap``s and hands them back to the kernel when they
 are freed, and trims the heap's free top the same way, so each new block is
 zero pages that fault in one by one on first touch: ~3 us a 4 KiB page on
-this VM, 4-10% of a warm 2-core nav2d run's wall time (bench/RESULTS.md,
+this VM, 4-10% of a warm 2-core nav2d run's wall time (benchmarks/RESULTS.md,
 thirteenth pass).  Raising both thresholds keeps freed blocks in the heap
 for reuse, for 4-9% more peak memory in a whole ``catanc simulate`` process.
 Transparent huge pages were no help: fewer faults, but more time zeroing

@@ -4,7 +4,7 @@
 :mod:`catanc.planning.stage1.milp`; ``method="exhaustive"`` scores every allocation
 (:mod:`catanc.planning.stage1.exhaustive`) and is the MILP's test oracle; the default
 ``method="auto"`` enumerates where that is faster than the MILP (up to
-:data:`AUTO_EXHAUSTIVE` subchains and cores: bench/RESULTS.md) and solves the
+:data:`AUTO_EXHAUSTIVE` subchains and cores: benchmarks/RESULTS.md) and solves the
 MILP otherwise. Both are exact and break ties by the same rule.
 """
 

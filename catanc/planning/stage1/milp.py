@@ -9,7 +9,7 @@ Formulation (cores are identical, so no core indices and no symmetry):
   no product of variables.
 - ``g[m]`` integer: the number of groups of size ``m``;
   ``sum_i x[i, shared m] = m * g[m]``, and ``g[m] >= x[i, shared m]`` (implied
-  for integer solutions; it makes the LP relaxation tight: bench/RESULTS.md).
+  for integer solutions; it makes the LP relaxation tight: benchmarks/RESULTS.md).
 - cores: ``sum k x[i, dedicated k] + sum g[m] = K`` (``<= K`` with fewer
   subchains than cores).
 - each chain's period ``P_t`` is a variable bounded below by each stage's
@@ -64,7 +64,7 @@ from catanc.planning.stage1.together import check_cores, options_allowed
 DEFAULT_SOLVER = "highs"
 DEFAULT_TIME_LIMIT_S = 2.5
 """Stage I's whole budget (model, LP, search, MILP): keeps ``catanc compile`` of a 60-subchain app
-on 16 cores within 5 s (bench/RESULTS.md)."""
+on 16 cores within 5 s (benchmarks/RESULTS.md)."""
 
 MIN_SOLVE_S = 0.05
 """Below this much time left, the MILP is not started: the search's allocation stands."""
@@ -76,7 +76,7 @@ an evaluation costs about N microseconds, so this is about 60 ms."""
 
 LP_START_FROM = 20
 """From this many subchains the LP relaxation is solved first (bound and start); below, the MILP
-alone is quicker than LP + MILP (bench/RESULTS.md)."""
+alone is quicker than LP + MILP (benchmarks/RESULTS.md)."""
 
 LP_TIME_LIMIT_S = 30.0
 """A safety net only: the relaxation takes 0.5 s at 60 subchains, 2 s at 100."""
@@ -267,7 +267,7 @@ def _build(problem: Problem, cores: int, table: OptionTable, *, strengthen: bool
         # needs a whole group of size m. Without it the relaxation lets every subchain pick its own
         # size at a fraction of a core (60 subchains: LP bound 94% of the optimum instead of 99.7%).
         for i, sub in enumerate(subchains):
-            if strengthen:  # off only to measure what it buys (bench/solvers.py)
+            if strengthen:  # off only to measure what it buys (benchmarks/solvers.py)
                 prob += groups[m] >= choice[sub.name, Option(True, m)], f"group_exists_{m}_{i}"
     used = pulp.lpSum(option.size * var for (_, option), var in choice.items() if not option.shared) + pulp.lpSum(
         groups.values()

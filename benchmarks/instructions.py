@@ -1,10 +1,10 @@
 """The compiled simulator's cost in instructions: a measure that does not move with the machine's load.
 
-    python -m bench.instructions                     # nav2d, 1 and 2 cores, catan and static-fullrun, 50 s
-    python -m bench.instructions --policy baseline --cores 2 --duration 20
+    python -m benchmarks.instructions                     # nav2d, 1 and 2 cores, catan and static-fullrun, 50 s
+    python -m benchmarks.instructions --policy baseline --cores 2 --duration 20
 
 On a shared VM the same run's wall time differs by 20% from one process to
-the next (bench/RESULTS.md, fifth pass), so a change to the kernel smaller
+the next (benchmarks/RESULTS.md, fifth pass), so a change to the kernel smaller
 than that cannot be timed.  Instructions can be counted exactly: each row
 runs one simulation under valgrind's callgrind and counts the instructions
 executed inside calls to numba's compiled functions (``--toggle-collect``
@@ -83,7 +83,7 @@ def count(case: Case) -> dict[str, float]:
         command = [
             "valgrind", "--tool=callgrind", "--instr-atstart=no", "--collect-atstart=no",
             "--toggle-collect=*Dispatcher_call*", f"--callgrind-out-file={profile}",
-            sys.executable, "-m", "bench.instructions", CHILD_FLAG,
+            sys.executable, "-m", "benchmarks.instructions", CHILD_FLAG,
             *map(str, case), str(seen),
         ]  # fmt: skip
         done = subprocess.run(command, check=False, capture_output=True, text=True)
@@ -110,7 +110,7 @@ def main() -> None:
     args = parser.parse_args()
     for tool in ("valgrind", "callgrind_control"):
         if shutil.which(tool) is None:
-            raise SystemExit(f"bench.instructions needs {tool} (Debian: apt install valgrind)")
+            raise SystemExit(f"benchmarks.instructions needs {tool} (Debian: apt install valgrind)")
     print(f"{args.spec}: instructions in compiled code over {args.duration:g} simulated s (callgrind)")
     print(f"{'cores':>5} {'policy':<15} {'instructions':>14} {'per sim s':>12} {'events':>8} {'completions':>11}")
     for cores in args.cores or [1, 2]:

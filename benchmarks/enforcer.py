@@ -1,8 +1,8 @@
 """The enforcer's own costs on this machine: switch latency and CPU use (needs root for SCHED_FIFO).
 
-    python -m bench.enforcer                 # nav2d and VR, 1 core, 20 s each
-    python -m bench.enforcer --duration 5    # shorter
-    python -m bench.enforcer --json
+    python -m benchmarks.enforcer                 # nav2d and VR, 1 core, 20 s each
+    python -m benchmarks.enforcer --duration 5    # shorter
+    python -m benchmarks.enforcer --json
 
 For each app: one synthetic worker process per scheduled node (started
 here, so their CPU time is not counted), ``catanc run`` on the committed
@@ -18,7 +18,7 @@ here, so their CPU time is not counted), ``catanc run`` on the committed
   CPU use in cores and its wake-ups per second (``/proc/<pid>/task/<tid>``:
   ``stat`` utime + stime, ``status`` voluntary_ctxt_switches), which
   shows where the CPU goes: mostly the wake-ups themselves, see
-  bench/RESULTS.md.
+  benchmarks/RESULTS.md.
 """
 
 from __future__ import annotations

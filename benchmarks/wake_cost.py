@@ -1,8 +1,8 @@
-"""CPU time one sleep/wake-up costs on this machine, from Python (the enforcer's floor: bench/RESULTS.md).
+"""CPU time one sleep/wake-up costs on this machine, from Python (the enforcer's floor: benchmarks/RESULTS.md).
 
-    python -m bench.wake_cost
+    python -m benchmarks.wake_cost
 
-For the same without Python: ``cc -O2 bench/wake_cost.c -o /tmp/wake_cost && /tmp/wake_cost``.
+For the same without Python: ``cc -O2 benchmarks/wake_cost.c -o /tmp/wake_cost && /tmp/wake_cost``.
 """
 
 from __future__ import annotations

@@ -1,10 +1,10 @@
 """Solver speed: Stage I on the paper's nav2d and on random layered apps.
 
-    python -m bench.solvers            # a table
-    python -m bench.solvers --json     # the same numbers as JSON
-    python -m bench.solvers --quick    # fewer repeats and sizes (a smoke run)
+    python -m benchmarks.solvers            # a table
+    python -m benchmarks.solvers --json     # the same numbers as JSON
+    python -m benchmarks.solvers --quick    # fewer repeats and sizes (a smoke run)
 
-Numbers go into bench/RESULTS.md by hand, with the machine they came from.
+Numbers go into benchmarks/RESULTS.md by hand, with the machine they came from.
 Tests never time anything; this file is where speed is measured.
 """
 
@@ -19,7 +19,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from bench.workloads import layered_spec
+from benchmarks.workloads import layered_spec
 from catanc.core.problem import Problem, build_problem
 from catanc.planning.stage1 import allocate
 from catanc.planning.stage1.milp import DEFAULT_TIME_LIMIT_S, relaxation_bound

@@ -1,6 +1,6 @@
 /* CPU time one sleep/wake-up costs on this machine, without Python:
- *   cc -O2 bench/wake_cost.c -o /tmp/wake_cost && /tmp/wake_cost
- * (python -m bench.wake_cost measures the same from Python.) */
+ *   cc -O2 benchmarks/wake_cost.c -o /tmp/wake_cost && /tmp/wake_cost
+ * (python -m benchmarks.wake_cost measures the same from Python.) */
 #include <stdio.h>
 #include <sys/resource.h>
 #include <time.h>

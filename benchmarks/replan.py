@@ -1,8 +1,8 @@
 """Planning and re-planning speed, and what planning Stage I's runners-up buys.
 
-    python -m bench.replan            # tables
-    python -m bench.replan --json     # the same numbers as JSON
-    python -m bench.replan --quick    # fewer repeats (a smoke run)
+    python -m benchmarks.replan            # tables
+    python -m benchmarks.replan --json     # the same numbers as JSON
+    python -m benchmarks.replan --quick    # fewer repeats (a smoke run)
 
 Sections:
 
@@ -16,7 +16,7 @@ Sections:
 - ``runners_up``: every example spec on 1-4 cores: the paper's plain
   two-stage objective against the best allocation under exact Stage II.
 
-Numbers go into bench/RESULTS.md by hand, with the machine they came from.
+Numbers go into benchmarks/RESULTS.md by hand, with the machine they came from.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from bench.solvers import median_ms
+from benchmarks.solvers import median_ms
 from catanc.planning.replan import RUNTIME_GAP
 from catanc.spec.load import load_spec
 
@@ -111,7 +111,7 @@ def cold(name: str, cores: int) -> dict[str, float]:
 import json, time
 started = time.perf_counter()
 from catanc.planning.replan import Replanner
-from bench.solvers import median_ms
+from benchmarks.solvers import median_ms
 from catanc.spec.load import load_spec
 from catanc.planning.replan import RUNTIME_GAP
 imported = time.perf_counter()

@@ -1,8 +1,8 @@
 """Issue 7's results: the paper's section 7 scenarios, simulated and on this machine's kernel.
 
-    python -m bench.scenarios               # the simulator (deterministic): docs/results/sim.json and sim-*.png
-    python -m bench.scenarios --real        # the real kernel too (root, ~20 min): real.json and real-*.png
-    python -m bench.scenarios --only vr     # one scenario (face, nav2d, yolo, vr)
+    python -m benchmarks.scenarios               # the simulator (deterministic): docs/results/sim.json and sim-*.png
+    python -m benchmarks.scenarios --real        # the real kernel too (root, ~20 min): real.json and real-*.png
+    python -m benchmarks.scenarios --only vr     # one scenario (face, nav2d, yolo, vr)
 
 Each scenario runs catanc's policies and the paper's baselines through
 :func:`catanc.sim.simulate.simulate` or :func:`catanc.realbench.bench.bench_policies`

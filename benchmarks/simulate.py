@@ -1,9 +1,9 @@
 """How much faster than real time the simulator runs (issue 7's aim: at least 1000x on nav2d).
 
-    python -m bench.simulate                  # nav2d, 1 and 2 cores, every policy, 60 simulated s
-    python -m bench.simulate --duration 60 --duration 250 --breakdown
-    python -m bench.simulate --duration 20 --spec specs/vr_illixr.yaml
-    python -m bench.simulate --cli --duration 3600  # whole `catanc simulate` processes, start-up included
+    python -m benchmarks.simulate                  # nav2d, 1 and 2 cores, every policy, 60 simulated s
+    python -m benchmarks.simulate --duration 60 --duration 250 --breakdown
+    python -m benchmarks.simulate --duration 20 --spec specs/vr_illixr.yaml
+    python -m benchmarks.simulate --cli --duration 3600  # whole `catanc simulate` processes, start-up included
 
 Wall time of :func:`catanc.sim.simulate.simulate` per policy (planning
 included: the static plans and ``catan``'s first plan and re-solves are part
