@@ -13,8 +13,9 @@ from typing import TYPE_CHECKING, Any
 from catanc.errors import CatancError, SpecError
 
 if TYPE_CHECKING:
-    from catanc.planning.planner import Plan, plan
+    from catanc.planning.planner import plan
     from catanc.planning.replan import Replanner
+    from catanc.planning.types import Plan
     from catanc.spec.language import Spec
     from catanc.spec.load import load_spec, parse_spec
 
@@ -43,10 +44,14 @@ def __getattr__(name: str) -> Any:
         from catanc.spec.language import Spec  # noqa: PLC0415
 
         return Spec
-    if name in ("plan", "Plan"):
-        from catanc.planning import planner  # noqa: PLC0415 - the solvers load on first use
+    if name == "plan":
+        from catanc.planning.planner import plan  # noqa: PLC0415 - the solvers load on first use
 
-        return getattr(planner, name)
+        return plan
+    if name == "Plan":
+        from catanc.planning.types import Plan  # noqa: PLC0415
+
+        return Plan
     if name == "Replanner":
         from catanc.planning.replan import Replanner  # noqa: PLC0415
 

@@ -27,7 +27,7 @@ from catanc.spec.deploy_checks import PERIOD_NS, RESERVED_PREFIX, process_key, q
 from catanc.spec.language import Spec
 
 if TYPE_CHECKING:
-    from catanc.planning.planner import Plan
+    from catanc.planning.types import Plan
 
 ParamValue = bool | int | float | str | list[int] | list[float] | list[str]
 ParamTree = dict[str, Any]  # nested: {"local_map": {"update_frequency": 135.0}}

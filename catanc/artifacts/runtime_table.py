@@ -26,7 +26,7 @@ from catanc.core.metrics import Timing, evaluate_chain, objective
 from catanc.core.problem import Chain, Problem, Stage
 
 if TYPE_CHECKING:
-    from catanc.planning.planner import ChainPlan, Plan
+    from catanc.planning.types import ChainPlan, Plan
 
 MS_DIGITS = 6
 FRACTION_DIGITS = 9

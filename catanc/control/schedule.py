@@ -33,7 +33,7 @@ from catanc.planning.order import slot_starts
 from catanc.spec.language import Schedule
 
 if TYPE_CHECKING:
-    from catanc.planning.planner import Plan
+    from catanc.planning.types import Plan
 
 
 @dataclass(frozen=True)

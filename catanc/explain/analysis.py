@@ -47,7 +47,7 @@ from catanc.spec.language import Schedule, Spec
 from catanc.text import plural
 
 if TYPE_CHECKING:
-    from catanc.planning.planner import CorePlan, Plan, SubchainPlan
+    from catanc.planning.types import CorePlan, Plan, SubchainPlan
     from catanc.spec.machine import MachineUse
 
 BINDING_TOLERANCE = 1e-6

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 from catanc.spec.language import Schedule
 
 if TYPE_CHECKING:
-    from catanc.planning.planner import Plan
+    from catanc.planning.types import Plan
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from typing import Literal
 
 from catanc.core.metrics import chain_metrics_of
@@ -40,6 +40,7 @@ from catanc.planning.stage2.solve import (
     lower_bound,
     solve_layout,
 )
+from catanc.planning.types import ChainPlan, CorePlan, Plan, SubchainPlan, TwoStageComparison
 from catanc.spec.language import Schedule, Spec
 
 ALL_ALLOCATIONS_UP_TO = 2500
@@ -67,64 +68,6 @@ NEXT_BEST_TIME_S = 0.5
 
 Backend = Literal["cvxpy", "conic"]
 BACKENDS: tuple[Backend, ...] = ("cvxpy", "conic")
-
-
-@dataclass(frozen=True)
-class SubchainPlan:
-    name: str
-    nodes: tuple[str, ...]
-    cores: tuple[int, ...]
-    shared: bool
-    threads: int  # Eq. 1's q (1 on a shared core)
-    period_ms: float
-    latency_ms: float
-    fraction: float  # f: share of one run per schedule period (1.0 when dedicated)
-    priority: int  # higher steals from lower
-    every: int | None = None  # k: a shared non-batch subchain is triggered at its slot every k periods
-
-
-@dataclass(frozen=True)
-class CorePlan:
-    core: int
-    period_ms: float  # T, the schedule's length
-    order: tuple[str, ...]
-
-
-@dataclass(frozen=True)
-class ChainPlan:
-    nodes: tuple[str, ...]
-    subchains: tuple[str, ...]
-    latency_ms: float
-    period_ms: float
-    response_ms: float
-
-
-@dataclass(frozen=True)
-class Comparison:
-    """How the plan compares with the paper's plain two-stage result (Stage I's allocation)."""
-
-    allocations: int  # allocations considered
-    planned: int  # of those, planned by Stage II (the rest were bounded out, or beyond PLAN_AT_MOST)
-    complete: bool  # every other allocation was bounded out: the plan is the best of them all
-    two_stage_objective: float | None  # Stage I's allocation under Stage II (None: it could not meet the bounds)
-    two_stage_scale: float | None
-
-
-@dataclass(frozen=True)
-class Plan:
-    app: str
-    cores: int
-    objective: float
-    constraint_scale: float
-    subchains: dict[str, SubchainPlan]
-    shared_cores: tuple[CorePlan, ...]
-    chains: tuple[ChainPlan, ...]
-    stage1: Stage1Result
-    warnings: tuple[str, ...]
-    allocation: Allocation  # the one planned (Stage I's, or a runner-up that Stage II found better)
-    comparison: Comparison
-    runs: dict[str, int]  # n = 1/f per non-batch shared subchain (exact)
-    every: dict[str, int] = field(default_factory=dict)  # k >= n per non-batch shared subchain: p = k T
 
 
 def plan(
@@ -239,7 +182,7 @@ def plan_problem(
         )
         if record is not None:
             best = replace(record, gap=best.gap, relaxations=best.relaxations)
-    comparison = Comparison(
+    comparison = TwoStageComparison(
         allocations=len(candidates),
         planned=planned,
         complete=complete,
@@ -355,7 +298,7 @@ def assemble(
     result: Stage2Result,
     allocation: Allocation,
     first: Stage1Result,
-    comparison: Comparison,
+    comparison: TwoStageComparison,
     importance: dict[str, float],
     orders: Mapping[int, tuple[str, ...]] | None = None,
 ) -> Plan:

@@ -24,9 +24,10 @@ from collections.abc import Mapping
 
 from catanc.core.problem import Problem, build_problem
 from catanc.errors import UsageError
-from catanc.planning.planner import STAGE2_RELAXATIONS, Comparison, Plan, assemble, conic_model, plan_problem
+from catanc.planning.planner import STAGE2_RELAXATIONS, assemble, conic_model, plan_problem
 from catanc.planning.stage2.base import Layout, SharedCore, Stage2Model
 from catanc.planning.stage2.solve import solve_layout
+from catanc.planning.types import Plan, TwoStageComparison
 from catanc.spec.language import Spec
 
 RUNTIME_GAP = 1e-2
@@ -113,7 +114,7 @@ class Replanner:
             result=result,
             allocation=current.allocation,
             first=current.stage1,
-            comparison=Comparison(
+            comparison=TwoStageComparison(
                 allocations=1, planned=1, complete=True, two_stage_objective=None, two_stage_scale=None
             ),
             importance=self._importance,

@@ -28,8 +28,9 @@ from catanc.core.graph import all_chains
 from catanc.core.problem import Problem, build_problem, spec_dag
 from catanc.core.workload import ComputeSampler, NodeStream
 from catanc.errors import UsageError
-from catanc.planning.planner import Plan, plan_problem, priorities
+from catanc.planning.planner import plan_problem, priorities
 from catanc.planning.replan import Replanner
+from catanc.planning.types import Plan
 from catanc.runtime.measure import estimate, mode_times
 from catanc.sim.cpu import Discipline
 from catanc.sim.dataflow import Dataflow

@@ -41,7 +41,8 @@ from catanc.artifacts.emit import Provenance, emit
 from catanc.core.priorities import RUNNING_FIFO, SHARED_FIFO, UNSCHEDULED_FIFO
 from catanc.core.problem import build_problem
 from catanc.errors import ExitCode
-from catanc.planning.planner import Plan, plan
+from catanc.planning.planner import plan
+from catanc.planning.types import Plan
 from catanc.spec.language import Spec
 from catanc.spec.load import parse_spec
 from tests.support.linux import as_user, cpu_set, missing_tools, nobody_ids, poll

@@ -14,7 +14,8 @@ from hypothesis import strategies as st
 
 from catanc.artifacts.runtime_table import plan_json, plan_payload
 from catanc.core.problem import Problem, build_problem
-from catanc.planning.planner import Plan, plan
+from catanc.planning.planner import plan
+from catanc.planning.types import Plan
 from catanc.spec.language import ChainsTerm, ChainTerm, NodeTerm, Spec
 from catanc.spec.load import load_spec
 from tests.support.strategies import spec_documents, spec_of

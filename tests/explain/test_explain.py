@@ -36,7 +36,8 @@ from catanc.explain.analysis import (
     render_markdown,
     timeline_bar,
 )
-from catanc.planning.planner import Plan, plan
+from catanc.planning.planner import plan
+from catanc.planning.types import Plan
 from catanc.spec.load import load_spec, parse_spec
 
 ROOT = Path(__file__).parents[2]

@@ -12,8 +12,9 @@ from hypothesis import strategies as st
 
 from catanc.core.metrics import Timing, bound_scale, objective
 from catanc.core.problem import Problem, build_problem
-from catanc.planning.planner import Plan, plan
+from catanc.planning.planner import plan
 from catanc.planning.stage2.relaxed import Layout, SharedCore
+from catanc.planning.types import Plan
 from catanc.spec.language import Schedule
 from catanc.spec.load import load_spec
 from tests.planning.test_stage2_integer import closed_form, meets_bounds

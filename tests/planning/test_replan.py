@@ -10,11 +10,12 @@ from hypothesis import strategies as st
 
 from catanc.core.metrics import Timing, bound_scale, objective
 from catanc.errors import UsageError
-from catanc.planning.planner import Plan, plan, plan_problem
+from catanc.planning.planner import plan, plan_problem
 from catanc.planning.replan import RUNTIME_GAP, Replanner
 from catanc.planning.stage2.base import Layout, SharedCore
 from catanc.planning.stage2.relaxed import RelaxedStage2
 from catanc.planning.stage2.solve import solve_layout
+from catanc.planning.types import Plan
 from catanc.spec.load import load_spec
 from tests.planning.test_stage2_integer import enumerate_best
 

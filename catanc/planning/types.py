@@ -1,0 +1,72 @@
+"""What a plan is: the planner's answer, as plain frozen data.
+
+Everything downstream of planning (the explanation, the runtime table, the
+deployment, the runtime schedule, the simulator) reads a plan through these
+types, so they import no solver: this module depends on the problem's types
+and Stage I's answer only.  :func:`catanc.planning.planner.plan` makes them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from catanc.planning.stage1.estimate import Allocation
+from catanc.planning.stage1.result import Stage1Result
+
+
+@dataclass(frozen=True)
+class SubchainPlan:
+    name: str
+    nodes: tuple[str, ...]
+    cores: tuple[int, ...]
+    shared: bool
+    threads: int  # Eq. 1's q (1 on a shared core)
+    period_ms: float
+    latency_ms: float
+    fraction: float  # f: share of one run per schedule period (1.0 when dedicated)
+    priority: int  # higher steals from lower
+    every: int | None = None  # k: a shared non-batch subchain is triggered at its slot every k periods
+
+
+@dataclass(frozen=True)
+class CorePlan:
+    core: int
+    period_ms: float  # T, the schedule's length
+    order: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class ChainPlan:
+    nodes: tuple[str, ...]
+    subchains: tuple[str, ...]
+    latency_ms: float
+    period_ms: float
+    response_ms: float
+
+
+@dataclass(frozen=True)
+class TwoStageComparison:
+    """How the plan compares with the paper's plain two-stage result (Stage I's allocation)."""
+
+    allocations: int  # allocations considered
+    planned: int  # of those, planned by Stage II (the rest were bounded out, or beyond the planner's PLAN_AT_MOST)
+    complete: bool  # every other allocation was bounded out: the plan is the best of them all
+    two_stage_objective: float | None  # Stage I's allocation under Stage II (None: it could not meet the bounds)
+    two_stage_scale: float | None
+
+
+@dataclass(frozen=True)
+class Plan:
+    app: str
+    cores: int
+    objective: float
+    constraint_scale: float
+    subchains: dict[str, SubchainPlan]
+    shared_cores: tuple[CorePlan, ...]
+    chains: tuple[ChainPlan, ...]
+    stage1: Stage1Result
+    warnings: tuple[str, ...]
+    allocation: Allocation  # the one planned (Stage I's, or a runner-up that Stage II found better)
+    comparison: TwoStageComparison
+    runs: dict[str, int]  # n = 1/f per non-batch shared subchain (exact)
+    every: dict[str, int] = field(default_factory=dict)  # k >= n per non-batch shared subchain: p = k T
