@@ -34,9 +34,9 @@ import time
 from pathlib import Path
 from typing import Any
 
+from catanc.artifacts.runtime_table import load_table
 from catanc.runtime.log import read_log
 from catanc.runtime.processes import demo_profiles
-from catanc.runtime.table import load_table
 from catanc.runtime.worker import worker_command
 
 ROOT = Path(__file__).resolve().parent.parent

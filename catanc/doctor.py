@@ -17,15 +17,16 @@ from __future__ import annotations
 import os
 import resource
 import shutil
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from enum import Enum
 from pathlib import Path
+from typing import Any
 
+from catanc.artifacts.runtime_table import RuntimeTable
 from catanc.core.priorities import ENFORCER_FIFO
 from catanc.errors import CatancError, Diagnostic, SpecError
 from catanc.runtime.sched import check_fifo_allowed, fix_message, format_cpus, privilege_facts
-from catanc.runtime.table import RuntimeTable
 
 LAUNCH_TOOLS = ("chrt", "setsid", "taskset")
 """What launch.sh runs besides the app (all from util-linux)."""
@@ -112,7 +113,8 @@ def needs_of(table: RuntimeTable) -> Needs:
     try:
         priorities = [int(process.get("priority", 0)) for process in table.processes]
         cpus = {int(cpu) for process in table.processes for cpu in process.get("cpus", [])}
-        subchains = table.plan.get("subchains", {})
+        plan: Mapping[str, Any] = table.plan if table.plan is not None else {}
+        subchains = plan.get("subchains", {})
         dedicated = tuple(sorted(name for name, sub in subchains.items() if not sub.get("shared", True)))
     except (AttributeError, TypeError, ValueError):
         raise SpecError(

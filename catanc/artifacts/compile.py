@@ -13,7 +13,8 @@ from dataclasses import dataclass
 from pathlib import Path, PurePath
 
 from catanc import __version__
-from catanc.artifacts.emit import Provenance, emit
+from catanc.artifacts.emit import emit
+from catanc.artifacts.provenance import Provenance
 from catanc.core.problem import build_problem
 from catanc.errors import Diagnostic
 from catanc.planning.planner import plan

@@ -21,7 +21,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from catanc.artifacts.runtime_table import RATE_DIGITS, ms
+from catanc.artifacts.runtime_table import RATE_DIGITS, ProcessEntry, ms
 from catanc.core.priorities import resting_fifo, static_policy
 from catanc.spec.deploy_checks import PERIOD_NS, RESERVED_PREFIX, process_key, qualified, split_command
 from catanc.spec.language import Spec
@@ -57,6 +57,19 @@ class Process:
     def name(self) -> str:
         assert self.ros_node is not None
         return self.ros_node.rsplit("/", 1)[1]
+
+    def table_entry(self) -> ProcessEntry:
+        """The process as the runtime table lists it (its ROS parameters are params.yaml's)."""
+        return {
+            "key": self.key,
+            "ros_node": self.ros_node,
+            "nodes": list(self.nodes),
+            "argv": list(self.argv),
+            "package": self.package,
+            "executable": self.executable,
+            "cpus": list(self.cpus),
+            "priority": self.priority,
+        }
 
 
 # --------------------------------------------------------------------------- applying a plan

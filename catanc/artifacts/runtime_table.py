@@ -1,10 +1,14 @@
-"""The plan as plain data: the ``plan`` of the runtime table (interfaces.md, ``runtime.json``).
+"""The runtime table, ``runtime.json`` (interfaces.md): its one writer and its one reader.
 
-:func:`plan_payload` is what ``catanc explain --json`` prints and what
-``runtime.json`` will carry.  It is deterministic: times are rounded to
-:data:`MS_DIGITS` decimals (ms), fractions to :data:`FRACTION_DIGITS`, rates
-to :data:`RATE_DIGITS`, and every derived number is recomputed from the
-rounded ones, so the table is self-consistent as written:
+A table is in format :data:`RUNTIME_FORMAT`; its shape is the typed
+dictionaries below.  It imports neither jinja2 nor the explanation: the
+enforcer reads tables with it, and ``catanc explain --json`` prints its plan.
+
+Writing.  :func:`plan_payload` is the table's ``plan``.  It is deterministic:
+times are rounded to :data:`MS_DIGITS` decimals (ms), fractions to
+:data:`FRACTION_DIGITS`, rates to :data:`RATE_DIGITS`, and every derived
+number is recomputed from the rounded ones, so the table is self-consistent
+as written:
 
 - each subchain's ``rate_hz`` is ``1000 / period_ms`` and ``slice_ms`` is
   ``fraction * c(S)`` (``c(S)`` from the problem, not printed);
@@ -13,20 +17,103 @@ rounded ones, so the table is self-consistent as written:
 - ``objective`` is :func:`catanc.core.metrics.objective` over those same numbers.
 
 :func:`plan_json` dumps it with sorted keys, two-space indents and a final
-newline: the same plan gives the same bytes.
+newline: the same plan gives the same bytes.  :func:`runtime_json` is the
+whole table: the plan, the processes, the normalised spec and where it came from.
+
+Reading.  The table carries the normalised spec, so the enforcer re-plans
+without the YAML.  :func:`load_table` refuses a table of another ``format``
+and reports a broken one like a bad spec: file, line, field, what is wrong.
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import replace
-from typing import TYPE_CHECKING, Any
+from collections.abc import Iterable
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, NotRequired, TypedDict, cast
 
+from catanc.artifacts.provenance import Provenance
 from catanc.core.metrics import Timing, evaluate_chain, objective
-from catanc.core.problem import Chain, Problem, Stage
+from catanc.core.problem import Chain, Problem, Stage, build_problem
+from catanc.errors import Diagnostic, FieldPath, Location, SpecError
+from catanc.spec.language import Spec
+from catanc.spec.load import validate_data
+from catanc.spec.source import SourceMap, parse_yaml
 
 if TYPE_CHECKING:
     from catanc.planning.types import ChainPlan, Plan
+    from catanc.spec.machine import MachineUse
+
+RUNTIME_FORMAT = "catanc-runtime/1"
+"""``runtime.json``'s ``format``: the enforcer refuses a table of another format."""
+
+
+# --------------------------------------------------------------------------- the table's shape
+
+
+class SubchainEntry(TypedDict):
+    nodes: list[str]
+    cores: list[int]
+    shared: bool
+    threads: int
+    period_ms: float
+    latency_ms: float
+    rate_hz: float
+    fraction: float
+    slice_ms: float | None  # a shared subchain's slice per schedule period
+    priority: int
+    every: NotRequired[int]  # a shared non-batch subchain: triggered at its slot every k schedule periods
+
+
+class CoreEntry(TypedDict):
+    core: int
+    period_ms: float
+    order: list[str]
+
+
+class ClockEntry(TypedDict):
+    period_ms: float
+
+
+class ChainEntry(TypedDict):
+    nodes: list[str]
+    subchains: list[str]
+    head_period_ms: float | None
+    latency_ms: float
+    period_ms: float
+    response_ms: float
+
+
+class PlanPayload(TypedDict):
+    objective: float
+    constraint_scale: float
+    subchains: dict[str, SubchainEntry]
+    cores: list[CoreEntry]  # the shared cores
+    clocks: dict[str, ClockEntry]  # unscheduled nodes' own clocks
+    chains: list[ChainEntry]
+
+
+class ProcessEntry(TypedDict):
+    key: str
+    ros_node: str | None
+    nodes: list[str]
+    argv: list[str]
+    package: str | None
+    executable: str | None
+    cpus: list[int]
+    priority: int
+
+
+class GeneratedBy(TypedDict):
+    catanc: str
+    command: str
+    spec: str
+    spec_sha256: str
+
+
+# --------------------------------------------------------------------------- writing
+
 
 MS_DIGITS = 6
 FRACTION_DIGITS = 9
@@ -39,11 +126,11 @@ def ms(value: float) -> float:
     return round(value, MS_DIGITS)
 
 
-def plan_payload(plan: Plan, problem: Problem) -> dict[str, Any]:
+def plan_payload(plan: Plan, problem: Problem) -> PlanPayload:
     """The runtime table's ``plan`` for ``plan`` (the problem it was planned for supplies ``c(S)`` and clocks)."""
     rounded = rounded_problem(problem)
     timings = {name: Timing(ms(sub.period_ms), ms(sub.latency_ms)) for name, sub in plan.subchains.items()}
-    subchains: dict[str, Any] = {}
+    subchains: dict[str, SubchainEntry] = {}
     for name, sub in plan.subchains.items():
         fraction = round(sub.fraction, FRACTION_DIGITS)
         subchains[name] = {
@@ -60,11 +147,11 @@ def plan_payload(plan: Plan, problem: Problem) -> dict[str, Any]:
         }
         if sub.every is not None:  # triggered at its slot every k periods: period_ms = k * the core's
             subchains[name]["every"] = sub.every
-    cores = [
+    cores: list[CoreEntry] = [
         {"core": core.core, "period_ms": ms(core.period_ms), "order": list(core.order)}
         for core in sorted(plan.shared_cores, key=lambda c: c.core)
     ]
-    chains = []
+    chains: list[ChainEntry] = []
     for chain_plan in plan.chains:
         chain = _chain_of(chain_plan, rounded, plan)
         metrics = evaluate_chain(rounded, chain, timings)
@@ -117,3 +204,140 @@ def _chain_of(chain_plan: ChainPlan, problem: Problem, plan: Plan) -> Chain:
     # A batch head's observed period depends on the head node alone: any chain from it knows it.
     head = next((c.head_period_ms for c in problem.chains if c.nodes[0] == chain_plan.nodes[0]), None)
     return Chain(chain_plan.nodes, stages, head)
+
+
+def runtime_json(
+    spec: Spec,
+    problem: Problem,
+    plan: Plan,
+    provenance: Provenance,
+    processes: Iterable[ProcessEntry],
+    *,
+    machine: MachineUse | None = None,
+) -> str:
+    """The runtime table: interfaces.md's fields, the processes, where it came from, the machine profile used."""
+    generated_by: GeneratedBy = {
+        "catanc": provenance.version,
+        "command": provenance.command,
+        "spec": provenance.spec_name,
+        "spec_sha256": provenance.spec_sha256,
+    }
+    table: dict[str, Any] = {
+        "format": RUNTIME_FORMAT,
+        "generated_by": generated_by,
+        "app": spec.app,
+        "cores": plan.cores,
+        "plan": plan_payload(plan, problem),
+        "processes": list(processes),
+    }
+    if machine is not None:
+        table["machine"] = machine.record()
+    # Keys sorted, except inside the spec: its order of nodes and subchains breaks ties between plans.
+    ordered = {**sorted_keys(table), "spec": normalised_spec(spec)}
+    return json.dumps(dict(sorted(ordered.items())), indent=2, allow_nan=False, ensure_ascii=False) + "\n"
+
+
+def sorted_keys(data: Any) -> Any:
+    """``data`` with every mapping's keys in sorted order."""
+    if isinstance(data, dict):
+        return {key: sorted_keys(data[key]) for key in sorted(data)}
+    if isinstance(data, list):
+        return [sorted_keys(item) for item in data]
+    return data
+
+
+def normalised_spec(spec: Spec) -> dict[str, Any]:
+    """The spec with every default written out, as JSON data ``Spec.model_validate`` reads back."""
+    data: dict[str, Any] = spec.model_dump(mode="json", by_alias=True)
+    if not data["executors"]:
+        del data["executors"]  # a later field: tables of specs without executors stay as they were
+    return data
+
+
+# --------------------------------------------------------------------------- reading
+
+
+REQUIRED = {"format": str, "app": str, "cores": int, "spec": dict, "plan": dict, "processes": list}
+
+
+@dataclass(frozen=True)
+class RuntimeTable:
+    """A table as read back: the enforcer starts from its spec (it re-plans) and its processes."""
+
+    path: Path
+    app: str
+    cores: int
+    spec: Spec
+    plan: PlanPayload | None  # interfaces.md's ``plan`` (None: a table made in memory, with no plan written)
+    processes: tuple[ProcessEntry, ...]
+
+
+def load_table(path: str | Path) -> RuntimeTable:
+    """Read and check a runtime table; raise :class:`SpecError` naming the file, line and field."""
+    file = str(path)
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+        raise SpecError([Diagnostic(None, "", f"{file}: cannot read the runtime table: {reason}")]) from None
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        location = Location(file, exc.lineno, exc.colno)
+        raise SpecError([Diagnostic(location, "", f"not JSON: {exc.msg}")]) from None
+    source = _source_map(text, file)
+
+    def fail(field: FieldPath, message: str) -> SpecError:
+        return SpecError([Diagnostic(source.locate(field), ".".join(map(str, field)), message)])
+
+    if not isinstance(data, dict):
+        raise fail((), "a runtime table is a JSON object (written by `catanc compile`)")
+    found = data.get("format")
+    if found != RUNTIME_FORMAT:
+        what = "has no format" if found is None else f"is in format {found!r}"
+        raise fail(
+            ("format",),
+            f"this table {what}; this catanc reads {RUNTIME_FORMAT!r}: regenerate it with `catanc compile`",
+        )
+    for key, kind in REQUIRED.items():
+        value = data.get(key)
+        if not isinstance(value, kind) or isinstance(value, bool):
+            raise fail((key,) if key in data else (), f"missing or not a {kind.__name__}: {key!r}")
+    spec = _spec(data["spec"], source)
+    if spec.app != data["app"]:
+        raise fail(("app",), f"the table is for app {data['app']!r} but its spec is for {spec.app!r}")
+    if data["cores"] < 1:
+        raise fail(("cores",), "at least one core")
+    return RuntimeTable(
+        path=Path(path),
+        app=data["app"],
+        cores=data["cores"],
+        spec=spec,
+        plan=cast("PlanPayload", data["plan"]),
+        processes=tuple(cast("list[ProcessEntry]", data["processes"])),
+    )
+
+
+def _source_map(text: str, file: str) -> SourceMap:
+    """Lines and columns of the table's fields (JSON is YAML); none if YAML cannot read it."""
+    try:
+        return parse_yaml(text, file).source
+    except SpecError:
+        return SourceMap(file)
+
+
+def _spec(data: dict[str, Any], table: SourceMap) -> Spec:
+    """The table's spec, checked as a spec file would be; diagnostics name ``spec.<field>``."""
+    inner = SourceMap(
+        table.file,
+        values={path[1:]: where for path, where in table.values.items() if path[:1] == ("spec",)},
+        keys={path[1:]: where for path, where in table.keys.items() if path[:1] == ("spec",)},
+    )
+    try:
+        spec = validate_data(data, inner)
+        build_problem(spec)
+    except SpecError as exc:
+        raise SpecError(
+            [Diagnostic(d.location, f"spec.{d.field}" if d.field else "spec", d.message) for d in exc.diagnostics]
+        ) from None
+    return spec

@@ -380,13 +380,13 @@ def run_(
     quiet: Annotated[bool, typer.Option("--quiet", help="No live status; a summary at the end.")] = False,
 ) -> None:
     """Enforce a plan on this machine: trigger subchains, run per-core slices, measure and re-solve."""
+    from catanc.artifacts.runtime_table import load_table
     from catanc.core.priorities import ENFORCER_FIFO
     from catanc.errors import UsageError
     from catanc.runtime.enforcer import Enforcer
     from catanc.runtime.processes import Children, parse_attach, start_demo, start_launch
     from catanc.runtime.sched import Restorer, check_fifo_allowed, threads_of
     from catanc.runtime.status import status_view
-    from catanc.runtime.table import load_table
     from catanc.runtime.watchdog import Watchdog
 
     if demo + launch > 1:
@@ -459,8 +459,8 @@ def doctor(
     ] = None,
 ) -> None:
     """Check this machine for what a plan needs (privileges, real-time budgets, CPUs, tools); say how to fix each."""
+    from catanc.artifacts.runtime_table import load_table
     from catanc.doctor import ENFORCER_ONLY, Verdict, diagnose, inspect_machine, needs_of, render
-    from catanc.runtime.table import load_table
 
     if table_path is None:
         needs, title = ENFORCER_ONLY, "catanc doctor: what `catanc run` needs for any plan"

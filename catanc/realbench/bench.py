@@ -252,12 +252,12 @@ def planned_spec(setup: BenchSetup, policy: str) -> Spec:
 
 def run_enforced(setup: BenchSetup, spec: Spec, folder: Path, workers: Workers) -> Measured:
     """The workers under the real enforcer planning with ``spec``, as ``catanc run`` runs them."""
+    from catanc.artifacts.runtime_table import RuntimeTable  # noqa: PLC0415
     from catanc.runtime.enforcer import Enforcer  # noqa: PLC0415 - the baselines need none of it
     from catanc.runtime.log import read_log  # noqa: PLC0415
-    from catanc.runtime.table import RuntimeTable  # noqa: PLC0415
     from catanc.runtime.watchdog import Watchdog  # noqa: PLC0415
 
-    table = RuntimeTable(path=setup.spec_path, app=spec.app, cores=setup.cores, spec=spec, plan={}, processes=())
+    table = RuntimeTable(path=setup.spec_path, app=spec.app, cores=setup.cores, spec=spec, plan=None, processes=())
     socket_path = folder / "enforcer.sock"
     log_path = folder / "enforcer.jsonl"
     measured = Measured()

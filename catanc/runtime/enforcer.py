@@ -40,6 +40,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
+from catanc.artifacts.runtime_table import RuntimeTable
 from catanc.control import flights
 from catanc.control.schedule import (
     CoreSchedule,
@@ -66,7 +67,6 @@ from catanc.runtime.sched import (
     set_fifo,
     threads_of,
 )
-from catanc.runtime.table import RuntimeTable
 
 Start = Literal["bootstrap", "spec"]
 

@@ -29,7 +29,8 @@ from typer.testing import CliRunner
 from catanc import __version__
 from catanc.artifacts.compile import Target, compile_spec
 from catanc.artifacts.deploy import processes
-from catanc.artifacts.emit import FILES, RUNTIME_FORMAT
+from catanc.artifacts.emit import FILES
+from catanc.artifacts.runtime_table import RUNTIME_FORMAT
 from catanc.cli import app
 from catanc.core.problem import build_problem
 from catanc.errors import ExitCode

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
+from catanc.artifacts.runtime_table import load_table
 from catanc.core.problem import build_problem
 from catanc.errors import SpecError
-from catanc.runtime.table import load_table
 from catanc.spec.load import load_spec
 
 ROOT = Path(__file__).parents[2]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Mapping
 from functools import cache
 from pathlib import Path
 from typing import Any
@@ -34,7 +35,7 @@ def planned(name: str, cores: int) -> tuple[Spec, Problem, Plan]:
 # -- an independent reading of the table: section 2 of catan-model.md over the JSON's numbers
 
 
-def stage_timings(payload: dict[str, Any], chain: dict[str, Any]) -> list[tuple[float, float]]:
+def stage_timings(payload: Mapping[str, Any], chain: Mapping[str, Any]) -> list[tuple[float, float]]:
     """(period, latency) per stage: a subchain's from its row, a clock's (p, p), a batch head's observed period."""
     stages = []
     for index, name in enumerate(chain["subchains"]):
@@ -49,7 +50,7 @@ def stage_timings(payload: dict[str, Any], chain: dict[str, Any]) -> list[tuple[
     return stages
 
 
-def response(payload: dict[str, Any], chain: dict[str, Any]) -> tuple[float, float, float]:
+def response(payload: Mapping[str, Any], chain: Mapping[str, Any]) -> tuple[float, float, float]:
     stages = stage_timings(payload, chain)
     if not stages:
         return 0.0, 0.0, 0.0
@@ -68,7 +69,7 @@ def selected(spec: Spec, term: ChainsTerm, nodes: list[str]) -> bool:
     return starts and ends and all(node in nodes for node in selector.through_nodes)
 
 
-def recomputed_objective(spec: Spec, payload: dict[str, Any]) -> tuple[float, float]:
+def recomputed_objective(spec: Spec, payload: Mapping[str, Any]) -> tuple[float, float]:
     """The objective from the spec's weights and the JSON's numbers, and how far rounding may move it."""
     total, slack = 0.0, ROUNDING
     chains = payload["chains"]
@@ -135,7 +136,7 @@ REQUIRED = {
 }
 
 
-def check_shape(payload: dict[str, Any], spec: Spec, cores: int) -> None:
+def check_shape(payload: Mapping[str, Any], spec: Spec, cores: int) -> None:
     """interfaces.md's runtime table ``plan``, field by field."""
     assert REQUIRED["plan"] <= set(payload)
     assert isinstance(payload["objective"], float)

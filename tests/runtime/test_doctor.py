@@ -25,6 +25,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from catanc.artifacts.runtime_table import load_table
 from catanc.doctor import (
     ENFORCER_ONLY,
     CgroupBudget,
@@ -40,7 +41,6 @@ from catanc.doctor import (
 )
 from catanc.errors import ExitCode
 from catanc.runtime.sched import format_cpus
-from catanc.runtime.table import load_table
 from tests.support.linux import as_user, missing_tools, nobody_ids, require_fifo
 
 ROOT = Path(__file__).resolve().parents[2]
