@@ -20,7 +20,8 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.workloads import layered_spec
-from catanc.core.problem import Problem, build_problem
+from catanc.core.build import build_problem
+from catanc.core.problem import Problem
 from catanc.planning.stage1 import allocate
 from catanc.planning.stage1.milp import DEFAULT_TIME_LIMIT_S, relaxation_bound
 from catanc.spec.language import Spec

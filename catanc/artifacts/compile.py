@@ -15,7 +15,7 @@ from pathlib import Path, PurePath
 from catanc import __version__
 from catanc.artifacts.emit import emit
 from catanc.artifacts.provenance import Provenance
-from catanc.core.problem import build_problem
+from catanc.core.build import build_problem
 from catanc.errors import Diagnostic
 from catanc.planning.planner import plan
 from catanc.spec.load import read_spec

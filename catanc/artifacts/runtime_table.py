@@ -34,8 +34,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, NotRequired, TypedDict, cast
 
 from catanc.artifacts.provenance import Provenance
+from catanc.core.build import build_problem
 from catanc.core.metrics import Timing, evaluate_chain, objective
-from catanc.core.problem import Chain, Problem, Stage, build_problem
+from catanc.core.problem import Chain, Problem, Stage
 from catanc.errors import Diagnostic, FieldPath, Location, SpecError
 from catanc.spec.language import Spec
 from catanc.spec.load import validate_data

@@ -104,7 +104,7 @@ def _print_diagnostics(diagnostics: Sequence[Diagnostic], *, warning: bool = Fal
 
 def _load_problem(spec_path: Path) -> tuple[Spec, Problem]:
     """The spec and its planning problem, with the problem's warnings printed."""
-    from catanc.core.problem import build_problem
+    from catanc.core.build import build_problem
     from catanc.spec.load import load_spec
 
     spec = load_spec(spec_path)
@@ -155,7 +155,7 @@ def validate(
     specs: Annotated[list[Path], typer.Argument(metavar="SPEC...", help="Spec files.", show_default=False)],
 ) -> None:
     """Check specs: YAML, fields, names, the DAG, subchains, objective and constraints."""
-    from catanc.core.problem import build_problem
+    from catanc.core.build import build_problem
     from catanc.spec.load import load_spec
 
     failed = False
@@ -187,7 +187,7 @@ def chains(
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
 ) -> None:
     """List the app's chains, their subchain sequences and the terms that use them."""
-    from catanc.core.problem import build_problem
+    from catanc.core.build import build_problem
     from catanc.explain.listings import chain_listing, chains_table
     from catanc.spec.load import load_spec
 

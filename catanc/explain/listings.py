@@ -11,7 +11,8 @@ from typing import Any
 from rich.table import Table
 
 from catanc.core import graph
-from catanc.core.problem import Chain, Problem, collapse, spec_dag
+from catanc.core.build import collapse, spec_dag
+from catanc.core.problem import Chain, Problem
 from catanc.errors import Diagnostic, format_path
 from catanc.planning.stage1 import Stage1Result
 from catanc.planning.stage1.estimate import option_table

@@ -41,8 +41,9 @@ from dataclasses import dataclass
 
 import networkx as nx
 
+from catanc.core.build import spec_dag
 from catanc.core.metrics import ChainMetrics, Timing, chain_metrics, fixed_timing
-from catanc.core.problem import Chain, PeriodTerm, Problem, spec_dag
+from catanc.core.problem import Chain, PeriodTerm, Problem
 from catanc.errors import format_path
 from catanc.spec.language import Spec
 

@@ -24,8 +24,9 @@ from collections.abc import Mapping
 from dataclasses import replace
 from typing import Literal
 
+from catanc.core.build import build_problem
 from catanc.core.metrics import chain_metrics_of
-from catanc.core.problem import Problem, build_problem
+from catanc.core.problem import Problem
 from catanc.errors import InfeasibleError, UsageError
 from catanc.planning.order import data_flow_order, flow_weights
 from catanc.planning.stage1 import Allocation, Stage1Result, allocate, next_best

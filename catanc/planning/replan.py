@@ -22,7 +22,8 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-from catanc.core.problem import Problem, build_problem
+from catanc.core.build import build_problem
+from catanc.core.problem import Problem
 from catanc.errors import UsageError
 from catanc.planning.planner import STAGE2_RELAXATIONS, assemble, conic_model, plan_problem
 from catanc.planning.stage2.base import Layout, SharedCore, Stage2Model

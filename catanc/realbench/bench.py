@@ -38,8 +38,8 @@ from pathlib import Path
 from typing import Any
 
 from catanc.control.schedule import RuntimeSchedule
+from catanc.core.build import build_problem
 from catanc.core.priorities import ENFORCER_FIFO
-from catanc.core.problem import build_problem
 from catanc.errors import PrivilegeError, UsageError
 from catanc.realbench.driver import BenchError, Driver
 from catanc.realbench.replay import measured_result, replay, utilisation

@@ -24,8 +24,9 @@ import numpy as np
 import numpy.typing as npt
 
 from catanc.control.schedule import RuntimeSchedule, runtime_schedule
+from catanc.core.build import build_problem, spec_dag
 from catanc.core.graph import all_chains
-from catanc.core.problem import Problem, build_problem, spec_dag
+from catanc.core.problem import Problem
 from catanc.core.workload import ComputeSampler, NodeStream
 from catanc.errors import UsageError
 from catanc.planning.planner import plan_problem, priorities

@@ -16,7 +16,7 @@ from typing import Annotated, Any, Union, get_args, get_origin
 
 from pydantic import BaseModel, Tag, ValidationError
 
-from catanc.core.problem import build_problem
+from catanc.core.build import build_problem
 from catanc.errors import Diagnostic, FieldPath, SpecError, close_matches, did_you_mean, format_path
 from catanc.spec.language import ARROW_EDGE_PATTERN, SPEC_VERSIONS, Spec
 from catanc.spec.source import SourceMap, parse_yaml, read_text

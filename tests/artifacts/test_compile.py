@@ -32,7 +32,7 @@ from catanc.artifacts.deploy import processes
 from catanc.artifacts.emit import FILES
 from catanc.artifacts.runtime_table import RUNTIME_FORMAT
 from catanc.cli import app
-from catanc.core.problem import build_problem
+from catanc.core.build import build_problem
 from catanc.errors import ExitCode
 from catanc.planning.planner import plan
 from catanc.spec.language import Spec

@@ -39,8 +39,8 @@ from catanc.artifacts.compile import compile_spec
 from catanc.artifacts.deploy import Process, processes
 from catanc.artifacts.emit import emit
 from catanc.artifacts.provenance import Provenance
+from catanc.core.build import build_problem
 from catanc.core.priorities import RUNNING_FIFO, SHARED_FIFO, UNSCHEDULED_FIFO
-from catanc.core.problem import build_problem
 from catanc.errors import ExitCode
 from catanc.planning.planner import plan
 from catanc.planning.types import Plan

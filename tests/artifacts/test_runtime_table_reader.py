@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from catanc.artifacts.runtime_table import load_table
-from catanc.core.problem import build_problem
+from catanc.core.build import build_problem
 from catanc.errors import SpecError
 from catanc.spec.load import load_spec
 

@@ -14,7 +14,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from catanc.artifacts.runtime_table import plan_json, plan_payload
-from catanc.core.problem import Problem, build_problem
+from catanc.core.build import build_problem
+from catanc.core.problem import Problem
 from catanc.planning.planner import plan
 from catanc.planning.types import Plan
 from catanc.spec.language import ChainsTerm, ChainTerm, NodeTerm, Spec

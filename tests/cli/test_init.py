@@ -12,7 +12,7 @@ import pytest
 import yaml
 from pydantic import BaseModel
 
-from catanc.core.problem import build_problem
+from catanc.core.build import build_problem
 from catanc.errors import ExitCode
 from catanc.spec import language
 from catanc.spec.load import parse_spec

@@ -18,7 +18,7 @@ from catanc.control.schedule import (
     slot_owner,
     triggers_at_slot,
 )
-from catanc.core.problem import build_problem
+from catanc.core.build import build_problem
 from catanc.planning.planner import plan
 from catanc.spec.load import load_spec
 

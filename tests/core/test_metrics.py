@@ -13,6 +13,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from catanc.core.build import build_problem
 from catanc.core.metrics import (
     Timing,
     chain_metrics,
@@ -21,7 +22,7 @@ from catanc.core.metrics import (
     evaluate_chain,
     objective,
 )
-from catanc.core.problem import Problem, Subchain, build_problem
+from catanc.core.problem import Problem, Subchain
 from catanc.spec.language import Node
 from catanc.spec.load import load_spec, parse_spec
 from tests.support.strategies import problems

@@ -7,7 +7,8 @@ import math
 
 import pytest
 
-from catanc.core.problem import Stage, build_problem
+from catanc.core.build import build_problem
+from catanc.core.problem import Stage
 from catanc.errors import SpecError
 from catanc.spec.load import parse_spec
 

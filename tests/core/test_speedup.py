@@ -6,7 +6,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from catanc.control.schedule import runtime_schedule
-from catanc.core.problem import build_problem
+from catanc.core.build import build_problem
 from catanc.core.speedup import best_speedup, threads_used
 from catanc.planning.planner import plan
 from catanc.spec.load import parse_spec

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from catanc.core.problem import build_problem
+from catanc.core.build import build_problem
 from catanc.explain.analysis import explain_plan
 from catanc.explain.enforceable import short_slots
 from catanc.planning.planner import plan

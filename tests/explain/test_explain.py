@@ -18,7 +18,8 @@ from rich.console import Console
 from typer.testing import CliRunner
 
 from catanc.cli import app
-from catanc.core.problem import Problem, build_problem
+from catanc.core.build import build_problem
+from catanc.core.problem import Problem
 from catanc.errors import ExitCode, InfeasibleError
 from catanc.explain.analysis import (
     Block,

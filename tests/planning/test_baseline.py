@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from catanc.core.problem import build_problem
+from catanc.core.build import build_problem
 from catanc.planning.baseline import BaselineEvaluation, BaselineGap, evaluate_baseline
 from catanc.spec.load import load_spec, parse_spec
 

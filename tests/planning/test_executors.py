@@ -16,8 +16,9 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from typer.testing import CliRunner
 
+from catanc.core.build import build_problem
 from catanc.core.metrics import capped_dedicated, dedicated_timing
-from catanc.core.problem import Problem, build_problem
+from catanc.core.problem import Problem
 from catanc.errors import ExitCode, InfeasibleError, SpecError
 from catanc.planning.stage1 import Option, allocate, next_best
 from catanc.planning.stage1.estimate import evaluate, option_table

@@ -10,8 +10,9 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
+from catanc.core.build import build_problem
 from catanc.core.metrics import Timing, bound_scale, objective
-from catanc.core.problem import Problem, build_problem
+from catanc.core.problem import Problem
 from catanc.planning.planner import plan
 from catanc.planning.stage2.relaxed import Layout, SharedCore
 from catanc.planning.types import Plan
@@ -226,7 +227,7 @@ def test_same_plan_in_fresh_processes() -> None:
 
     script = (
         "import json, sys; from catanc.spec.load import load_spec; from catanc.planning.planner import plan; "
-        "from catanc.core.problem import build_problem; from catanc.artifacts.runtime_table import plan_payload; "
+        "from catanc.core.build import build_problem; from catanc.artifacts.runtime_table import plan_payload; "
         "spec = load_spec(sys.argv[1]); "
         "print(json.dumps(plan_payload(plan(spec, 2), build_problem(spec)), sort_keys=True))"
     )

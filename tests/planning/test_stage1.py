@@ -10,7 +10,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from catanc.core.problem import Problem, build_problem
+from catanc.core.build import build_problem
+from catanc.core.problem import Problem
 from catanc.planning.stage1 import Allocation, Option, allocate, milp
 from catanc.planning.stage1.estimate import option_timing
 from catanc.planning.stage1.exhaustive import allocations, set_partitions

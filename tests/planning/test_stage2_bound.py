@@ -17,8 +17,9 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from catanc.core.build import build_problem
 from catanc.core.metrics import Timing
-from catanc.core.problem import Problem, build_problem
+from catanc.core.problem import Problem
 from catanc.errors import InfeasibleError
 from catanc.planning.planner import conic_model, ordered_layout
 from catanc.planning.stage1.exhaustive import every_allocation

@@ -16,7 +16,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from catanc.core.problem import Problem, build_problem
+from catanc.core.build import build_problem
+from catanc.core.problem import Problem
 from catanc.planning.stage1 import allocate
 from catanc.planning.stage2.base import Layout, RelaxedSolution, SharedCore, Stage2Model
 from catanc.planning.stage2.conic import ConicStage2

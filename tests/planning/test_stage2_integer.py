@@ -23,8 +23,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from catanc.core.build import build_problem
 from catanc.core.metrics import Timing, bound_scale, capped_dedicated, evaluate_chain, objective
-from catanc.core.problem import Problem, build_problem
+from catanc.core.problem import Problem
 from catanc.planning.stage1 import allocate
 from catanc.planning.stage2.integer import most_runs, solve_integer
 from catanc.planning.stage2.relaxed import Layout, RelaxedStage2

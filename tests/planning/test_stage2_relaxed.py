@@ -8,8 +8,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from catanc.core.build import build_problem
 from catanc.core.metrics import Timing, capped_dedicated, objective
-from catanc.core.problem import Problem, build_problem
+from catanc.core.problem import Problem
 from catanc.planning.stage1 import allocate
 from catanc.planning.stage2.relaxed import Layout, RelaxedStage2, SharedCore
 from catanc.spec.language import Schedule

@@ -26,7 +26,7 @@ from typing import Any
 
 import pytest
 
-from catanc.core.problem import build_problem
+from catanc.core.build import build_problem
 from catanc.errors import ExitCode, UsageError
 from catanc.planning.planner import plan
 from catanc.realbench import bench as bench_run

@@ -7,7 +7,8 @@ from typing import Any
 
 from hypothesis import strategies as st
 
-from catanc.core.problem import Problem, build_problem
+from catanc.core.build import build_problem
+from catanc.core.problem import Problem
 from catanc.spec.language import Spec
 from catanc.spec.load import parse_spec
 

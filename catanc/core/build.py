@@ -1,0 +1,460 @@
+"""From a valid spec to its planning problem: the checks of meaning, then :class:`Problem`.
+
+:func:`build_problem` checks what the pydantic models cannot see on their
+own (names, the DAG, subchain paths, selectors, rate bounds across
+constraints, executors, the deploy section) and reports every problem at once.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import replace
+
+import networkx as nx
+
+from catanc.core import graph
+from catanc.core.problem import Chain, Executor, PeriodTerm, Problem, ResponseBound, ResponseTerm, Stage, Subchain
+from catanc.errors import Diagnostic, FieldPath, SpecError, close_matches, did_you_mean, format_path
+from catanc.spec.deploy_checks import deploy_problems
+from catanc.spec.language import (
+    ChainConstraint,
+    ChainsConstraint,
+    ChainSelector,
+    ChainsTerm,
+    ChainTerm,
+    NodeTerm,
+    RateConstraint,
+    Spec,
+)
+
+MAX_SELECTOR_PATHS = 10_000
+"""A selector matching more paths than this is an error, not a slow solve."""
+
+
+def build_problem(spec: Spec) -> Problem:
+    """Check the spec's meaning and build its :class:`Problem`; raise :class:`SpecError`."""
+    return _Builder(spec).build()
+
+
+def spec_dag(spec: Spec) -> nx.DiGraph:
+    """The spec's DAG (edges to unknown nodes are left out)."""
+    return graph.build_dag(
+        list(spec.nodes), [(a, b) for a, b in spec.edge_pairs if a in spec.nodes and b in spec.nodes]
+    )
+
+
+def collapse(path: Iterable[str], spec: Spec, membership: dict[str, str]) -> tuple[Stage, ...]:
+    """A path's stages: runs of one subchain merge; rate-less unscheduled nodes drop out.
+
+    A path may enter a subchain after its first node (nav2d's NC -> LP) or
+    leave it before its last (nav2d's scan -> GL): the stage is still the
+    whole subchain, triggered at its head and timed as one run, which is the
+    worst case the model assumes everywhere.
+    """
+    stages: list[Stage] = []
+    for node in path:
+        if node in membership:
+            stage = Stage(membership[node])
+            if not stages or stages[-1] != stage:
+                stages.append(stage)
+        elif spec.nodes[node].rate_hz is not None:
+            stages.append(Stage(node, fixed=True))
+    return tuple(stages)
+
+
+class _Builder:
+    """Accumulates diagnostics while building; one instance per call."""
+
+    def __init__(self, spec: Spec) -> None:
+        self.spec = spec
+        self.errors: list[Diagnostic] = []
+        self.warnings: list[Diagnostic] = []
+        self.node_names = list(spec.nodes)
+        self.dag: nx.DiGraph | None = None
+        self.membership: dict[str, str] = {}
+        self.chains: list[Chain] = []
+        self.chain_index: dict[tuple[str, ...], int] = {}
+
+    # -- reporting
+
+    def _diagnostic(self, path: FieldPath, message: str, *, at_key: bool = False) -> Diagnostic:
+        source = self.spec.source
+        location = source.locate(path, at_key=at_key) if source is not None else None
+        return Diagnostic(location, format_path(path), message)
+
+    def error(self, path: FieldPath, message: str, *, at_key: bool = False) -> None:
+        self.errors.append(self._diagnostic(path, message, at_key=at_key))
+
+    def warn(self, path: FieldPath, message: str) -> None:
+        self.warnings.append(self._diagnostic(path, message))
+
+    def line_of(self, path: FieldPath) -> str:
+        source = self.spec.source
+        return f" (line {source.locate(path).line})" if source is not None else ""
+
+    def where(self, path: FieldPath) -> str:
+        """``edges[4] on line 10`` (or just the field path without a source)."""
+        source = self.spec.source
+        line = f" on line {source.locate(path).line}" if source is not None else ""
+        return f"{format_path(path)}{line}"
+
+    def known(self, name: str, path: FieldPath, what: str = "node") -> bool:
+        choices = self.node_names if what == "node" else list(self.spec.subchains)
+        if name in choices:
+            return True
+        self.error(path, f"unknown {what} {name!r}{did_you_mean(name, choices)}")
+        return False
+
+    # -- passes
+
+    def build(self) -> Problem:
+        self.check_edges()
+        self.check_subchains()
+        self.check_settings()
+        subchains = self.subchain_bounds()
+        executors = self.check_executors(subchains)
+        subchains = _with_serial(subchains, executors)
+        response_terms, period_terms = self.objective_terms()
+        bounds = self.response_bounds()
+        if self.errors:
+            raise SpecError(self.errors)
+        if not self.spec.objective:
+            self.warn(("objective",), "the objective is empty: every plan scores 0, so any feasible plan is chosen")
+        fixed = {
+            name: 1000.0 / node.rate_hz
+            for name, node in self.spec.nodes.items()
+            if not node.scheduled and node.rate_hz is not None
+        }
+        return Problem(
+            app=self.spec.app,
+            subchains=subchains,
+            fixed_periods_ms=fixed,
+            chains=tuple(self.chains),
+            response_terms=tuple(response_terms),
+            period_terms=tuple(period_terms),
+            response_bounds=tuple(bounds),
+            warnings=tuple(self.warnings),
+            executors=executors,
+            slack=self.spec.schedule.slack,
+        )
+
+    def check_edges(self) -> None:
+        seen: dict[tuple[str, str], int] = {}
+        all_known = True
+        for index, (a, b) in enumerate(self.spec.edge_pairs):
+            path: FieldPath = ("edges", index)
+            pair = isinstance(self.spec.edges[index], list)  # point at the name itself where it has its own place
+            ok_a = self.known(a, (*path, 0) if pair else path)
+            ok_b = self.known(b, (*path, 1) if pair else path)
+            all_known = all_known and ok_a and ok_b
+            if (a, b) in seen:
+                first = ("edges", seen[(a, b)])
+                self.error(path, f"duplicate edge {a} -> {b} (same as {self.where(first)})")
+            seen.setdefault((a, b), index)
+        dag = spec_dag(self.spec)
+        cycles = graph.find_cycles(dag)
+        for cycle in cycles:
+            closing = max(seen[(a, b)] for a, b in itertools.pairwise(cycle))
+            self.error(("edges", closing), f"cycle {' -> '.join(cycle)}: the app graph must be acyclic")
+        if all_known and not cycles:
+            self.dag = dag
+
+    def check_subchains(self) -> None:
+        spec = self.spec
+        first_path: dict[str, FieldPath] = {}
+        # Nodes a subchain meant to list, though it names them wrongly (a typo) or
+        # under a duplicated key: both already reported, so no "in no subchain" twin.
+        meant: set[str] = set()
+        shadowed = spec.source.shadowed if spec.source is not None else {}
+        for dropped_path, value in shadowed.items():
+            if dropped_path[:1] == ("subchains",) and isinstance(value, list):
+                meant.update(str(item) for item in value)
+        for sub_name, nodes in spec.subchains.items():
+            for index, node in enumerate(nodes):
+                path: FieldPath = ("subchains", sub_name, index)
+                if not self.known(node, path):
+                    meant.update(close_matches(node, self.node_names))
+                    continue
+                if node in first_path:
+                    other = first_path[node]
+                    owner = other[1]
+                    where = "earlier in this subchain" if owner == sub_name else f"already in subchain {owner!r}"
+                    self.error(path, f"node {node!r} is {where}{self.line_of(other)}; a node belongs to one subchain")
+                    continue
+                first_path[node] = path
+                if not spec.nodes[node].scheduled:
+                    self.error(path, f"node {node!r} is unscheduled (scheduled: false) and cannot be in a subchain")
+                    continue
+                self.membership[node] = sub_name
+                if index > 0 and spec.nodes[node].is_batch:
+                    self.error(path, f"batch node {node!r} must be the first node of its subchain")
+            if self.dag is not None and all(n in spec.nodes for n in nodes) and len(set(nodes)) == len(nodes):
+                missing = graph.first_missing_edge(self.dag, nodes)
+                if missing is not None:
+                    a, b = missing
+                    self.error(
+                        ("subchains", sub_name),
+                        f"subchain {sub_name!r} is not a path in the DAG: there is no edge {a} -> {b}",
+                        at_key=True,
+                    )
+        for name, node_spec in spec.nodes.items():
+            if node_spec.scheduled and name not in first_path and name not in meant:
+                self.error(
+                    ("nodes", name),
+                    f"scheduled node {name!r} is in no subchain (add it to one, e.g. `{name}: [{name}]`, "
+                    "or set scheduled: false)",
+                    at_key=True,
+                )
+
+    def check_settings(self) -> None:
+        spec = self.spec
+        if spec.schedule.order is not None:
+            seen: set[str] = set()
+            for index, name in enumerate(spec.schedule.order):
+                path: FieldPath = ("schedule", "order", index)
+                if self.known(name, path, "subchain") and name in seen:
+                    self.error(path, f"subchain {name!r} is listed twice")
+                seen.add(name)
+        for name in spec.schedule.priorities:
+            self.known(name, ("schedule", "priorities", name), "subchain")
+        for name in spec.baseline.rates_hz:
+            path = ("baseline", "rates_hz", name)
+            if self.known(name, path) and not spec.nodes[name].scheduled:
+                self.error(path, f"node {name!r} is unscheduled; its rate is its own rate_hz")
+        for name in spec.deploy:
+            self.known(name, ("deploy", name))
+        for path, message in deploy_problems(spec):
+            self.error(path, message)
+
+    def subchain_bounds(self) -> tuple[Subchain, ...]:
+        """Subchains with rate bounds from every node constraint on their nodes."""
+        spec = self.spec
+        bounds: dict[str, tuple[float, float, FieldPath | None]] = dict.fromkeys(spec.subchains, (0.0, math.inf, None))
+        for index, constraint in enumerate(spec.constraints):
+            if not isinstance(constraint, RateConstraint):
+                continue
+            path: FieldPath = ("constraints", index, "node")
+            node = constraint.node
+            if not self.known(node, path):
+                continue
+            if not spec.nodes[node].scheduled:
+                self.error(path, f"node {node!r} is unscheduled: its rate is fixed by its own rate_hz")
+                continue
+            if node not in self.membership:
+                continue  # already reported: the node is in no (valid) subchain
+            sub = self.membership[node]
+            low, high, origin = bounds[sub]
+            new_low, new_high = constraint.bounds_hz
+            low2, high2 = max(low, new_low), min(high, new_high)
+            if low2 > high2 and origin is not None:
+                self.error(
+                    ("constraints", index),
+                    f"contradicts {self.where(origin)}: subchain {sub!r} would need "
+                    f"a rate >= {low2:g} Hz and <= {high2:g} Hz",
+                )
+                continue
+            bounds[sub] = (low2, high2, ("constraints", index))
+        subchains = []
+        for name, nodes in spec.subchains.items():
+            if not all(n in spec.nodes for n in nodes):
+                continue
+            low, high, _ = bounds[name]
+            head = spec.nodes[nodes[0]]
+            subchains.append(
+                Subchain(
+                    name=name,
+                    nodes=tuple(nodes),
+                    node_compute_ms=tuple(spec.nodes[n].mean_compute_ms for n in nodes),
+                    node_speedups=tuple(spec.nodes[n].threads.speedups for n in nodes),
+                    batch=head.is_batch,
+                    min_period_ms=1000.0 / high if high < math.inf else 0.0,
+                    max_period_ms=1000.0 / low if low > 0 else math.inf,
+                )
+            )
+        return tuple(subchains)
+
+    def check_executors(self, subchains: tuple[Subchain, ...]) -> tuple[Executor, ...]:
+        """Each executor's nodes: known, scheduled, in one executor only, and able to keep up with their floors."""
+        spec = self.spec
+        first_path: dict[str, FieldPath] = {}
+        executors = []
+        by_name = {sub.name: sub for sub in subchains}
+        for name, nodes in spec.executors.items():
+            ok = True
+            for index, node in enumerate(nodes):
+                path: FieldPath = ("executors", name, index)
+                if not self.known(node, path):
+                    ok = False
+                    continue
+                if node in first_path:
+                    other = first_path[node]
+                    where = "earlier in this executor" if other[1] == name else f"already in executor {other[1]!r}"
+                    self.error(path, f"node {node!r} is {where}{self.line_of(other)}; a node runs in one thread")
+                    ok = False
+                    continue
+                first_path[node] = path
+                if not spec.nodes[node].scheduled:
+                    self.error(
+                        path,
+                        f"node {node!r} is unscheduled (scheduled: false): it runs on its own clock, "
+                        "so the scheduler cannot serialise it with the executor's other nodes",
+                    )
+                    ok = False
+                elif node not in self.membership:
+                    ok = False  # reported already: in no (valid) subchain
+            if not ok:
+                continue
+            owners = list(dict.fromkeys(self.membership[node] for node in nodes))
+            order = list(spec.subchains)
+            owners.sort(key=order.index)
+            source = spec.source
+            where = str(source.locate(("executors", name), at_key=True)) if source is not None else ""
+            executor = Executor(name, tuple(nodes), tuple(owners), where)
+            if all(owner in by_name for owner in owners):
+                self.check_executor_load(executor, by_name)
+            executors.append(executor)
+        return tuple(executors)
+
+    def check_executor_load(self, executor: Executor, by_name: Mapping[str, Subchain]) -> None:
+        """One thread gives at most 100% of a core: the executor's nodes at their rate floors must fit.
+
+        Each node runs once per run of its subchain, at a period of at most the
+        subchain's longest allowed period; with its most threads it takes
+        ``c_j / speedup_max``.  No core count changes this, so it is a spec error.
+        """
+        loads = []
+        for node in executor.nodes:
+            sub = by_name[self.membership[node]]
+            if sub.max_period_ms == math.inf or sub.batch:
+                continue
+            position = sub.nodes.index(node)
+            fastest = sub.node_compute_ms[position] / max(sub.node_speedups[position])
+            loads.append((node, 1000.0 / sub.max_period_ms, fastest / sub.max_period_ms))
+        total = math.fsum(load for _, _, load in loads)
+        if total > 1.0:
+            parts = ", ".join(f"{node} at >= {rate:g} Hz needs {load:.0%}" for node, rate, load in loads)
+            self.error(
+                ("executors", executor.name),
+                f"executor {executor.name!r} cannot keep up with its rate floors: {parts} of its one thread, "
+                f"{total:.0%} in all; a single-threaded executor runs one callback at a time on any number of "
+                "cores (lower a min_rate_hz, or split the executor)",
+                at_key=True,
+            )
+
+    # -- chains
+
+    def add_chain(self, nodes: tuple[str, ...]) -> int:
+        """Index of the chain over ``nodes``, collapsing it on first sight."""
+        if nodes not in self.chain_index:
+            head = self.spec.nodes[nodes[0]]
+            head_period = None
+            if head.scheduled and head.batch_output_rate_hz is not None:
+                head_period = 1000.0 / head.batch_output_rate_hz
+            self.chain_index[nodes] = len(self.chains)
+            self.chains.append(Chain(nodes, collapse(nodes, self.spec, self.membership), head_period))
+        return self.chain_index[nodes]
+
+    def explicit_chain(self, nodes: list[str], path: FieldPath) -> list[int]:
+        """The one chain an explicit ``chain: [...]`` names, if it is a DAG path."""
+        ok = all([self.known(node, (*path, index)) for index, node in enumerate(nodes)])  # noqa: C419 - report every name
+        if not ok or self.dag is None:
+            return []
+        missing = graph.first_missing_edge(self.dag, nodes)
+        if missing is not None:
+            a, b = missing
+            self.error(path, f"not a path in the DAG: there is no edge {a} -> {b}")
+            return []
+        return [self.add_chain(tuple(nodes))]
+
+    def selected_chains(self, selector: ChainSelector, path: FieldPath) -> list[int]:
+        """Every chain a selector matches (an error when none, or far too many)."""
+        named: list[tuple[str, FieldPath]] = []
+        if selector.from_ is not None:
+            named.append((selector.from_, (*path, "from")))
+        if isinstance(selector.through, str):
+            named.append((selector.through, (*path, "through")))
+        else:
+            named.extend((node, (*path, "through", i)) for i, node in enumerate(selector.through))
+        if selector.to is not None:
+            named.append((selector.to, (*path, "to")))
+        ok = all([self.known(node, where) for node, where in named])  # noqa: C419 - report every name
+        if not ok or self.dag is None:
+            return []
+        starts = [selector.from_] if selector.from_ is not None else graph.sources(self.dag)
+        ends = [selector.to] if selector.to is not None else graph.sinks(self.dag)
+        through = selector.through_nodes
+        count = graph.count_paths(self.dag, starts, through, ends)
+        if count == 0:
+            self.error(path, f"selector {_describe_selector(selector)} matches no path in the DAG")
+            return []
+        if count > MAX_SELECTOR_PATHS:
+            self.error(
+                path,
+                f"selector {_describe_selector(selector)} matches {count:,} paths (more than "
+                f"{MAX_SELECTOR_PATHS:,}); narrow it with from/through/to",
+            )
+            return []
+        return [self.add_chain(nodes) for nodes in graph.iter_paths(self.dag, starts, through, ends)]
+
+    def chains_of(
+        self, entry: ChainTerm | ChainConstraint | ChainsTerm | ChainsConstraint, path: FieldPath
+    ) -> list[int]:
+        if isinstance(entry, (ChainTerm, ChainConstraint)):
+            return self.explicit_chain(entry.chain, (*path, "chain"))
+        return self.selected_chains(entry.chains, (*path, "chains"))
+
+    def objective_terms(self) -> tuple[list[ResponseTerm], list[PeriodTerm]]:
+        response_terms: list[ResponseTerm] = []
+        period_terms: list[PeriodTerm] = []
+        for index, term in enumerate(self.spec.objective):
+            path: FieldPath = ("objective", index)
+            if isinstance(term, NodeTerm):
+                node_path = (*path, "node")
+                if not self.known(term.node, node_path):
+                    continue
+                if not self.spec.nodes[term.node].scheduled:
+                    self.error(
+                        node_path, f"node {term.node!r} is unscheduled: its period is fixed, a term on it has no effect"
+                    )
+                elif term.node in self.membership:
+                    period_terms.append(PeriodTerm(self.membership[term.node], term.node, term.weight, path))
+                continue
+            for chain in self.chains_of(term, path):
+                response_terms.append(ResponseTerm(chain, term.weight, path))
+        return response_terms, period_terms
+
+    def response_bounds(self) -> list[ResponseBound]:
+        bounds: list[ResponseBound] = []
+        for index, constraint in enumerate(self.spec.constraints):
+            if isinstance(constraint, RateConstraint):
+                continue
+            path: FieldPath = ("constraints", index)
+            for chain in self.chains_of(constraint, path):
+                bounds.append(ResponseBound(chain, constraint.max_response_ms, path))
+        return bounds
+
+
+def _with_serial(subchains: tuple[Subchain, ...], executors: tuple[Executor, ...]) -> tuple[Subchain, ...]:
+    """Each subchain with the positions of its nodes that share an executor (Eq. 1 adds them up)."""
+    result = []
+    for sub in subchains:
+        serial = tuple(
+            positions
+            for executor in executors
+            if len(positions := tuple(i for i, node in enumerate(sub.nodes) if node in executor.nodes)) >= 2
+        )
+        result.append(replace(sub, serial=serial) if serial else sub)
+    return tuple(result)
+
+
+def _describe_selector(selector: ChainSelector) -> str:
+    parts = []
+    if selector.from_ is not None:
+        parts.append(f"from: {selector.from_}")
+    if selector.through_nodes:
+        parts.append(f"through: {', '.join(selector.through_nodes)}")
+    if selector.to is not None:
+        parts.append(f"to: {selector.to}")
+    return "{" + "; ".join(parts) + "}"
