@@ -36,9 +36,9 @@ from typing import NamedTuple
 
 import numba
 
+from catanc.core.load import load_spec
 from catanc.sim import kernel
 from catanc.sim.simulate import POLICIES, Setup, simulate
-from catanc.spec.load import load_spec
 
 CHILD_FLAG = "--child"
 

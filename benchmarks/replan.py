@@ -32,8 +32,8 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.solvers import median_ms
+from catanc.core.load import load_spec
 from catanc.planning.replan import RUNTIME_GAP
-from catanc.spec.load import load_spec
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER_STAGE2_MS = {"nav2d": 25.0, "vr_illixr": 5.5}  # C++/Mosek, paper section 6 (24-26 ms, 5-6 ms)
@@ -112,7 +112,7 @@ import json, time
 started = time.perf_counter()
 from catanc.planning.replan import Replanner
 from benchmarks.solvers import median_ms
-from catanc.spec.load import load_spec
+from catanc.core.load import load_spec
 from catanc.planning.replan import RUNTIME_GAP
 imported = time.perf_counter()
 spec = load_spec({str(ROOT / "specs" / f"{name}.yaml")!r})

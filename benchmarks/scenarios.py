@@ -33,10 +33,10 @@ import yaml
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
+from catanc.core.load import load_spec
 from catanc.sim.metrics import ChainResult, PolicyResult
 from catanc.sim.plots import panel_figure, png_bytes, write_files
 from catanc.sim.simulate import Setup, simulate
-from catanc.spec.load import load_spec
 
 SPECS = Path(__file__).resolve().parent.parent / "specs"
 OUT = Path(__file__).resolve().parent.parent / "docs" / "results"

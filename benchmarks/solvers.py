@@ -21,11 +21,11 @@ from typing import Any
 
 from benchmarks.workloads import layered_spec
 from catanc.core.build import build_problem
+from catanc.core.load import load_spec
 from catanc.core.problem import Problem
 from catanc.planning.stage1 import allocate
 from catanc.planning.stage1.milp import DEFAULT_TIME_LIMIT_S, relaxation_bound
 from catanc.spec.language import Spec
-from catanc.spec.load import load_spec
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER_STAGE1_NAV2D_MS = 60.0  # C++/Mosek, nav on 2 cores (paper section 6)

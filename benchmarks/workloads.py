@@ -14,8 +14,8 @@ from typing import Any
 
 import yaml
 
+from catanc.core.load import parse_spec
 from catanc.spec.language import Spec
-from catanc.spec.load import parse_spec
 
 
 def layered_app(subchains: int, seed: int) -> dict[str, Any]:

@@ -13,11 +13,11 @@ from typing import TYPE_CHECKING, Any
 from catanc.errors import CatancError, SpecError
 
 if TYPE_CHECKING:
+    from catanc.core.load import load_spec, parse_spec
     from catanc.planning.planner import plan
     from catanc.planning.replan import Replanner
     from catanc.planning.types import Plan
     from catanc.spec.language import Spec
-    from catanc.spec.load import load_spec, parse_spec
 
 __version__ = "0.1.0"
 
@@ -37,7 +37,7 @@ __all__ = [
 def __getattr__(name: str) -> Any:
     # Everything loads on first use: `import catanc.client` in an app node must stay light.
     if name in ("load_spec", "parse_spec"):
-        from catanc.spec import load  # noqa: PLC0415
+        from catanc.core import load  # noqa: PLC0415
 
         return getattr(load, name)
     if name == "Spec":

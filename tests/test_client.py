@@ -24,6 +24,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from catanc.client import ClientError, Node
+from catanc.core.load import load_spec
 from catanc.core.workload import ComputeSampler
 from catanc.runtime.protocol import (
     MAX_DATAGRAM,
@@ -59,7 +60,6 @@ from catanc.runtime.worker import (
     workload_worker_command,
     write_records,
 )
-from catanc.spec.load import load_spec
 
 TIMEOUT_S = 30.0
 """The bound on every wait: generous, since nothing here is timed."""

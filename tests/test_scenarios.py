@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from benchmarks.scenarios import bucket_medians, bucket_periods, spec_file, spec_yaml, with_growth_over, with_rates
-from catanc.spec.load import load_spec
+from catanc.core.load import load_spec
 
 
 def test_bucket_periods_average_the_gaps_ending_in_each_bucket() -> None:

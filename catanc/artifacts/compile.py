@@ -1,7 +1,9 @@
 """``catanc compile`` without the command line: spec file -> plan -> the output folder's files.
 
 :func:`compile_spec` reads one spec and returns a :class:`Target`: where its
-folder goes and the files for it, in memory.  The CLI then writes,
+folder goes and the files for it, in memory.  :func:`compile_checked` does the
+same for a spec already read, so one spec compiled for several core counts
+is read, checked and built into its problem once.  The CLI then writes,
 dry-runs or checks them with :mod:`catanc.artifacts.output`.
 """
 
@@ -15,10 +17,9 @@ from pathlib import Path, PurePath
 from catanc import __version__
 from catanc.artifacts.emit import emit
 from catanc.artifacts.provenance import Provenance
-from catanc.core.build import build_problem
+from catanc.core.load import SpecFile, read_spec
 from catanc.errors import Diagnostic
-from catanc.planning.planner import plan
-from catanc.spec.load import read_spec
+from catanc.planning.planner import plan_problem
 from catanc.spec.machine import apply_machine, read_machine
 
 DEFAULT_OUT = Path("out")
@@ -54,13 +55,29 @@ def default_folder(app: str, cores: int, root: Path = DEFAULT_OUT) -> Path:
 
 def compile_spec(spec_path: Path, cores: int, *, out: Path | None = None, options: Options = Options()) -> Target:
     """Plan ``spec_path`` on ``cores`` cores and emit its folder's files."""
-    loaded = read_spec(spec_path)
-    spec = loaded.spec
+    return compile_checked(read_spec(spec_path), spec_path, cores, out=out, options=options)
+
+
+def compile_checked(
+    loaded: SpecFile, spec_path: Path, cores: int, *, out: Path | None = None, options: Options = Options()
+) -> Target:
+    """:func:`compile_spec` for a spec already read (from ``spec_path``): its problem is not built again.
+
+    A machine profile raises the schedule's costs only, which the problem does not hold: the spec's
+    problem stands for the profiled spec too.
+    """
+    spec, problem = loaded.spec, loaded.problem
     used = None
     if options.machine is not None:
         spec, used = apply_machine(spec, read_machine(options.machine))
-    problem = build_problem(spec)
-    result = plan(spec, cores, stage1_method=options.stage1, solver=options.solver, time_limit_s=options.time_limit_s)
+    result = plan_problem(
+        problem,
+        spec.schedule,
+        cores,
+        stage1_method=options.stage1,
+        solver=options.solver,
+        time_limit_s=options.time_limit_s,
+    )
     provenance = Provenance(
         version=__version__,
         command=normalised_command(spec_path, cores, out, options),

@@ -39,7 +39,7 @@ from catanc.core.metrics import Timing, evaluate_chain, objective
 from catanc.core.problem import Chain, Problem, Stage
 from catanc.errors import Diagnostic, FieldPath, Location, SpecError
 from catanc.spec.language import Spec
-from catanc.spec.load import validate_data
+from catanc.spec.parse import validate_data
 from catanc.spec.source import SourceMap, parse_yaml
 
 if TYPE_CHECKING:

@@ -104,13 +104,11 @@ def _print_diagnostics(diagnostics: Sequence[Diagnostic], *, warning: bool = Fal
 
 def _load_problem(spec_path: Path) -> tuple[Spec, Problem]:
     """The spec and its planning problem, with the problem's warnings printed."""
-    from catanc.core.build import build_problem
-    from catanc.spec.load import load_spec
+    from catanc.core.load import read_spec
 
-    spec = load_spec(spec_path)
-    problem = build_problem(spec)
-    _print_diagnostics(problem.warnings, warning=True)
-    return spec, problem
+    loaded = read_spec(spec_path)
+    _print_diagnostics(loaded.problem.warnings, warning=True)
+    return loaded.spec, loaded.problem
 
 
 def _print_notes(spec_path: Path, notes: Sequence[str]) -> None:
@@ -155,19 +153,18 @@ def validate(
     specs: Annotated[list[Path], typer.Argument(metavar="SPEC...", help="Spec files.", show_default=False)],
 ) -> None:
     """Check specs: YAML, fields, names, the DAG, subchains, objective and constraints."""
-    from catanc.core.build import build_problem
-    from catanc.spec.load import load_spec
+    from catanc.core.load import read_spec
 
     failed = False
     out = _stdout()
     for path in specs:
         try:
-            spec = load_spec(path)
+            loaded = read_spec(path)
         except SpecError as exc:
             _print_diagnostics(exc.diagnostics)
             failed = True
             continue
-        problem = build_problem(spec)
+        spec, problem = loaded.spec, loaded.problem
         _print_diagnostics(problem.warnings, warning=True)
         out.print(
             f"{path}: ok: app {spec.app}, {plural(len(spec.nodes), 'node')}, "
@@ -187,12 +184,11 @@ def chains(
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
 ) -> None:
     """List the app's chains, their subchain sequences and the terms that use them."""
-    from catanc.core.build import build_problem
+    from catanc.core.load import read_spec
     from catanc.explain.listings import chain_listing, chains_table
-    from catanc.spec.load import load_spec
 
-    spec = load_spec(spec_path)
-    problem = build_problem(spec)
+    loaded = read_spec(spec_path)
+    spec, problem = loaded.spec, loaded.problem
     listing = chain_listing(spec, problem, limit)
     _print_diagnostics([*problem.warnings, *listing.warnings], warning=True)
     if as_json:
@@ -254,14 +250,14 @@ def explain(
     """Plan the spec and explain the plan: timelines, what binds, warnings, the baseline."""
     from catanc.artifacts.runtime_table import plan_json
     from catanc.explain.analysis import explain_plan, render
-    from catanc.planning.planner import plan
+    from catanc.planning.planner import plan_problem
     from catanc.spec.machine import apply_machine, read_machine
 
     spec, problem = _load_problem(spec_path)
     used = None
-    if machine is not None:
+    if machine is not None:  # raises the schedule's costs only: the problem stands
         spec, used = apply_machine(spec, read_machine(machine))
-    result = plan(spec, cores, stage1_method=stage1, solver=solver, time_limit_s=time_limit)
+    result = plan_problem(problem, spec.schedule, cores, stage1_method=stage1, solver=solver, time_limit_s=time_limit)
     _print_notes(spec_path, result.warnings)  # the report's warnings section says them too
     if as_json:
         sys.stdout.write(plan_json(result, problem, app=spec.app, cores=cores))
@@ -294,9 +290,10 @@ def compile_(
     quiet: QuietOpt = False,
 ) -> None:
     """Plan each spec and write its deployment folder: runtime.json, params.yaml, launch.sh, launch.py, PLAN.md."""
-    from catanc.artifacts.compile import Options, compile_spec
+    from catanc.artifacts.compile import Options, compile_checked
     from catanc.artifacts.output import compare, ensure_comparable, write
     from catanc.cli.progress import tracked
+    from catanc.core.load import read_spec
     from catanc.errors import UsageError
 
     if check and dry_run:
@@ -305,10 +302,11 @@ def compile_(
     if out is not None and len(pairs) > 1:
         raise UsageError("--out names one folder: give one spec and one --cores with it")
     options = Options(stage1=stage1, solver=solver, time_limit_s=time_limit, machine=machine)
+    loaded = {path: read_spec(path) for path in dict.fromkeys(specs)}  # each spec and its problem built once
     targets = []
     planning = tracked(pairs, "planning", label=lambda pair: f"{pair[0]} on {plural(pair[1], 'core')}", quiet=quiet)
     for path, k in planning:  # plan everything before touching any folder
-        target = compile_spec(path, k, out=out, options=options)
+        target = compile_checked(loaded[path], path, k, out=out, options=options)
         _print_diagnostics(target.spec_warnings, warning=True)
         _print_notes(path, target.warnings)
         targets.append(target)

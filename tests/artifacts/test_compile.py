@@ -33,10 +33,10 @@ from catanc.artifacts.emit import FILES
 from catanc.artifacts.runtime_table import RUNTIME_FORMAT
 from catanc.cli import app
 from catanc.core.build import build_problem
+from catanc.core.load import load_spec
 from catanc.errors import ExitCode
 from catanc.planning.planner import plan
 from catanc.spec.language import Spec
-from catanc.spec.load import load_spec
 
 ROOT = Path(__file__).parents[2]
 SPECS = sorted((ROOT / "specs").glob("*.yaml"))

@@ -40,12 +40,12 @@ from catanc.artifacts.deploy import Process, processes
 from catanc.artifacts.emit import emit
 from catanc.artifacts.provenance import Provenance
 from catanc.core.build import build_problem
+from catanc.core.load import parse_spec
 from catanc.core.priorities import RUNNING_FIFO, SHARED_FIFO, UNSCHEDULED_FIFO
 from catanc.errors import ExitCode
 from catanc.planning.planner import plan
 from catanc.planning.types import Plan
 from catanc.spec.language import Spec
-from catanc.spec.load import parse_spec
 from tests.support.linux import as_user, cpu_set, missing_tools, nobody_ids, poll
 
 SPECS = sorted((Path(__file__).parents[2] / "specs").glob("*.yaml"))

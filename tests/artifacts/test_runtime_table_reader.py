@@ -10,8 +10,8 @@ import pytest
 
 from catanc.artifacts.runtime_table import load_table
 from catanc.core.build import build_problem
+from catanc.core.load import load_spec
 from catanc.errors import SpecError
-from catanc.spec.load import load_spec
 
 ROOT = Path(__file__).parents[2]
 TABLES = sorted((ROOT / "out").glob("*/cores-*/runtime.json"))

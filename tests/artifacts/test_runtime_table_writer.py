@@ -15,11 +15,11 @@ from hypothesis import strategies as st
 
 from catanc.artifacts.runtime_table import plan_json, plan_payload
 from catanc.core.build import build_problem
+from catanc.core.load import load_spec
 from catanc.core.problem import Problem
 from catanc.planning.planner import plan
 from catanc.planning.types import Plan
 from catanc.spec.language import ChainsTerm, ChainTerm, NodeTerm, Spec
-from catanc.spec.load import load_spec
 from tests.support.strategies import spec_documents, spec_of
 
 SPECS = Path(__file__).parents[2] / "specs"

@@ -23,9 +23,9 @@ from catanc.artifacts.compile import compile_spec
 from catanc.artifacts.deploy import timer_ns
 from catanc.artifacts.emit import FILES, THREAD_CONFIGURATOR
 from catanc.cli.main import app
+from catanc.core.load import load_spec
 from catanc.errors import ExitCode, SpecError
 from catanc.planning.planner import plan
-from catanc.spec.load import load_spec
 
 runner = CliRunner()
 

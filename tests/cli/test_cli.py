@@ -105,12 +105,12 @@ def test_missing_file_is_a_bad_input(tmp_path: Path) -> None:
 
 
 def test_bugs_get_their_own_exit_code(good: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    import catanc.spec.load
+    import catanc.core.load
 
     def broken(path: object) -> None:
         raise RuntimeError("boom")
 
-    monkeypatch.setattr(catanc.spec.load, "load_spec", broken)
+    monkeypatch.setattr(catanc.core.load, "read_spec", broken)
     monkeypatch.delenv("CATANC_DEBUG", raising=False)
     result = runner.invoke(app, ["chains", str(good)])
     assert result.exit_code == ExitCode.INTERNAL
@@ -158,3 +158,32 @@ def test_allocate_json_and_errors() -> None:
     assert bad.exit_code == ExitCode.BAD_INPUT
     assert "unknown Stage I method 'greedy'" in bad.stderr
     assert runner.invoke(app, ["allocate", nav2d, "-k", "0"]).exit_code == ExitCode.BAD_INPUT
+
+
+def test_compile_reads_checks_and_builds_each_spec_once(
+    good: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # One spec for two core counts: one read, one pass of each kind, one problem (issue 33: parse once).
+    import catanc.core.build
+    import catanc.core.load
+    import catanc.spec.parse
+
+    calls: dict[str, int] = {}
+
+    def counting(module: object, name: str) -> None:
+        real = getattr(module, name)
+
+        def wrapper(*args: object, **kwargs: object) -> object:
+            calls[name] = calls.get(name, 0) + 1
+            return real(*args, **kwargs)
+
+        monkeypatch.setattr(module, name, wrapper)
+
+    counting(catanc.spec.parse, "parse_yaml")
+    counting(catanc.spec.parse, "validate_data")
+    counting(catanc.core.load, "read_spec_text")
+    counting(catanc.core.build._Builder, "build")  # whoever builds a problem, wherever from
+    monkeypatch.chdir(tmp_path)
+    result = runner.invoke(app, ["compile", "--dry-run", str(good), "-k", "1", "-k", "2"])
+    assert result.exit_code == 0, result.output
+    assert calls == {"read_spec_text": 1, "parse_yaml": 1, "validate_data": 1, "build": 1}

@@ -13,9 +13,9 @@ import yaml
 from pydantic import BaseModel
 
 from catanc.core.build import build_problem
+from catanc.core.load import parse_spec
 from catanc.errors import ExitCode
 from catanc.spec import language
-from catanc.spec.load import parse_spec
 from catanc.spec.starter import starter_spec
 
 

@@ -19,8 +19,8 @@ from catanc.control.schedule import (
     triggers_at_slot,
 )
 from catanc.core.build import build_problem
+from catanc.core.load import load_spec
 from catanc.planning.planner import plan
-from catanc.spec.load import load_spec
 
 ROOT = Path(__file__).parents[2]
 CASES = [(path, cores) for path in sorted((ROOT / "specs").glob("*.yaml")) for cores in (1, 2)]

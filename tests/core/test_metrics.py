@@ -14,6 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from catanc.core.build import build_problem
+from catanc.core.load import load_spec, parse_spec
 from catanc.core.metrics import (
     Timing,
     chain_metrics,
@@ -24,7 +25,6 @@ from catanc.core.metrics import (
 )
 from catanc.core.problem import Problem, Subchain
 from catanc.spec.language import Node
-from catanc.spec.load import load_spec, parse_spec
 from tests.support.strategies import problems
 
 ROOT = Path(__file__).parents[2]

@@ -8,9 +8,9 @@ import math
 import pytest
 
 from catanc.core.build import build_problem
+from catanc.core.load import parse_spec
 from catanc.core.problem import Stage
 from catanc.errors import SpecError
-from catanc.spec.load import parse_spec
 
 NAV = """
 catan: 1

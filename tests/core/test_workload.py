@@ -20,11 +20,11 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from catanc.core.load import parse_spec
 from catanc.core.workload import ComputeSampler, growth_factor
 from catanc.errors import SpecError
 from catanc.planning.planner import plan
 from catanc.spec.language import Growth, Spec, Workload
-from catanc.spec.load import parse_spec
 
 untimed = settings(deadline=None, suppress_health_check=[HealthCheck.too_slow])  # tests never time things
 SIGMAS = 6.0
@@ -107,7 +107,7 @@ def test_seeds_and_names_give_different_streams() -> None:
 
 SUBPROCESS = """
 import json, sys
-from catanc.spec.load import parse_spec
+from catanc.core.load import parse_spec
 from catanc.core.workload import ComputeSampler
 spec = parse_spec(sys.stdin.read(), "workload.yaml")
 sampler = ComputeSampler(spec, 7)

@@ -19,6 +19,7 @@ from typer.testing import CliRunner
 
 from catanc.cli import app
 from catanc.core.build import build_problem
+from catanc.core.load import load_spec, parse_spec
 from catanc.core.problem import Problem
 from catanc.errors import ExitCode, InfeasibleError
 from catanc.explain.analysis import (
@@ -39,7 +40,6 @@ from catanc.explain.analysis import (
 )
 from catanc.planning.planner import plan
 from catanc.planning.types import Plan
-from catanc.spec.load import load_spec, parse_spec
 
 ROOT = Path(__file__).parents[2]
 SPECS = ROOT / "specs"
@@ -301,7 +301,7 @@ def test_infeasible_exits_with_its_code(tmp_path: Path, monkeypatch: pytest.Monk
     def infeasible(*args: object, **kwargs: object) -> Plan:
         raise InfeasibleError("near: no schedule exists for the shared cores, whatever the bounds")
 
-    monkeypatch.setattr(catanc.planning.planner, "plan", infeasible)
+    monkeypatch.setattr(catanc.planning.planner, "plan_problem", infeasible)
     path = tmp_path / "near.yaml"
     path.write_text(NEAR)
     for extra in ([], ["--json"]):

@@ -7,8 +7,8 @@ from pathlib import Path
 import pytest
 
 from catanc.core.build import build_problem
+from catanc.core.load import load_spec, parse_spec
 from catanc.planning.baseline import BaselineEvaluation, BaselineGap, evaluate_baseline
-from catanc.spec.load import load_spec, parse_spec
 
 SPECS = Path(__file__).parents[2] / "specs"
 

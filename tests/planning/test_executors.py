@@ -17,6 +17,7 @@ from hypothesis import strategies as st
 from typer.testing import CliRunner
 
 from catanc.core.build import build_problem
+from catanc.core.load import parse_spec
 from catanc.core.metrics import capped_dedicated, dedicated_timing
 from catanc.core.problem import Problem
 from catanc.errors import ExitCode, InfeasibleError, SpecError
@@ -25,7 +26,6 @@ from catanc.planning.stage1.estimate import evaluate, option_table
 from catanc.planning.stage1.exhaustive import set_partitions
 from catanc.sim.simulate import EngineChoice
 from catanc.spec.language import Spec
-from catanc.spec.load import parse_spec
 from tests.support.strategies import spec_documents, spec_of
 
 REL = 1e-6
@@ -211,8 +211,8 @@ def test_executor_overload_is_a_spec_error() -> None:
 
 
 def test_nav2d_mapper_shares_a_core() -> None:
+    from catanc.core.load import load_spec
     from catanc.planning.planner import plan
-    from catanc.spec.load import load_spec
 
     spec = load_spec("specs/nav2d.yaml")
     problem = build_problem(spec)

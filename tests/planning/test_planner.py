@@ -11,13 +11,13 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from catanc.core.build import build_problem
+from catanc.core.load import load_spec
 from catanc.core.metrics import Timing, bound_scale, objective
 from catanc.core.problem import Problem
 from catanc.planning.planner import plan
 from catanc.planning.stage2.relaxed import Layout, SharedCore
 from catanc.planning.types import Plan
 from catanc.spec.language import Schedule
-from catanc.spec.load import load_spec
 from tests.planning.test_stage2_integer import closed_form, meets_bounds
 from tests.planning.test_stage2_integer import enumerate_best as enumerate_integer_best
 from tests.support.strategies import spec_documents, spec_of
@@ -80,7 +80,7 @@ subchains: {A: [a], B: [b]}
 objective: [{chain: [a, b, out], weight: 1}]
 constraints: [{chain: [a, b, out], max_response_ms: 1}]
 """
-    from catanc.spec.load import parse_spec
+    from catanc.core.load import parse_spec
 
     result = plan(parse_spec(text), 1)
     assert result.constraint_scale > 1
@@ -226,7 +226,7 @@ def test_same_plan_in_fresh_processes() -> None:
     import sys
 
     script = (
-        "import json, sys; from catanc.spec.load import load_spec; from catanc.planning.planner import plan; "
+        "import json, sys; from catanc.core.load import load_spec; from catanc.planning.planner import plan; "
         "from catanc.core.build import build_problem; from catanc.artifacts.runtime_table import plan_payload; "
         "spec = load_spec(sys.argv[1]); "
         "print(json.dumps(plan_payload(plan(spec, 2), build_problem(spec)), sort_keys=True))"

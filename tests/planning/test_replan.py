@@ -8,6 +8,7 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
+from catanc.core.load import load_spec
 from catanc.core.metrics import Timing, bound_scale, objective
 from catanc.errors import UsageError
 from catanc.planning.planner import plan, plan_problem
@@ -16,7 +17,6 @@ from catanc.planning.stage2.base import Layout, SharedCore
 from catanc.planning.stage2.relaxed import RelaxedStage2
 from catanc.planning.stage2.solve import solve_layout
 from catanc.planning.types import Plan
-from catanc.spec.load import load_spec
 from tests.planning.test_stage2_integer import enumerate_best
 
 SPECS = Path(__file__).parents[2] / "specs"

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from catanc.spec.load import load_spec, parse_spec
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
@@ -29,7 +30,6 @@ from catanc.planning.stage2.conic import ConicStage2
 from catanc.planning.stage2.integer import most_runs
 from catanc.planning.stage2.onebatch import OPEN, OneBatchRuns
 from catanc.spec.language import Schedule, Spec
-from catanc.spec.load import load_spec, parse_spec
 from tests.planning.test_stage2_conic import apps
 
 # a (1 ms, at most 1000/7 Hz: p >= 7 ms) and b (2 ms) on one core, no slack or switch cost, both

@@ -18,6 +18,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from catanc.core.build import build_problem
+from catanc.core.load import parse_spec
 from catanc.core.metrics import Timing
 from catanc.core.problem import Problem
 from catanc.errors import InfeasibleError
@@ -26,7 +27,6 @@ from catanc.planning.stage1.exhaustive import every_allocation
 from catanc.planning.stage2.base import Layout, SharedCore, Stage2Model
 from catanc.planning.stage2.solve import SCALE_PRECISION, load_bound, lower_bound, solve_layout
 from catanc.spec.language import Schedule
-from catanc.spec.load import parse_spec
 from tests.support.strategies import spec_documents, spec_of
 
 

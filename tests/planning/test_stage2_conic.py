@@ -17,6 +17,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from catanc.core.build import build_problem
+from catanc.core.load import load_spec
 from catanc.core.problem import Problem
 from catanc.planning.stage1 import allocate
 from catanc.planning.stage2.base import Layout, RelaxedSolution, SharedCore, Stage2Model
@@ -24,7 +25,6 @@ from catanc.planning.stage2.conic import ConicStage2
 from catanc.planning.stage2.integer import most_runs, solve_integer
 from catanc.planning.stage2.relaxed import RelaxedStage2
 from catanc.spec.language import Spec
-from catanc.spec.load import load_spec
 from tests.planning.test_stage2_integer import enumerate_best
 from tests.support.strategies import spec_documents, spec_of
 

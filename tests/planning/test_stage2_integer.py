@@ -172,8 +172,8 @@ def test_branch_and_bound_matches_enumeration(app: tuple[dict[str, Any], int], l
 # Over those, r = 3/4 and 2/3 both give 6 + 3 + 8/3 and 6 + 8/3 + 3 = 11.6667; r = 5/7 (n_a 5) is
 # out of range, so the integer optimum is 11.6667 against the relaxed 6 + 4 sqrt(2) = 11.6569.
 def test_integer_optimum_by_hand() -> None:
+    from catanc.core.load import parse_spec
     from catanc.planning.stage2.relaxed import SharedCore
-    from catanc.spec.load import parse_spec
 
     spec = parse_spec(
         "catan: 1\napp: two\nnodes: {a: {compute_ms: 2}, b: {compute_ms: 4}}\nsubchains: {A: [a], B: [b]}\n"

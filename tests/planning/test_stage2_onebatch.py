@@ -20,6 +20,7 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from catanc.core.build import build_problem
+from catanc.core.load import load_spec, parse_spec
 from catanc.core.metrics import Timing, bound_scale, capped_dedicated, objective
 from catanc.core.problem import Problem
 from catanc.planning.stage1 import allocate
@@ -28,7 +29,6 @@ from catanc.planning.stage2.conic import ConicStage2
 from catanc.planning.stage2.integer import most_runs, solve_integer
 from catanc.planning.stage2.onebatch import OPEN, OneBatchRuns
 from catanc.spec.language import Schedule, Spec
-from catanc.spec.load import load_spec, parse_spec
 from tests.planning.test_stage2_conic import AGREE, apps
 
 SPECS = Path(__file__).parents[2] / "specs"

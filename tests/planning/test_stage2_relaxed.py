@@ -9,12 +9,12 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from catanc.core.build import build_problem
+from catanc.core.load import parse_spec
 from catanc.core.metrics import Timing, capped_dedicated, objective
 from catanc.core.problem import Problem
 from catanc.planning.stage1 import allocate
 from catanc.planning.stage2.relaxed import Layout, RelaxedStage2, SharedCore
 from catanc.spec.language import Schedule
-from catanc.spec.load import parse_spec
 from tests.support.strategies import spec_documents, spec_of
 
 # Two one-node subchains on one core, no slack, no switch cost, a negligible minimum slice,

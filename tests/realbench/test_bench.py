@@ -27,6 +27,7 @@ from typing import Any
 import pytest
 
 from catanc.core.build import build_problem
+from catanc.core.load import load_spec
 from catanc.errors import ExitCode, UsageError
 from catanc.planning.planner import plan
 from catanc.realbench import bench as bench_run
@@ -39,7 +40,6 @@ from catanc.runtime.sched import read_policy
 from catanc.runtime.worker import RunRecord
 from catanc.sim.simulate import Setup, prepare, reported_chains, simulate_policies, workload_sampler
 from catanc.spec.language import Spec
-from catanc.spec.load import load_spec
 from tests.support.linux import WAIT_S, nobody_ids, poll, require_fifo
 
 T0 = 5_000_000_000  # a window's start on CLOCK_MONOTONIC (ns): replayed times are relative to it

@@ -19,6 +19,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, invariant, rule
 
+from catanc.core.load import load_spec, parse_spec
 from catanc.errors import UsageError
 from catanc.planning.replan import Replanner
 from catanc.runtime.measure import (
@@ -40,7 +41,6 @@ from catanc.runtime.measure import (
     valid_sample,
 )
 from catanc.spec.language import Spec
-from catanc.spec.load import load_spec, parse_spec
 
 untimed = settings(deadline=None)  # tests never time things
 

@@ -16,9 +16,9 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
+from catanc.core.load import load_spec
 from catanc.errors import UsageError
 from catanc.runtime.measure import ComputeWindow, Measurements
-from catanc.spec.load import load_spec
 
 untimed = settings(deadline=None)  # tests never time things
 

@@ -14,6 +14,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from catanc.core.load import load_spec
 from catanc.core.workload import ComputeSampler
 from catanc.sim.simulate import (
     STATIC_20S,
@@ -24,7 +25,6 @@ from catanc.sim.simulate import (
     workload_tail_compute,
 )
 from catanc.spec.language import Spec
-from catanc.spec.load import load_spec
 from tests.sim.test_kernel import apps_with_workloads, untimed
 from tests.support.strategies import spec_of
 

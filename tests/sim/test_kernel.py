@@ -17,6 +17,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from catanc.core.load import load_spec
 from catanc.errors import CatancError
 from catanc.sim import fast
 from catanc.sim import kernel as k
@@ -24,7 +25,6 @@ from catanc.sim.comparison import comparison_payload
 from catanc.sim.metrics import PolicyResult
 from catanc.sim.simulate import POLICIES, Setup, simulate
 from catanc.spec.language import Spec
-from catanc.spec.load import load_spec
 from tests.support.strategies import spec_documents, spec_of
 
 untimed = settings(deadline=None, suppress_health_check=[HealthCheck.too_slow], max_examples=40)

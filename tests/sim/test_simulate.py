@@ -18,6 +18,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from catanc.core.load import load_spec
 from catanc.errors import CatancError, UsageError
 from catanc.runtime.measure import percentile
 from catanc.sim.comparison import comparison_payload
@@ -26,7 +27,6 @@ from catanc.sim.engine import Engine
 from catanc.sim.metrics import SMALL_SUM, exact_sum, percentile_of, response_arrays, sum_by_exponent
 from catanc.sim.simulate import POLICIES, Setup, check_policies, simulate, simulate_policies
 from catanc.spec.language import Spec
-from catanc.spec.load import load_spec
 from tests.support.strategies import spec_documents, spec_of
 
 untimed = settings(deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -9,9 +9,9 @@ import pytest
 from typer.testing import CliRunner
 
 from catanc.cli import app
+from catanc.core.load import load_spec
 from catanc.errors import ExitCode
 from catanc.spec.language import Schedule
-from catanc.spec.load import load_spec
 from catanc.spec.machine import (
     MACHINE_FORMAT,
     MachineProfile,

@@ -10,9 +10,9 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from catanc.core.load import parse_spec
 from catanc.errors import SpecError
 from catanc.spec.language import Spec
-from catanc.spec.load import parse_spec
 
 SPECS = sorted((Path(__file__).parents[2] / "specs").glob("*.yaml"))
 

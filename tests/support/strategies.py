@@ -8,9 +8,9 @@ from typing import Any
 from hypothesis import strategies as st
 
 from catanc.core.build import build_problem
+from catanc.core.load import parse_spec
 from catanc.core.problem import Problem
 from catanc.spec.language import Spec
-from catanc.spec.load import parse_spec
 
 
 @st.composite

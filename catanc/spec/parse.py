@@ -1,8 +1,10 @@
-"""Spec loading: YAML text -> validated :class:`~catanc.spec.language.Spec`.
+"""Spec text -> :class:`~catanc.spec.language.Spec`: the passes of syntax and shape.
 
-Three passes, each reporting every problem it finds as a compiler-style
-diagnostic: YAML syntax (:mod:`catanc.spec.source`), shape (the pydantic models)
-and meaning (:func:`catanc.core.problem.build_problem`: names, the DAG, paths).
+Loading a spec has three passes, each reporting every problem it finds as a
+compiler-style diagnostic: YAML syntax (:mod:`catanc.spec.source`), shape
+(the pydantic models, here, with pydantic's errors mapped onto the YAML's
+lines and fields) and meaning (:func:`catanc.core.build.build_problem`:
+names, the DAG, paths).  :mod:`catanc.core.load` runs all three.
 """
 
 from __future__ import annotations
@@ -10,13 +12,11 @@ from __future__ import annotations
 import hashlib
 import types
 from collections.abc import Hashable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Union, get_args, get_origin
 
 from pydantic import BaseModel, Tag, ValidationError
 
-from catanc.core.build import build_problem
 from catanc.errors import Diagnostic, FieldPath, SpecError, close_matches, did_you_mean, format_path
 from catanc.spec.language import ARROW_EDGE_PATTERN, SPEC_VERSIONS, Spec
 from catanc.spec.source import SourceMap, parse_yaml, read_text
@@ -39,36 +39,24 @@ _KIND_KEYS = ["chain", "chains", "node", "modes"]
 """Keys that pick the kind of an objective term, constraint or compute profile."""
 
 
-def load_spec(path: str | Path) -> Spec:
-    """Read, parse and check a spec file; raise :class:`SpecError` on any problem."""
-    return read_spec(path).spec
-
-
-@dataclass(frozen=True)
-class SpecFile:
-    """A checked spec and the sha256 of the bytes it was read from."""
-
-    spec: Spec
-    sha256: str
-
-
-def read_spec(path: str | Path) -> SpecFile:
-    """:func:`load_spec`, also returning the file's sha256 (output headers name it)."""
+def read_spec_text(path: str | Path) -> tuple[str, str]:
+    """A spec file's text and the sha256 of its bytes (output headers name it); :class:`SpecError` if unreadable."""
     raw, text = read_text(path, "spec")
-    return SpecFile(parse_spec(text, str(path)), hashlib.sha256(raw).hexdigest())
+    return text, hashlib.sha256(raw).hexdigest()
 
 
-def parse_spec(text: str, file: str = "<spec>") -> Spec:
-    """Parse and check spec text; ``file`` is only used in messages."""
+def parse_shape(text: str, file: str) -> tuple[Spec, list[Diagnostic]]:
+    """Spec text through the first two passes, syntax and shape; ``file`` is only used in messages.
+
+    Raises :class:`SpecError` when the shape is wrong; else returns the spec and the syntax pass's
+    problems that did not stop it (a duplicated key, say), to be reported with the meaning pass's.
+    """
     parsed = parse_yaml(text, file)
     try:
         spec = validate_data(parsed.data, parsed.source)
-        build_problem(spec)  # meaning checks
     except SpecError as exc:
         raise SpecError(parsed.problems + exc.diagnostics) from None
-    if parsed.problems:
-        raise SpecError(parsed.problems)
-    return spec
+    return spec, parsed.problems
 
 
 def validate_data(data: Any, source: SourceMap) -> Spec:
