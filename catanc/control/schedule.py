@@ -28,9 +28,9 @@ from typing import TYPE_CHECKING
 
 from catanc.core.priorities import resting_fifo
 from catanc.core.problem import Problem
-from catanc.core.speedup import threads_and_speedup
 from catanc.planning.order import slot_starts
 from catanc.spec.language import Schedule
+from catanc.spec.speedup import threads_and_speedup
 
 if TYPE_CHECKING:
     from catanc.planning.types import Plan

@@ -12,8 +12,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 
-from catanc.core.speedup import best_speedup
 from catanc.errors import Diagnostic, FieldPath, UsageError, did_you_mean
+from catanc.spec.speedup import best_speedup
 
 
 @dataclass(frozen=True)

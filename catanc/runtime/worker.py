@@ -65,9 +65,9 @@ from types import FrameType
 from typing import NamedTuple
 
 from catanc.client import ClientError, Node
-from catanc.core.speedup import threads_and_speedup
 from catanc.errors import CatancError, ExitCode
 from catanc.runtime.protocol import ProtocolError, Trigger, Welcome
+from catanc.spec.speedup import threads_and_speedup
 
 MODULE = "catanc.runtime.worker"
 

@@ -30,8 +30,8 @@ from pydantic import (
 )
 from pydantic_core import InitErrorDetails, PydanticCustomError
 
-from catanc.core.speedup import best_speedup
 from catanc.spec.source import SourceMap
+from catanc.spec.speedup import best_speedup
 
 SPEC_VERSIONS = (1,)
 """The ``catan:`` versions this catanc reads."""

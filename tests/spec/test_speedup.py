@@ -8,8 +8,8 @@ from hypothesis import strategies as st
 from catanc.control.schedule import runtime_schedule
 from catanc.core.build import build_problem
 from catanc.core.load import parse_spec
-from catanc.core.speedup import best_speedup, threads_used
 from catanc.planning.planner import plan
+from catanc.spec.speedup import best_speedup, threads_used
 
 speedup_lists = st.lists(st.floats(0.2, 64, allow_nan=False), max_size=7).map(lambda rest: (1.0, *rest))
 
