@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
+from catanc.core.load import parse_spec
 from catanc.planning.order import data_flow_order, flow_cost
 from catanc.planning.planner import plan
-from catanc.spec.load import parse_spec
 
 FLOW = """\
 catan: 1

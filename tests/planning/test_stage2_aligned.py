@@ -16,12 +16,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from catanc.spec.load import load_spec, parse_spec
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from catanc.control.schedule import runtime_schedule
 from catanc.core.build import build_problem
+from catanc.core.load import load_spec, parse_spec
 from catanc.core.metrics import Timing, bound_scale, capped_dedicated, objective
 from catanc.core.problem import Problem
 from catanc.planning.planner import plan
