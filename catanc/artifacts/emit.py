@@ -25,7 +25,8 @@ from catanc.artifacts.deploy import Process, callback_groups, processes
 from catanc.artifacts.provenance import Provenance
 from catanc.artifacts.runtime_table import runtime_json
 from catanc.errors import ExitCode
-from catanc.explain.analysis import explain_plan, render_markdown
+from catanc.explain.analysis import explain_plan
+from catanc.explain.markdown import render_markdown
 
 if TYPE_CHECKING:
     from catanc.core.problem import Problem

@@ -249,7 +249,8 @@ def explain(
 ) -> None:
     """Plan the spec and explain the plan: timelines, what binds, warnings, the baseline."""
     from catanc.artifacts.runtime_table import plan_json
-    from catanc.explain.analysis import explain_plan, render
+    from catanc.explain.analysis import explain_plan
+    from catanc.explain.terminal import render
     from catanc.planning.planner import plan_problem
     from catanc.spec.machine import apply_machine, read_machine
 

@@ -1,11 +1,11 @@
-"""The plan in plain words (``catanc explain``): what runs when, what binds, what to watch.
+"""The plan in plain words (``catanc explain``, PLAN.md): the analysis, as data.
 
-:func:`explain_plan` is pure data over a spec, its problem and a plan;
-:func:`report_blocks` decides, once, what the report says, as neutral
-blocks (headings, paragraphs, tables, a preformatted timeline bar, a list);
-:func:`render` lays them out as rich renderables for the terminal and
-:func:`render_markdown` as GitHub Markdown for a committed ``PLAN.md``
-(deterministic, independent of any terminal width).  It reads the plan only through
+:func:`explain_plan` is pure data over a spec, its problem and a plan: an
+:class:`Explanation`.  What the report says about it is decided once, as
+neutral blocks, by :mod:`catanc.explain.blocks`; :mod:`catanc.explain.terminal`
+lays them out for a terminal (rich) and :mod:`catanc.explain.markdown` as
+GitHub Markdown for a committed ``PLAN.md`` (deterministic, independent of any
+terminal width).  It reads the plan only through
 ``plan.subchains`` (cores, shared, fraction, ...), ``plan.shared_cores``
 (each shared core's ``T`` and order) and ``plan.chains``, and recomputes
 every derived number with :mod:`catanc.core.metrics`:
@@ -25,18 +25,11 @@ every derived number with :mod:`catanc.core.metrics`:
 from __future__ import annotations
 
 import math
-import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Literal, assert_never
-
-from rich.console import Console, ConsoleOptions, RenderableType, RenderResult
-from rich.measure import Measurement
-from rich.table import Table
-from rich.text import Text
+from typing import TYPE_CHECKING, Literal
 
 from catanc.core.metrics import Timing, evaluate_chain
-from catanc.core.priorities import ENFORCER_FIFO, RUNNING_FIFO, UNSCHEDULED_FIFO, resting_fifo
 from catanc.core.problem import Chain, Executor, Problem, Subchain
 from catanc.errors import Diagnostic
 from catanc.explain.enforceable import short_slots
@@ -44,7 +37,6 @@ from catanc.planning.baseline import BaselineEvaluation, BaselineGap, TermValue,
 from catanc.planning.order import slot_starts
 from catanc.planning.stage1.estimate import Allocation
 from catanc.spec.language import Schedule, Spec
-from catanc.text import plural
 
 if TYPE_CHECKING:
     from catanc.planning.types import CorePlan, Plan, SubchainPlan
@@ -55,14 +47,6 @@ BINDING_TOLERANCE = 1e-6
 
 NEAR_SATURATION = 0.10
 """Headroom below which a bound is warned about."""
-
-ROW_LIMIT = 12
-"""Rows shown in the chain and term tables; the rest are summarised in one line."""
-
-BAR_WIDTH = 64
-"""Characters in a shared core's timeline bar."""
-
-SLICE_MARKS = "ABCDEFGHIJKLMNOPQRSTUVWXYZ"
 
 
 # --------------------------------------------------------------------------- data
@@ -218,7 +202,7 @@ def executor_note(executor: Executor, plan: Plan, problem: Problem) -> str:
     nodes = ", ".join(executor.nodes)
     subs = executor.subchains
     cores = sorted({core for name in subs for core in plan.subchains[name].cores})
-    where = _cores_text(cores)
+    where = cores_text(cores)
     if len(subs) == 1:
         how = f"in subchain {subs[0]} on {where}: its period covers their compute added up"
         return f"Executor {executor.name} runs {nodes} in one thread (never at once): {how}."
@@ -527,7 +511,7 @@ def _headrooms(plan: Plan, problem: Problem, schedule: Schedule) -> list[Headroo
     return found
 
 
-def _cores_text(cores: Sequence[int]) -> str:
+def cores_text(cores: Sequence[int]) -> str:
     if not cores:
         return "no core"
     return ("core " if len(cores) == 1 else "cores ") + ", ".join(str(c) for c in cores)
@@ -541,10 +525,10 @@ def _warnings(plan: Plan, problem: Problem, schedule: Schedule, headrooms: Seque
         grow = (
             ""
             if item.growth is None
-            else f"; compute times on {_cores_text(item.cores)} may grow {item.growth:.1%} before it is missed"
+            else f"; compute times on {cores_text(item.cores)} may grow {item.growth:.1%} before it is missed"
         )
         notes.append(
-            f"core near saturation: {item.what} has {item.headroom:.1%} headroom on {_cores_text(item.cores)} "
+            f"core near saturation: {item.what} has {item.headroom:.1%} headroom on {cores_text(item.cores)} "
             f"({item.value:.3f} ms against {item.limit:.3f} ms){grow}"
         )
     for sub in problem.subchains:
@@ -555,500 +539,7 @@ def _warnings(plan: Plan, problem: Problem, schedule: Schedule, headrooms: Seque
         every = f"one run every {runs} periods" if runs is not None else f"{chosen.fraction:.3g} runs per period"
         notes.append(
             f"subchain starved: {sub.name} gets only the minimum slice ({chosen.fraction * sub.compute_ms:.3f} ms "
-            f"of its {sub.compute_ms:.3g} ms per period on {_cores_text(chosen.cores)}): {every}, "
+            f"of its {sub.compute_ms:.3g} ms per period on {cores_text(chosen.cores)}): {every}, "
             f"{1000.0 / chosen.period_ms:.4g} Hz"
         )
     return notes
-
-
-# --------------------------------------------------------------------------- report blocks
-
-Align = Literal["left", "right"]
-
-
-@dataclass(frozen=True)
-class Heading:
-    """A numbered section's title ("2. Subchains")."""
-
-    text: str
-
-
-@dataclass(frozen=True)
-class Paragraph:
-    """One paragraph of prose; ``strong`` for the report's opening line."""
-
-    text: str
-    strong: bool = False
-
-
-@dataclass(frozen=True)
-class Preformatted:
-    """A line whose spacing carries meaning (a timeline bar): shown verbatim, in Markdown in a code block."""
-
-    text: str
-
-
-@dataclass(frozen=True)
-class Bullets:
-    """A list of notes (the warnings)."""
-
-    items: tuple[str, ...]
-
-
-@dataclass(frozen=True)
-class Column:
-    header: str
-    align: Align = "left"
-
-
-@dataclass(frozen=True)
-class TableBlock:
-    """A table: an optional title above it, one cell per column in every row, an optional note below it."""
-
-    columns: tuple[Column, ...]
-    rows: tuple[tuple[str, ...], ...]
-    title: str | None = None
-    footer: str | None = None
-
-    def __post_init__(self) -> None:
-        for row in self.rows:
-            if len(row) != len(self.columns):
-                raise ValueError(f"a row of {len(row)} cells in a table of {len(self.columns)} columns: {row}")
-
-
-Block = Heading | Paragraph | Preformatted | Bullets | TableBlock
-"""One piece of the report, as neutral data: :func:`render` and :func:`render_markdown` only lay it out."""
-
-
-def _columns(headers: Sequence[str], left: Sequence[str] = ()) -> tuple[Column, ...]:
-    """Columns right-aligned (numbers) except those named in ``left``."""
-    return tuple(Column(header, "left" if header in left else "right") for header in headers)
-
-
-# --------------------------------------------------------------------------- rendering
-
-
-def _ms(value: float) -> str:
-    return f"{value:.3f}"
-
-
-def _rate(period_ms: float) -> str:
-    return f"{1000.0 / period_ms:.2f}"
-
-
-def _share(part: float, whole: float) -> str:
-    return f"{part / whole:.1%}" if whole > 0 else "-"
-
-
-def timeline_bar(view: SharedCoreView, width: int = BAR_WIDTH) -> str:
-    """A proportional bar of one period: a letter per subchain's slice, ``|`` switches, ``.`` idle.
-
-    Every slice and a non-empty idle gap get at least one character, so a
-    1 ms slice in a 700 ms period still shows.
-    """
-    total = view.period_ms
-    marks = {name: SLICE_MARKS[index % len(SLICE_MARKS)] for index, name in enumerate(view.order)}
-    exact = [segment.length_ms / total * width if total > 0 else 0.0 for segment in view.segments]
-    counts = [math.floor(x) for x in exact]
-    for index in sorted(range(len(exact)), key=lambda i: (-(exact[i] - counts[i]), i)):
-        if sum(counts) >= width:
-            break
-        counts[index] += 1
-    for index, segment in enumerate(view.segments):
-        if segment.kind != "switch" and segment.length_ms > 0 and counts[index] == 0:
-            counts[index] = 1
-    while sum(counts) > width:
-        largest = max(range(len(counts)), key=lambda i: (counts[i], -i))
-        counts[largest] -= 1
-    chars = []
-    for segment, count in zip(view.segments, counts, strict=True):
-        if segment.kind == "switch":
-            mark = "|"
-        elif segment.kind == "idle":
-            mark = "."
-        else:
-            assert segment.subchain is not None
-            mark = marks[segment.subchain]
-        chars.append(mark * count)
-    return "".join(chars)
-
-
-def _runs_text(sub: SubchainPlan, batch: bool, length: float) -> str:
-    runs = runs_per_period(sub, batch)
-    if runs == 1:
-        text = "a whole run every period"
-    elif runs is not None:
-        text = f"one run every {runs} periods ({runs * length:.3f} ms)"
-    elif sub.fraction >= 1:
-        text = f"{sub.fraction:.3g} runs per period"
-    else:
-        text = f"one run every {1.0 / sub.fraction:.3g} periods on average"
-    if sub.every is not None and sub.every > (runs or 1):
-        text += f"; triggered at its slot every {sub.every} periods ({sub.period_ms:.3f} ms, rate cap)"
-    elif sub.every is not None:
-        text += "; triggered at its slot"
-    elif sub.period_ms > sub.latency_ms * (1 + BINDING_TOLERANCE):
-        text += f"; triggered every {sub.period_ms:.3f} ms on its own clock (rate cap)"
-    return text
-
-
-def _shared_blocks(view: SharedCoreView, explanation: Explanation) -> list[Block]:
-    subs = {sub.name: sub for sub in explanation.subchains}
-    title = (
-        f"core {view.core}: shared by {plural(len(view.order), 'subchain')}, "
-        f"schedule period T = {view.period_ms:.3f} ms ({_rate(view.period_ms)} Hz)"
-    )
-    marks = "  ".join(f"{SLICE_MARKS[i % len(SLICE_MARKS)]} {name}" for i, name in enumerate(view.order))
-    rows = []
-    for segment in view.segments:
-        if segment.kind == "switch":
-            if segment.length_ms <= 0:
-                continue
-            what, often = f"switch to {segment.subchain}", ""
-        elif segment.kind == "idle":
-            what, often = f"idle (slack {explanation.schedule.slack:.0%} of T)", ""
-        else:
-            assert segment.subchain is not None
-            sub = subs[segment.subchain]
-            what = f"{segment.subchain}: slice f*c = {sub.fraction:.4g} x {explanation.compute_ms[sub.name]:.3f} ms"
-            often = _runs_text(sub, sub.name in explanation.batch, view.period_ms)
-        rows.append(
-            (_ms(segment.offset_ms), _ms(segment.length_ms), _share(segment.length_ms, view.period_ms), what, often)
-        )
-    columns = _columns(("offset ms", "length ms", "share of T", "what", "how often"), left=("what", "how often"))
-    blocks: list[Block] = [
-        TableBlock(columns, tuple(rows), title=title),
-        Preformatted(f"{timeline_bar(view)}\n{marks}; | switch, . idle"),
-    ]
-    if len(view.order) > 1:
-        ranked = sorted(view.order, key=lambda name: (-subs[name].priority, name))
-        blocks.append(
-            Paragraph(
-                f"Stealing order: {' > '.join(ranked)} (a subchain that is late takes the slice of one after it)."
-            )
-        )
-    return blocks
-
-
-def _dedicated_line(view: DedicatedView, explanation: Explanation) -> Paragraph:
-    sub = next(s for s in explanation.subchains if s.name == view.subchain)
-    cores = len(view.cores)
-    load = sub.latency_ms / sub.period_ms
-    spread = f", {load * sub.threads / cores:.0%} of its {cores} cores" if cores > 1 else ""
-    return Paragraph(
-        f"{_cores_text(view.cores)}: dedicated to {sub.name}, {plural(sub.threads, 'thread')}, "
-        f"period {sub.period_ms:.3f} ms ({_rate(sub.period_ms)} Hz), latency {sub.latency_ms:.3f} ms: "
-        f"busy {load:.0%} (latency/period){spread}, {explanation.schedule.slack:.0%} slack kept idle"
-    )
-
-
-def _subchain_table(explanation: Explanation) -> TableBlock:
-    columns = (
-        "subchain", "nodes", "cores", "how", "rate Hz", "period ms", "fraction", "every k", "slice ms",
-        "latency ms",
-    )  # fmt: skip
-    rows = []
-    for sub in explanation.subchains:
-        runs = runs_per_period(sub, sub.name in explanation.batch)
-        fraction = f"1/{runs}" if runs is not None and runs > 1 else f"{sub.fraction:.4g}"
-        slice_ms = _ms(sub.fraction * explanation.compute_ms[sub.name]) if sub.shared else "-"
-        rows.append(
-            (
-                sub.name,
-                " -> ".join(sub.nodes),
-                ",".join(str(c) for c in sub.cores) or "-",
-                f"{'shared' if sub.shared else 'dedicated'}, FIFO {fifo_levels(sub.shared)}",
-                _rate(sub.period_ms),
-                _ms(sub.period_ms),
-                fraction,
-                "-" if sub.every is None else str(sub.every),
-                slice_ms,
-                _ms(sub.latency_ms),
-            )
-        )
-    unscheduled = explanation.unscheduled
-    own_clock = f" Unscheduled nodes ({', '.join(unscheduled)}): {UNSCHEDULED_FIFO}." if unscheduled else ""
-    footer = (
-        "FIFO: the SCHED_FIFO level of a subchain's threads as deployed: at rest (launch.sh sets it) -> in its "
-        f"slice (catanc run raises it).{own_clock} catanc run's own threads: {ENFORCER_FIFO}."
-    )
-    return TableBlock(_columns(columns, left=("subchain", "nodes", "how")), tuple(rows), footer=footer)
-
-
-def fifo_levels(shared: bool) -> str:
-    """The SCHED_FIFO levels of a subchain's threads as the deployment applies them (catan-model.md section 6)."""
-    rest = resting_fifo(shared)
-    return f"{rest}->{RUNNING_FIFO}" if rest != RUNNING_FIFO else str(rest)
-
-
-def _chain_table(explanation: Explanation) -> TableBlock:
-    chains = explanation.chains
-    columns = ("chain", "subchains", "weight", "bound ms", "latency ms", "period ms", "response ms")
-    rows = tuple(
-        (
-            " -> ".join(view.nodes),
-            " -> ".join(view.stages) or "-",
-            f"{view.weight:g}" if view.weight > 0 else "-",
-            f"{view.bound_ms:g}" if view.bound_ms is not None else "-",
-            _ms(view.latency_ms),
-            _ms(view.period_ms),
-            _ms(view.response_ms),
-        )
-        for view in chains[:ROW_LIMIT]
-    )
-    footer = None
-    if len(chains) > ROW_LIMIT:
-        rest = chains[ROW_LIMIT:]
-        weighted = math.fsum(view.weight * view.response_ms for view in rest)
-        share = _share(weighted, explanation.objective)
-        footer = f"... {plural(len(rest), 'more chain')} (together {share} of the objective)"
-    return TableBlock(_columns(columns, left=("chain", "subchains")), rows, footer=footer)
-
-
-def _binding_table(explanation: Explanation) -> Block:
-    if not explanation.bindings:
-        return Paragraph("Binding constraints: none (every rate and chain bound has room, no slice is at a limit)")
-    return TableBlock(
-        (Column("constraint"), Column("on"), Column("detail")),
-        tuple((item.kind, item.subject, item.detail) for item in explanation.bindings),
-        title="Binding constraints",
-    )
-
-
-def _term_table(explanation: Explanation) -> TableBlock:
-    terms = sorted(explanation.terms, key=lambda t: -t.contribution)
-    total = explanation.objective
-    columns = ("term", "spec", "weight", "value ms", "weight x value", "share")
-    rows = tuple(
-        (
-            term.label,
-            term.origin,
-            f"{term.weight:g}",
-            _ms(term.value_ms),
-            _ms(term.contribution),
-            _share(term.contribution, total),
-        )
-        for term in terms[:ROW_LIMIT]
-    )
-    footer = None
-    if len(terms) > ROW_LIMIT:
-        rest = math.fsum(t.contribution for t in terms[ROW_LIMIT:])
-        footer = f"... {plural(len(terms) - ROW_LIMIT, 'more term')} ({_share(rest, total)} of the objective)"
-    return TableBlock(
-        _columns(columns, left=("term", "spec")), rows, title=f"Objective terms: {total:.3f} ms in all", footer=footer
-    )
-
-
-def _baseline_section(explanation: Explanation) -> list[Block]:
-    baseline = explanation.baseline
-    if isinstance(baseline, BaselineGap):
-        return [Paragraph(f"Baseline: {baseline.reason}; nothing to compare with.")]
-    listed = ", ".join(f"{row.node} {row.rate_hz:g} Hz" for row in baseline.nodes.values() if row.rate_hz is not None)
-    inherited = ", ".join(f"{row.node} on {row.trigger}" for row in baseline.nodes.values() if row.trigger is not None)
-    cores = plural(baseline.cores, "core")
-    blocks: list[Block] = [
-        Paragraph(
-            f"Baseline: the spec's hand-tuned timers ({listed})"
-            + (f", the rest on their inputs ({inherited})" if inherited else "")
-            + f", CPU shared fairly by Linux over {cores}: utilisation {baseline.utilisation:.1%}, "
-            f"latency = compute / (1 - utilisation)."
-        ),
-    ]
-    if baseline.overloaded:
-        blocks.append(
-            Paragraph(
-                f"The baseline is overloaded: its rates ask for {baseline.utilisation:.1%} of {cores}, which Linux "
-                f"cannot sustain; every period is stretched x{baseline.stretch:.3f} and latencies are taken "
-                f"at 95% utilisation."
-            )
-        )
-    pairs = sorted(
-        zip(baseline.terms, explanation.terms, strict=True),
-        key=lambda pair: -max(pair[0].contribution, pair[1].contribution),
-    )
-    rows = [
-        (base.label, f"{base.weight:g}", _ms(base.value_ms), _ms(mine.value_ms), _ratio(base.value_ms, mine.value_ms))
-        for base, mine in pairs[:ROW_LIMIT]
-    ]
-    if len(pairs) > ROW_LIMIT:
-        rows.append((f"... {plural(len(pairs) - ROW_LIMIT, 'more term')}", "", "", "", ""))
-    rows.append(
-        (
-            "objective (weighted sum)",
-            "",
-            _ms(baseline.objective),
-            _ms(explanation.objective),
-            _ratio(baseline.objective, explanation.objective),
-        )
-    )
-    columns = _columns(("term", "weight", "baseline ms", "plan ms", "baseline / plan"), left=("term",))
-    blocks.append(TableBlock(columns, tuple(rows), title="Baseline versus plan (same model)"))
-    return blocks
-
-
-def _ratio(base: float, mine: float) -> str:
-    return f"{base / mine:.2f}x" if mine > 0 else "-"
-
-
-def report_blocks(explanation: Explanation) -> list[Block]:
-    """The whole report, in reading order, as blocks: the one place that decides what it says."""
-    scale = (
-        "every bound as written"
-        if explanation.constraint_scale == 1.0
-        else f"every bound scaled by {explanation.constraint_scale:.4g}"
-    )
-    cores = plural(explanation.cores, "core")
-    blocks: list[Block] = [
-        Paragraph(f"{explanation.app} on {cores}: objective {explanation.objective:.3f} ms, {scale}.", strong=True),
-        Paragraph(explanation.allocation),
-        *(Paragraph(note) for note in explanation.executors),
-        *([Paragraph(explanation.machine)] if explanation.machine else []),
-        Heading("1. Cores: one schedule period each"),
-    ]
-    for view in explanation.shared:
-        blocks += _shared_blocks(view, explanation)
-    blocks += [_dedicated_line(view, explanation) for view in explanation.dedicated]
-    blocks += [Paragraph(f"core {core}: idle (no subchain runs here)") for core in explanation.idle_cores]
-    blocks += [Heading("2. Subchains"), _subchain_table(explanation)]
-    count = len(explanation.chains)
-    chains = f"3. Chains ({count}, the most weighted first)" if count > 1 else f"3. Chains ({count})"
-    blocks += [Heading(chains), _chain_table(explanation)]
-    blocks += [Heading("4. What binds and what dominates"), _binding_table(explanation), _term_table(explanation)]
-    blocks.append(Heading("5. Warnings"))
-    blocks.append(Bullets(explanation.warnings) if explanation.warnings else Paragraph("none"))
-    blocks.append(Heading("6. Baseline"))
-    blocks += _baseline_section(explanation)
-    return blocks
-
-
-# --------------------------------------------------------------------------- renderers
-
-
-def _rich_parts(block: Block) -> list[RenderableType]:
-    """One block for a terminal: a blank line before each section, tables boxed, notes indented."""
-    if isinstance(block, Heading):
-        return [Text(""), Text(block.text, style="bold")]
-    if isinstance(block, Paragraph):
-        return [Text(block.text, style="bold" if block.strong else "")]
-    if isinstance(block, Preformatted):
-        return [Text("\n".join(f"  {line}" for line in block.text.splitlines()))]
-    if isinstance(block, Bullets):
-        return [Text(f"- {item}") for item in block.items]
-    if isinstance(block, TableBlock):
-        table = FittedTable(block)
-        return [table] if block.footer is None else [table, Text(f"  {block.footer}")]
-    assert_never(block)
-
-
-UNBOUNDED_WIDTH = 10_000
-"""Room enough to measure the narrowest a table can be without cutting a word."""
-
-
-@dataclass(frozen=True)
-class FittedTable:
-    """A table that fits the width it is given: one-line headers, or each header word on its own line if
-    one-line headers would cut words short or if stacking them takes fewer lines (the text wraps less).
-
-    Number columns are never wrapped or cut; text columns (names, chains, notes) wrap to fit.
-    """
-
-    block: TableBlock
-
-    def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
-        flat, stacked = self._table(stacked=False), self._table(stacked=True)
-        narrowest = Measurement.get(console, options.update_width(UNBOUNDED_WIDTH), flat).minimum
-        if narrowest > options.max_width:  # one-line headers would cut words short
-            yield stacked
-        elif len(console.render_lines(stacked, options)) < len(console.render_lines(flat, options)):
-            yield stacked  # taller headers, but the text wraps less: fewer lines in all
-        else:
-            yield flat
-
-    def _table(self, *, stacked: bool) -> Table:
-        block = self.block
-        table = Table(title=block.title, title_justify="left")
-        for index, column in enumerate(block.columns):
-            if column.align == "right":
-                header = column.header.replace(" ", "\n") if stacked else column.header
-                widest = max((len(row[index]) for row in block.rows), default=0)
-                table.add_column(header, justify="right", no_wrap=True, min_width=widest)
-            else:
-                table.add_column(column.header, justify="left")
-        for row in block.rows:
-            table.add_row(*row)
-        return table
-
-
-def render(explanation: Explanation) -> list[RenderableType]:
-    """The explanation as rich renderables, in reading order."""
-    return [part for block in report_blocks(explanation) for part in _rich_parts(block)]
-
-
-_MARKDOWN_INLINE = re.compile(
-    r"[\\`*]"  # escapes, code spans, emphasis
-    r"|(?<![A-Za-z0-9])_|_(?![A-Za-z0-9])"  # emphasis (an underscore inside a word is not)
-    r"|\](?=[(\[:])"  # links: inline, reference, definition
-    r"|<(?=[A-Za-z/!?])|&(?=#?\w+;)"  # HTML tags, entities
-)
-_MARKDOWN_BLOCK_START = re.compile(r"^(?:[#>+-]|\d+[.)])")
-
-
-def _markdown_inline(text: str) -> str:
-    """``text`` as literal Markdown on one line, for a heading or a table cell.
-
-    Backslash-escapes only what could start markup, so that the file reads
-    well raw: ``face_tracking``, ``objective[2]`` and ``f <= 1`` stay as
-    they are.
-    """
-    return _MARKDOWN_INLINE.sub(lambda match: "\\" + match.group(0), " ".join(text.splitlines()).strip())
-
-
-def _markdown_text(text: str) -> str:
-    """``text`` as a literal paragraph or list item: also not a heading, quote, list or rule."""
-    return _MARKDOWN_BLOCK_START.sub(
-        lambda match: match.group(0)[:-1] + "\\" + match.group(0)[-1], _markdown_inline(text)
-    )
-
-
-def _markdown_cell(text: str) -> str:
-    return _markdown_inline(text).replace("|", "\\|")
-
-
-def _markdown_row(cells: Sequence[str]) -> str:
-    return "| " + " | ".join(cells) + " |"
-
-
-def _markdown_lines(block: Block) -> list[str]:
-    """One block as GitHub Markdown lines (no blank line before or after it)."""
-    if isinstance(block, Heading):
-        return [f"## {_markdown_inline(block.text)}"]
-    if isinstance(block, Paragraph):
-        text = _markdown_text(block.text)
-        return [f"**{text}**" if block.strong and text else text]
-    if isinstance(block, Preformatted):
-        lines = [line.rstrip() for line in block.text.splitlines()]
-        ticks = max((len(run) for run in re.findall(r"`+", block.text)), default=0)
-        fence = "`" * max(3, ticks + 1)
-        return [fence, *lines, fence]
-    if isinstance(block, Bullets):
-        return [f"- {_markdown_text(item)}" for item in block.items]
-    if isinstance(block, TableBlock):
-        lines = [] if block.title is None else [f"**{_markdown_inline(block.title)}**", ""]
-        lines.append(_markdown_row([_markdown_cell(column.header) for column in block.columns]))
-        lines.append(_markdown_row(["---:" if column.align == "right" else "---" for column in block.columns]))
-        lines += [_markdown_row([_markdown_cell(cell) for cell in row]) for row in block.rows]
-        if block.footer is not None:
-            lines += ["", _markdown_text(block.footer)]
-        return lines
-    assert_never(block)
-
-
-def blocks_markdown(blocks: Sequence[Block]) -> str:
-    """Blocks as one Markdown document: a blank line between blocks, ``\\n`` endings, one final newline."""
-    chunks = ["\n".join(lines) for lines in map(_markdown_lines, blocks) if any(lines)]
-    return "\n\n".join(chunks) + "\n"
-
-
-def render_markdown(explanation: Explanation) -> str:
-    """The same report as :func:`render`, as GitHub Markdown (for a committed ``PLAN.md``); no file header."""
-    return blocks_markdown(report_blocks(explanation))

@@ -22,22 +22,10 @@ from catanc.core.build import build_problem
 from catanc.core.load import load_spec, parse_spec
 from catanc.core.problem import Problem
 from catanc.errors import ExitCode, InfeasibleError
-from catanc.explain.analysis import (
-    Block,
-    Bullets,
-    Column,
-    Explanation,
-    Heading,
-    Paragraph,
-    Preformatted,
-    SharedCoreView,
-    TableBlock,
-    blocks_markdown,
-    explain_plan,
-    render,
-    render_markdown,
-    timeline_bar,
-)
+from catanc.explain.analysis import Explanation, SharedCoreView, explain_plan
+from catanc.explain.blocks import Block, Bullets, Column, Heading, Paragraph, Preformatted, TableBlock, timeline_bar
+from catanc.explain.markdown import blocks_markdown, render_markdown
+from catanc.explain.terminal import render
 from catanc.planning.planner import plan
 from catanc.planning.types import Plan
 
