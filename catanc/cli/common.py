@@ -1,0 +1,131 @@
+"""What every command shares: its options' types, its consoles, and errors turned into exit codes.
+
+Every command reports a :class:`~catanc.errors.CatancError` as a short
+message with its exit code; anything else is a bug and exits with
+``ExitCode.INTERNAL`` (set ``CATANC_DEBUG=1`` for the traceback).
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, ParamSpec, TypeVar
+
+import typer
+from rich.console import Console
+
+from catanc.errors import CatancError, Diagnostic, ExitCode, SpecError
+
+if TYPE_CHECKING:
+    from catanc.core.problem import Problem
+    from catanc.spec.language import Spec
+
+P = ParamSpec("P")
+R = TypeVar("R")
+
+SpecArg = Annotated[Path, typer.Argument(metavar="SPEC", help="A spec file (YAML).", show_default=False)]
+CoresOpt = Annotated[int, typer.Option("--cores", "-k", min=1, help="Identical CPU cores available.")]
+Stage1Opt = Annotated[
+    str, typer.Option(help="Stage I method: auto (enumerate small apps, else MILP), milp or exhaustive.")
+]
+SolverOpt = Annotated[str, typer.Option(help="MILP solver: highs or cbc.")]
+TimeLimitOpt = Annotated[float | None, typer.Option(min=0.01, help="Stage I time limit in seconds (default 2.5).")]
+MachineOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--machine",
+        metavar="FILE",
+        help="A machine profile (catanc calibrate): plan with switch_ms and slack raised to its measured costs.",
+    ),
+]
+# simulate and bench: the same comparison, simulated or measured.
+WorkloadSeedOpt = Annotated[int, typer.Option("--seed", min=0, help="Seed of the workload's random draws.")]
+TablesJsonOpt = Annotated[bool, typer.Option("--json", help="Print JSON instead of tables.")]
+QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar (there is none off a terminal).")]
+PlotDirOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--plot",
+        metavar="DIR",
+        help="Also write PNG plots into DIR (created if missing): responses-cdf.png, timeline.png, rates.png.",
+    ),
+]
+
+
+PIPED_WIDTH = 160
+"""Table width when stdout is not a terminal (rich would assume 80 and wrap every chain)."""
+
+REPORT_WIDTH = 100
+"""``explain``'s width when stdout is not a terminal: its tables wrap their text to fit, so a file reads well."""
+
+
+def stdout_console() -> Console:
+    width = None if sys.stdout.isatty() else PIPED_WIDTH
+    return Console(highlight=False, soft_wrap=True, width=width)
+
+
+def report_console(width: int | None) -> Console:
+    """A console whose text wraps at ``width``: the terminal's by default, else :data:`REPORT_WIDTH`."""
+    if width is None and not sys.stdout.isatty():
+        width = REPORT_WIDTH
+    return Console(highlight=False, soft_wrap=False, width=width)
+
+
+def stderr_console() -> Console:
+    return Console(stderr=True, highlight=False, soft_wrap=True)
+
+
+def print_diagnostics(diagnostics: Sequence[Diagnostic], *, warning: bool = False) -> None:
+    console = stderr_console()
+    for diagnostic in diagnostics:
+        text = str(diagnostic)
+        if warning:
+            where = f"{diagnostic.location}: " if diagnostic.location else ""
+            what = f"{diagnostic.field}: " if diagnostic.field else ""
+            text = f"{where}warning: {what}{diagnostic.message}"
+        console.print(text, markup=False)
+
+
+def load_problem(spec_path: Path) -> tuple[Spec, Problem]:
+    """The spec and its planning problem, with the problem's warnings printed."""
+    from catanc.core.load import read_spec
+
+    loaded = read_spec(spec_path)
+    print_diagnostics(loaded.problem.warnings, warning=True)
+    return loaded.spec, loaded.problem
+
+
+def print_notes(spec_path: Path, notes: Sequence[str]) -> None:
+    for note in notes:
+        stderr_console().print(f"{spec_path}: warning: {note}", markup=False)
+
+
+def reporting(command: Callable[P, R]) -> Callable[P, R]:
+    """Turn catanc errors into messages and exit codes; never show a traceback for them."""
+
+    @functools.wraps(command)
+    def wrapper(*args: P.args, **kwargs: P.kwargs) -> R:
+        try:
+            return command(*args, **kwargs)
+        except typer.Exit:
+            raise
+        except SpecError as exc:
+            print_diagnostics(exc.diagnostics)
+            raise typer.Exit(int(exc.exit_code)) from None
+        except CatancError as exc:
+            stderr_console().print(f"catanc: {exc}", markup=False)
+            raise typer.Exit(int(exc.exit_code)) from None
+        except Exception as exc:
+            if os.environ.get("CATANC_DEBUG"):
+                raise
+            stderr_console().print(
+                f"catanc: internal error: {type(exc).__name__}: {exc}\n"
+                "This is a bug in catanc; rerun with CATANC_DEBUG=1 for the traceback and report it.",
+                markup=False,
+            )
+            raise typer.Exit(int(ExitCode.INTERNAL)) from None
+
+    return wrapper

@@ -1,0 +1,156 @@
+"""Commands of the runtime: ``run`` (the enforcer), ``doctor``, ``set-cores`` and ``report`` (a run's log)."""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated
+
+import typer
+
+from catanc.cli.common import (
+    reporting,
+    stdout_console,
+)
+from catanc.errors import ExitCode
+
+if TYPE_CHECKING:
+    pass
+
+
+@reporting
+def run_(
+    table_path: Annotated[
+        Path, typer.Argument(metavar="RUNTIME_JSON", help="A runtime table (out/<app>/cores-<K>/runtime.json).")
+    ],
+    launch: Annotated[bool, typer.Option("--launch", help="Start the spec's deploy commands.")] = False,
+    attach: Annotated[
+        list[str] | None, typer.Option("--attach", metavar="NODE=PID", help="Pin a running process as NODE's.")
+    ] = None,
+    demo: Annotated[bool, typer.Option("--demo", help="Start one synthetic worker per scheduled node.")] = False,
+    duration: Annotated[float | None, typer.Option(min=0.1, help="Stop after this many seconds.")] = None,
+    no_rt: Annotated[bool, typer.Option("--no-rt", help="Rates and affinities only: no SCHED_FIFO.")] = False,
+    log: Annotated[Path | None, typer.Option(help="JSON-lines log (default: catanc-run-<app>.jsonl).")] = None,
+    socket: Annotated[Path | None, typer.Option(help="The enforcer's socket (default: in /tmp).")] = None,
+    start: Annotated[
+        str, typer.Option(help="First plan: bootstrap (every node 5 ms, as the paper) or spec (the table's).")
+    ] = "bootstrap",
+    cores: Annotated[int | None, typer.Option(min=1, help="Plan for this many cores instead of the table's.")] = None,
+    quiet: Annotated[bool, typer.Option("--quiet", help="No live status; a summary at the end.")] = False,
+) -> None:
+    """Enforce a plan on this machine: trigger subchains, run per-core slices, measure and re-solve."""
+    from catanc.artifacts.runtime_table import load_table
+    from catanc.core.priorities import ENFORCER_FIFO
+    from catanc.errors import UsageError
+    from catanc.runtime.enforcer import Enforcer
+    from catanc.runtime.processes import Children, parse_attach, start_demo, start_launch
+    from catanc.runtime.sched import Restorer, check_fifo_allowed, threads_of
+    from catanc.runtime.status import status_view
+    from catanc.runtime.watchdog import Watchdog
+
+    if demo + launch > 1:
+        raise UsageError("--demo and --launch both start the app: pick one")
+    if start not in ("bootstrap", "spec"):
+        raise UsageError(f"--start {start!r}: expected bootstrap or spec")
+    table = load_table(table_path)
+    attached = parse_attach(attach or [], table.spec)
+    if not no_rt:
+        check_fifo_allowed(ENFORCER_FIFO)
+    socket_path = str(socket or Path(f"/tmp/catanc-{os.getuid()}-{table.app}.sock"))
+    log_path = log or Path(f"catanc-run-{table.app}.jsonl")
+    children = Children()
+    restorer = Restorer(Watchdog().start()) if not no_rt else Restorer()
+    enforcer = Enforcer(
+        table,
+        socket_path=socket_path,
+        rt=not no_rt,
+        start="bootstrap" if start == "bootstrap" else "spec",
+        log_path=log_path,
+        cores=cores,
+        restorer=restorer,
+    )
+
+    def begin(running: Enforcer) -> None:
+        for node, pid in attached.items():
+            running.attach(node, pid, threads_of(pid))
+        if demo:
+            start_demo(children, table.spec, socket_path)
+        elif launch:
+            start_launch(children, table.processes, socket_path)
+
+    live = None
+    if not quiet and sys.stdout.isatty():
+        from rich.live import Live
+
+        live = Live(console=stdout_console(), refresh_per_second=4, transient=False)
+        live.start()
+
+    def tick(running: Enforcer) -> None:
+        if live is not None:
+            live.update(
+                status_view(table.app, running.schedule.cores, running.status(), running.events, running.elapsed_s())
+            )
+
+    try:
+        enforcer.run(duration, on_start=begin, on_tick=tick)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        if live is not None:
+            live.stop()
+        children.stop()
+    stdout_console().print(
+        status_view(table.app, enforcer.schedule.cores, enforcer.status(), enforcer.events, enforcer.elapsed_s())
+    )
+    stdout_console().print(f"log: {log_path}", markup=False)
+
+
+@reporting
+def doctor(
+    table_path: Annotated[
+        Path | None,
+        typer.Argument(
+            metavar="[RUNTIME_JSON]",
+            help="A runtime table: check for its plan (default: what `catanc run` needs for any plan).",
+            show_default=False,
+        ),
+    ] = None,
+) -> None:
+    """Check this machine for what a plan needs (privileges, real-time budgets, CPUs, tools); say how to fix each."""
+    from catanc.artifacts.runtime_table import load_table
+    from catanc.doctor import ENFORCER_ONLY, Verdict, diagnose, inspect_machine, needs_of, render
+
+    if table_path is None:
+        needs, title = ENFORCER_ONLY, "catanc doctor: what `catanc run` needs for any plan"
+    else:
+        table = load_table(table_path)
+        needs = needs_of(table)
+        title = f"catanc doctor: {table_path} ({table.app}, {table.cores} core{'s' if table.cores > 1 else ''})"
+    findings = diagnose(needs, inspect_machine(needs))
+    sys.stdout.write(render(findings, title))
+    if any(finding.verdict is Verdict.FAIL for finding in findings):
+        raise typer.Exit(int(ExitCode.MACHINE))
+
+
+@reporting
+def set_cores_(
+    cores: Annotated[int, typer.Argument(min=1, help="Cores the running app may use from now on.")],
+    socket: Annotated[Path, typer.Option(help="The enforcer's socket (as given to catanc run --socket).")],
+) -> None:
+    """Tell a running `catanc run` to re-plan for another number of cores (Stage I again, then re-pinning)."""
+    from catanc.client import set_cores
+
+    set_cores(cores, str(socket))
+
+
+@reporting
+def report(
+    log: Annotated[Path, typer.Argument(metavar="LOG", help="A `catanc run` log (JSON lines).", show_default=False)],
+    plot: Annotated[Path | None, typer.Option(metavar="FILE.png", help="Also draw a timeline plot (PNG).")] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of tables.")] = False,
+) -> None:
+    """Summarise a `catanc run` log: rates, latencies, compute times, re-plans; optionally plot a timeline."""
+    from catanc.runtime.log_summary import report_command
+
+    report_command(log, plot, as_json)
