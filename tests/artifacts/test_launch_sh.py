@@ -21,11 +21,9 @@ import contextlib
 import json
 import os
 import shlex
-import shutil
 import signal
 import subprocess
 import sys
-import tempfile
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
@@ -46,7 +44,7 @@ from catanc.errors import ExitCode
 from catanc.planning.planner import plan
 from catanc.planning.types import Plan
 from catanc.spec.language import Spec
-from tests.support.linux import as_user, cpu_set, missing_tools, nobody_ids, poll
+from tests.support.linux import as_user, cpu_set, missing_tools, poll
 
 SPECS = sorted((Path(__file__).parents[2] / "specs").glob("*.yaml"))
 WAIT_S = 10.0  # the longest any single wait in here may take
@@ -328,35 +326,8 @@ def kill_run(run: Run) -> None:
 # --------------------------------------------------------------------------- what the machine allows
 
 
-@pytest.fixture(scope="module")
-def real_kernel() -> None:
-    """Skips unless this machine lets the tests use SCHED_FIFO up to :data:`TOP_PRIORITY` and CPUs 0 and 1."""
-    if missing := missing_tools("bash", "taskset", "chrt"):
-        pytest.skip(f"needs {', '.join(missing)}")
-    if not {0, 1} <= os.sched_getaffinity(0):
-        pytest.skip(f"needs CPUs 0 and 1 (allowed: {sorted(os.sched_getaffinity(0))})")
-    probe = subprocess.run(
-        ["chrt", "-f", str(TOP_PRIORITY), "true"], capture_output=True, text=True, timeout=WAIT_S, check=False
-    )
-    if probe.returncode != 0:
-        pytest.skip(f"SCHED_FIFO {TOP_PRIORITY} is not permitted here: {probe.stderr.strip()}")
-
-
-@pytest.fixture
-def shared_folder() -> Iterator[Path]:
-    """A folder under /tmp the unprivileged user may read and write (pytest's tmp_path is root's alone)."""
-    folder = Path(tempfile.mkdtemp(prefix="catanc-launch-", dir="/tmp"))
-    folder.chmod(0o777)
-    try:
-        yield folder
-    finally:
-        shutil.rmtree(folder, ignore_errors=True)
-
-
-@pytest.fixture(scope="module")
-def nobody(real_kernel: None) -> tuple[int, int]:
-    """``nobody``'s uid and gid; skips unless the tests may switch to it."""
-    return nobody_ids()
+REALTIME_PRIORITY = TOP_PRIORITY  # conftest's real_kernel: the highest priority a launch.sh here asks for
+REALTIME_TOOLS = ("bash", "taskset", "chrt")
 
 
 # --------------------------------------------------------------------------- the tests

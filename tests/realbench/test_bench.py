@@ -20,7 +20,6 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -40,7 +39,7 @@ from catanc.runtime.sched import read_policy
 from catanc.runtime.worker import RunRecord
 from catanc.sim.simulate import Setup, prepare, reported_chains, simulate_policies, workload_sampler
 from catanc.spec.language import Spec
-from tests.support.linux import WAIT_S, nobody_ids, poll, require_fifo
+from tests.support.linux import WAIT_S, as_user, nobody_ids, poll
 
 T0 = 5_000_000_000  # a window's start on CLOCK_MONOTONIC (ns): replayed times are relative to it
 MS = 1_000_000
@@ -368,6 +367,7 @@ baseline:
   rates_hz: {cam: 20, map: 2}
 """
 DURATION_S = 2.5
+REALTIME_PRIORITY = 10  # conftest's real_kernel: the enforcer's threads at 4, its watchdog at 10
 BENCH_MAIN = (  # `python -m catanc`, with Python's SIGINT handler even where the tests run with SIGINT ignored
     "import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
     "sys.argv[0] = 'catanc'; from catanc.cli import main; main()"
@@ -399,9 +399,8 @@ def own_tmp(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
 
 
 @pytest.fixture(scope="module")
-def bench_json(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict[str, Any], str, list[int]]:
+def bench_json(real_kernel: None, tmp_path_factory: pytest.TempPathFactory) -> tuple[dict[str, Any], str, list[int]]:
     """One ``catanc bench`` of TINY, every policy, on one core: its JSON, its stderr, and what it left running."""
-    require_fifo(10)  # the enforcer's threads at 4, its watchdog at 10
     folder = tmp_path_factory.mktemp("bench")
     spec = folder / "tiny.yaml"
     spec.write_text(TINY)
@@ -510,8 +509,8 @@ def test_a_static_policy_plans_what_the_simulator_plans_and_never_re_solves(
     assert spec.nodes["map"].compute_ms == 20  # the workers' spec is untouched
 
 
+@pytest.mark.usefixtures("real_kernel")
 def test_a_static_bench_runs_under_the_enforcer_without_re_solving(tmp_path: Path) -> None:
-    require_fifo(10)
     spec = tmp_path / "growing.yaml"
     spec.write_text(GROWING)
     argv = [sys.executable, "-c", BENCH_MAIN, "bench", str(spec), "-k", "1", "--duration", str(DURATION_S), "--json"]
@@ -532,8 +531,8 @@ def test_a_bench_leaves_no_process_behind(bench_json: tuple[dict[str, Any], str,
     assert bench_json[2] == []
 
 
+@pytest.mark.usefixtures("real_kernel")
 def test_ctrl_c_stops_every_worker(tmp_path: Path) -> None:
-    require_fifo(10)
     spec = tmp_path / "tiny.yaml"
     spec.write_text(TINY)
     runs = tmp_path / "runs"
@@ -567,10 +566,10 @@ class InjectedError(Exception):
 
 
 @pytest.mark.parametrize("policy", ["catan", "fifo-static"])
+@pytest.mark.usefixtures("real_kernel")
 def test_a_failed_run_stops_its_workers_and_puts_this_thread_back(
     policy: str, own_tmp: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    require_fifo(10)
     spec_path = tmp_path / "tiny.yaml"
     spec_path.write_text(TINY)
     setup = bench_run.BenchSetup(spec_path, load_spec(spec_path), 1, 30.0, 0)
@@ -620,30 +619,14 @@ def test_usage_errors_come_before_anything_starts(tmp_path: Path) -> None:
     assert f"may use only {cpus} CPU(s)" in result.output
 
 
-@pytest.fixture
-def shared_folder() -> Iterator[Path]:
-    """A folder under /tmp that ``nobody`` may use (pytest's own are the test user's alone)."""
-    folder = Path(tempfile.mkdtemp(prefix="catanc-bench-nobody-"))
-    folder.chmod(0o777)
-    try:
-        yield folder
-    finally:
-        for path in sorted(folder.rglob("*"), reverse=True):
-            with contextlib.suppress(OSError):
-                path.unlink() if not path.is_dir() else path.rmdir()
-        folder.rmdir()
-
-
 def bench_as_nobody(folder: Path, *options: str) -> subprocess.CompletedProcess[str]:
     """``catanc bench`` of TINY as ``nobody``: RLIMIT_RTPRIO 0, no capabilities."""
     uid, gid = nobody_ids()
     spec = folder / "tiny.yaml"
     spec.write_text(TINY)
     spec.chmod(0o644)
-    prefix = ["prlimit", "--rtprio=0:0", "setpriv", f"--reuid={uid}", f"--regid={gid}", "--clear-groups"]
-    prefix += ["--inh-caps=-all", "--ambient-caps=-all", "--bounding-set=-all"]
     return subprocess.run(
-        [*prefix, sys.executable, "-c", BENCH_MAIN, "bench", str(spec), "-k", "1", *options],
+        [*as_user(uid, gid, rtprio=0), sys.executable, "-c", BENCH_MAIN, "bench", str(spec), "-k", "1", *options],
         capture_output=True,
         text=True,
         timeout=60,
@@ -653,6 +636,7 @@ def bench_as_nobody(folder: Path, *options: str) -> subprocess.CompletedProcess[
     )
 
 
+@pytest.mark.realtime  # as root, switching to nobody
 def test_without_privilege_the_fifo_policies_exit_4_and_say_why(shared_folder: Path) -> None:
     refused = bench_as_nobody(shared_folder, "--duration", "1")
     assert refused.returncode == ExitCode.NO_PRIVILEGE, refused.stderr
@@ -664,6 +648,7 @@ def test_without_privilege_the_fifo_policies_exit_4_and_say_why(shared_folder: P
     assert [p.name for p in shared_folder.iterdir()] == ["tiny.yaml"]  # refused before anything started
 
 
+@pytest.mark.realtime  # as root, switching to nobody
 def test_without_privilege_the_baseline_runs(shared_folder: Path) -> None:
     uid, gid = nobody_ids()
     probe = subprocess.run(

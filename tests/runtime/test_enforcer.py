@@ -48,10 +48,9 @@ from tests.support.linux import (
     WAIT_S,
     Sched,
     alive,
+    as_user,
     missing_tools,
-    nobody_ids,
     poll,
-    require_fifo,
     sched_of,
     threads_of,
 )
@@ -293,10 +292,8 @@ def restored(threads: dict[str, tuple[int, int]]) -> bool:
 # --------------------------------------------------------------------------- what the machine allows
 
 
-@pytest.fixture(scope="module", autouse=True)
-def real_kernel() -> None:
-    """Skips unless CPUs 0 and 1 are allowed and SCHED_FIFO up to the watchdog's priority is permitted."""
-    require_fifo(WATCHDOG_PRIORITY)
+REALTIME_PRIORITY = WATCHDOG_PRIORITY  # conftest's real_kernel: every test here needs SCHED_FIFO up to it
+pytestmark = pytest.mark.usefixtures("real_kernel")
 
 
 # --------------------------------------------------------------------------- a plain run, watched throughout
@@ -712,31 +709,6 @@ def test_no_rt_pins_node_threads_but_leaves_them_at_sched_other(harness: Harness
         assert len(runs_of(events, name, 0.0, end)) >= 10, name
 
 
-@pytest.fixture(scope="module")
-def nobody() -> tuple[int, int]:
-    """``nobody``'s uid and gid; skips unless the tests may switch to it."""
-    return nobody_ids()
-
-
-@pytest.fixture
-def shared_folder() -> Iterator[Path]:
-    """A folder under /tmp that ``nobody`` may use (pytest's own are the test user's alone)."""
-    folder = Path(tempfile.mkdtemp(prefix="catanc-nobody-"))
-    folder.chmod(0o777)
-    try:
-        yield folder
-    finally:
-        shutil.rmtree(folder, ignore_errors=True)
-
-
-def as_nobody(uid: int, gid: int) -> list[str]:
-    """Run a command as ``uid`` with RLIMIT_RTPRIO 0 and no capabilities (as in tests/runtime/test_sched.py)."""
-    return [
-        *("prlimit", "--rtprio=0:0", "setpriv", f"--reuid={uid}", f"--regid={gid}", "--clear-groups"),
-        *("--inh-caps=-all", "--ambient-caps=-all", "--bounding-set=-all"),
-    ]
-
-
 def nobody_run(
     nobody: tuple[int, int], folder: Path, tmp_path: Path, *options: str
 ) -> subprocess.CompletedProcess[str]:
@@ -745,7 +717,7 @@ def nobody_run(
     if not table.exists():
         shutil.copyfile(compile_table(MIXED_SPEC, tmp_path, 2), table)
         table.chmod(0o644)
-    argv = [*as_nobody(*nobody), sys.executable, "-c", ENFORCER_MAIN, "run", str(table), "--quiet"]
+    argv = [*as_user(*nobody, rtprio=0), sys.executable, "-c", ENFORCER_MAIN, "run", str(table), "--quiet"]
     argv += ["--socket", str(folder / "s.sock"), "--log", str(folder / "log.jsonl"), *options]
     return subprocess.run(
         argv,
@@ -774,7 +746,7 @@ def test_without_privilege_catanc_run_exits_4_and_says_why(
 def test_without_privilege_no_rt_runs(nobody: tuple[int, int], shared_folder: Path, tmp_path: Path) -> None:
     probe = subprocess.run(
         [
-            *as_nobody(*nobody),
+            *as_user(*nobody, rtprio=0),
             sys.executable,
             "-c",
             "import subprocess, sys; subprocess.run([sys.executable, '-c', ''])",

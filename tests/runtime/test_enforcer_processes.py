@@ -55,7 +55,6 @@ from tests.support.linux import (
     alive,
     missing_tools,
     poll,
-    require_fifo,
     sched_of,
     stat_fields,
     threads_of,
@@ -156,10 +155,7 @@ def nav2d_table(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return compile_table(SPEC_PATH.read_text(), tmp_path_factory.mktemp("nav2d"), 2)
 
 
-@pytest.fixture(scope="module")
-def fifo() -> None:
-    """Skips unless CPUs 0 and 1 are allowed and SCHED_FIFO up to the watchdog's priority is permitted."""
-    require_fifo(WATCHDOG_PRIORITY)
+REALTIME_PRIORITY = WATCHDOG_PRIORITY  # conftest's real_kernel: these tests need SCHED_FIFO up to it
 
 
 # --------------------------------------------------------------------------- reading /proc and the log
@@ -300,7 +296,7 @@ def assert_nothing_left(run: Run) -> None:
 # --------------------------------------------------------------------------- --launch
 
 
-@pytest.mark.usefixtures("fifo")
+@pytest.mark.usefixtures("real_kernel")
 @pytest.mark.parametrize("how", ["duration", "sigint"])
 def test_launch_runs_the_deploy_commands_and_stops_them_at_the_end(run: Run, launch_table: Path, how: str) -> None:
     duration = 2.5 if how == "duration" else 60.0
@@ -331,7 +327,7 @@ def test_launch_runs_the_deploy_commands_and_stops_them_at_the_end(run: Run, lau
     assert_nothing_left(run)
 
 
-@pytest.mark.usefixtures("fifo")
+@pytest.mark.usefixtures("real_kernel")
 def test_a_deploy_command_that_does_not_exist_exits_2_and_leaves_nothing_running(run: Run, broken_table: Path) -> None:
     """`plan`'s command does not exist: `/front` and `map`, started before it, are stopped again."""
     run.start(broken_table, "--launch", duration=30.0)
@@ -346,7 +342,7 @@ def test_a_deploy_command_that_does_not_exist_exits_2_and_leaves_nothing_running
     assert_nothing_left(run)
 
 
-@pytest.mark.usefixtures("fifo")
+@pytest.mark.usefixtures("real_kernel")
 def test_a_failed_launch_puts_an_attached_process_back(run: Run, broken_table: Path) -> None:
     """`--attach map=PID --launch` where a deploy command does not exist: the attached threads end as they began."""
     as_map = run.plain_app()
@@ -363,7 +359,7 @@ def test_a_failed_launch_puts_an_attached_process_back(run: Run, broken_table: P
 # --------------------------------------------------------------------------- --attach
 
 
-@pytest.mark.usefixtures("fifo")
+@pytest.mark.usefixtures("real_kernel")
 @pytest.mark.parametrize("how", ["duration", "sigint"])
 def test_attach_gives_a_plain_process_the_nodes_placement_and_puts_it_back(
     run: Run, launch_table: Path, how: str
@@ -447,7 +443,7 @@ def needs_taskset() -> None:
         pytest.skip("needs taskset")
 
 
-@pytest.mark.usefixtures("fifo")
+@pytest.mark.usefixtures("real_kernel")
 def test_gaining_a_cpu_after_starting_on_one_core_re_plans_for_two(run: Run, launch_table: Path) -> None:
     """On CPU 1 with `--cores 1`, then CPUs 0 and 1: Stage I again for two cores, and re-pinning."""
     needs_taskset()
@@ -473,7 +469,7 @@ def test_gaining_a_cpu_after_starting_on_one_core_re_plans_for_two(run: Run, lau
     assert_nothing_left(run)
 
 
-@pytest.mark.usefixtures("fifo")
+@pytest.mark.usefixtures("real_kernel")
 def test_gaining_a_cpu_re_plans_a_two_core_table_for_two_cores(run: Run, launch_table: Path) -> None:
     """A two-core table, the enforcer on CPU 1 alone, then on CPUs 0 and 1: a re-plan for two cores."""
     needs_taskset()
@@ -492,7 +488,7 @@ def test_gaining_a_cpu_re_plans_a_two_core_table_for_two_cores(run: Run, launch_
     pinned_as(threads, event["plan"], sorted(BOTH_CPUS))
 
 
-@pytest.mark.usefixtures("fifo")
+@pytest.mark.usefixtures("real_kernel")
 def test_moving_to_another_cpu_re_pins_every_node(run: Run, one_core_table: Path) -> None:
     """A one-core plan on CPU 1, then the enforcer moved to CPU 0 (a cpuset change): the nodes follow it."""
     needs_taskset()

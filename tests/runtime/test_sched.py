@@ -50,7 +50,7 @@ from catanc.runtime.sched import (
     set_other,
 )
 from catanc.runtime.watchdog import WATCHDOG_PRIORITY
-from tests.support.linux import as_user, cpu_set, nobody_ids, poll, require_fifo, stat_fields
+from tests.support.linux import as_user, cpu_set, poll, stat_fields
 
 WAIT_S = 10.0  # the longest any single wait in here may take
 KILL_BOUND_S = 1.0  # the issue: no app thread stays at SCHED_FIFO longer than this after a SIGKILL
@@ -287,16 +287,7 @@ def realtime(priority: int) -> Iterator[None]:
 # --------------------------------------------------------------------------- what the machine allows
 
 
-@pytest.fixture(scope="module")
-def real_kernel() -> None:
-    """Skips unless SCHED_FIFO up to :data:`OBSERVER_PRIORITY` is permitted and CPUs 0 and 1 are allowed."""
-    require_fifo(OBSERVER_PRIORITY)
-
-
-@pytest.fixture(scope="module")
-def nobody(real_kernel: None) -> tuple[int, int]:
-    """``nobody``'s uid and gid; skips unless the tests may switch to it."""
-    return nobody_ids()
+REALTIME_PRIORITY = OBSERVER_PRIORITY  # conftest's real_kernel: SCHED_FIFO up to the observer's priority
 
 
 def run_probe(prefix: Sequence[str], priority: int) -> subprocess.CompletedProcess[str]:

@@ -1,0 +1,63 @@
+"""What the test folders share: the real-kernel fixtures, and the markers.
+
+Markers (registered in pyproject.toml; pytest runs with ``--strict-markers``):
+
+- ``realtime``: needs root and the real kernel (SCHED_FIFO, affinities,
+  switching to ``nobody``).  Every test that uses the :func:`real_kernel` or
+  :func:`nobody` fixture gets it here, so ``pytest -m "not realtime"`` runs
+  anywhere.  Such a test also skips, with the reason, where the machine
+  lacks the part.
+- ``slow``: takes more than ~10 s on the 2-core development VM;
+  ``pytest -m "not slow"`` is the quick pass.
+
+Helpers that are not fixtures live in :mod:`tests.support`.
+"""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from tests.support.linux import missing_tools, nobody_ids, require_fifo
+
+REALTIME_FIXTURES = frozenset({"real_kernel", "nobody"})
+
+
+@pytest.fixture(scope="module")
+def real_kernel(request: pytest.FixtureRequest) -> None:
+    """Skips unless CPUs 0 and 1 are allowed and SCHED_FIFO is permitted here.
+
+    A test module asks for more with module constants: ``REALTIME_PRIORITY``
+    (the highest SCHED_FIFO priority its tests use, default 1) and
+    ``REALTIME_TOOLS`` (programs they run, e.g. ``chrt``).
+    """
+    if missing := missing_tools(*getattr(request.module, "REALTIME_TOOLS", ())):
+        pytest.skip(f"needs {', '.join(missing)}")
+    require_fifo(getattr(request.module, "REALTIME_PRIORITY", 1))
+
+
+@pytest.fixture(scope="module")
+def nobody(real_kernel: None) -> tuple[int, int]:
+    """``nobody``'s uid and gid; skips unless the tests may switch to it (root, setpriv, prlimit)."""
+    return nobody_ids()
+
+
+@pytest.fixture
+def shared_folder() -> Iterator[Path]:
+    """A folder under /tmp that ``nobody`` may use (pytest's own are the test user's alone)."""
+    folder = Path(tempfile.mkdtemp(prefix="catanc-nobody-", dir="/tmp"))
+    folder.chmod(0o777)
+    try:
+        yield folder
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        if REALTIME_FIXTURES & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.realtime)
