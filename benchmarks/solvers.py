@@ -19,13 +19,13 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from benchmarks.workloads import layered_spec
 from catanc.core.build import build_problem
 from catanc.core.load import load_spec
 from catanc.core.problem import Problem
 from catanc.planning.stage1 import allocate
 from catanc.planning.stage1.milp import DEFAULT_TIME_LIMIT_S, relaxation_bound
 from catanc.spec.language import Spec
+from tests.support.layered_apps import layered_spec
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER_STAGE1_NAV2D_MS = 60.0  # C++/Mosek, nav on 2 cores (paper section 6)

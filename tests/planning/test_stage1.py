@@ -287,7 +287,7 @@ def test_unknown_method_and_solver() -> None:
 
 
 def layered(size: int, seed: int) -> Problem:
-    from benchmarks.workloads import layered_spec
+    from tests.support.layered_apps import layered_spec
 
     return build_problem(layered_spec(size, seed))
 
