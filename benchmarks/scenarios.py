@@ -17,19 +17,15 @@ from __future__ import annotations
 
 import argparse
 import copy
-import itertools
 import json
 import math
 import sys
-import tempfile
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
@@ -37,12 +33,19 @@ from catanc.core.load import load_spec
 from catanc.sim.metrics import ChainResult, PolicyResult
 from catanc.sim.plots import panel_figure, png_bytes, write_files
 from catanc.sim.simulate import Setup, simulate
+from tests.support.scenario_specs import (
+    BUCKET_S,
+    bucket_medians,
+    bucket_periods,
+    spec_file,
+    spec_yaml,
+    with_growth_over,
+    with_rates,
+)
 
-SPECS = Path(__file__).resolve().parent.parent / "specs"
 OUT = Path(__file__).resolve().parent.parent / "docs" / "results"
 SEED = 0
 CORES = (1, 2)
-BUCKET_S = 10.0  # the paper's Figures 10-12 average the YOLO period over 10 s buckets
 
 FACE_CHAIN = ("camera", "detection", "planning", "motor")
 LOCAL_CHAIN = ("scan", "LM", "LP", "base")
@@ -92,37 +95,6 @@ REAL = Source("real", {"face": 10.0, "nav2d": 20.0, "yolo-fast": 60.0, "vr": 20.
 # --------------------------------------------------------------------------- specs and numbers
 
 
-def spec_yaml(name: str) -> dict[str, Any]:
-    loaded: dict[str, Any] = yaml.safe_load((SPECS / f"{name}.yaml").read_text())
-    return loaded
-
-
-@contextmanager
-def spec_file(data: Mapping[str, Any]) -> Iterator[Path]:
-    """``data`` as a spec file in a temporary folder (the real run's workers load it)."""
-    with tempfile.TemporaryDirectory(prefix="catanc-scenario-") as folder:
-        path = Path(folder) / f"{data['app']}.yaml"
-        path.write_text(yaml.safe_dump(dict(data), sort_keys=False))
-        yield path
-
-
-def with_rates(data: Mapping[str, Any], rates: Mapping[str, float]) -> dict[str, Any]:
-    """The spec with some hand-tuned baseline rates changed."""
-    changed = copy.deepcopy(dict(data))
-    changed["baseline"]["rates_hz"].update(rates)
-    return changed
-
-
-def with_growth_over(data: Mapping[str, Any], over_s: float) -> dict[str, Any]:
-    """The spec with every growing node's growth compressed into ``over_s`` seconds."""
-    changed = copy.deepcopy(dict(data))
-    for node in changed["nodes"].values():
-        growth = (node.get("workload") or {}).get("growth")
-        if growth:
-            growth["over_s"] = over_s
-    return changed
-
-
 def chain_of(result: PolicyResult, nodes: Sequence[str]) -> ChainResult:
     return next(chain for chain in result.chains if chain.nodes == tuple(nodes))
 
@@ -147,23 +119,6 @@ def rate(result: PolicyResult, node: str) -> float:
 def staleness(result: PolicyResult, node: str) -> float | None:
     value = result.nodes[node].staleness_ms_p95
     return None if value is None else round(value, 2)
-
-
-def bucket_periods(done_ms: Sequence[float], duration_s: float) -> list[float | None]:
-    """Per :data:`BUCKET_S` bucket, the mean gap (s) between consecutive outputs ending in it (the paper's)."""
-    buckets: list[list[float]] = [[] for _ in range(math.ceil(duration_s / BUCKET_S))]
-    for before, after in itertools.pairwise(done_ms):
-        index = min(int(after / 1000.0 // BUCKET_S), len(buckets) - 1)
-        buckets[index].append((after - before) / 1000.0)
-    return [round(sum(gaps) / len(gaps), 3) if gaps else None for gaps in buckets]
-
-
-def bucket_medians(samples: Sequence[tuple[float, float]], duration_s: float) -> list[float | None]:
-    """Per :data:`BUCKET_S` bucket, the median response (ms) of the outputs in it."""
-    buckets: list[list[float]] = [[] for _ in range(math.ceil(duration_s / BUCKET_S))]
-    for done, value in samples:
-        buckets[min(int(done / 1000.0 // BUCKET_S), len(buckets) - 1)].append(value)
-    return [round(sorted(b)[len(b) // 2], 2) if b else None for b in buckets]
 
 
 def per_core_and_variant(

@@ -1,11 +1,18 @@
-"""benchmarks/scenarios.py's own arithmetic and spec variants (the runs themselves are catanc's, tested elsewhere)."""
+"""The results scenarios' arithmetic and spec variants (tests/support/scenario_specs.py; the runs are catanc's)."""
 
 from __future__ import annotations
 
 import pytest
 
-from benchmarks.scenarios import bucket_medians, bucket_periods, spec_file, spec_yaml, with_growth_over, with_rates
 from catanc.core.load import load_spec
+from tests.support.scenario_specs import (
+    bucket_medians,
+    bucket_periods,
+    spec_file,
+    spec_yaml,
+    with_growth_over,
+    with_rates,
+)
 
 
 def test_bucket_periods_average_the_gaps_ending_in_each_bucket() -> None:
