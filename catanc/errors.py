@@ -116,6 +116,12 @@ class UsageError(CatancError):
     exit_code = ExitCode.BAD_INPUT
 
 
+class MissingExtraError(CatancError):
+    """A command needs an optional dependency that is not installed; the message names the extra."""
+
+    exit_code = ExitCode.BAD_INPUT
+
+
 class InfeasibleError(CatancError):
     """No plan satisfies the spec's hard requirements."""
 

@@ -26,7 +26,7 @@ import pytest
 PACKAGE = Path(__file__).resolve().parents[1] / "catanc"
 
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("errors", ("catanc.errors", "catanc.text")),  # and the wording every message shares
+    ("base", ("catanc.errors", "catanc.extras", "catanc.text")),  # errors, optional dependencies, wording
     ("spec", ("catanc.spec",)),  # the language, YAML positions, syntax and shape, the deploy section's checks
     ("core", ("catanc.core",)),  # the problem, its building (meaning checks), the analytic model, loading a spec
     ("planning", ("catanc.planning",)),  # the plan's types, Stage I, Stage II, the planner, re-planning, baseline
@@ -141,7 +141,7 @@ def test_every_module_has_a_layer_and_no_layer_imports_a_higher_one() -> None:
 
 
 def test_the_plans_types_name_no_planner_and_no_solver() -> None:
-    allowed_layers = {"errors", "spec", "core"}
+    allowed_layers = {"base", "spec", "core"}
     stage1_answer = {"catanc.planning.stage1.estimate", "catanc.planning.stage1.result"}
     found = graph()["catanc.planning.types"]
     assert all(LAYERS[layer_of(t)][0] in allowed_layers or t in stage1_answer for t in found), sorted(found)

@@ -47,8 +47,12 @@ def simulate(
 ) -> None:
     """Simulate the app on K cores under catanc's plan and the baselines; compare response times and rates."""
     from catanc.cli.progress import tracked
+    from catanc.extras import require
     from catanc.sim.simulate import POLICIES, Setup, check_policies, simulate
 
+    require("numba", "catanc simulate")
+    if plot is not None:
+        require("matplotlib", "catanc simulate --plot")
     spec, _ = load_problem(spec_path)
     chosen = check_policies(policy or list(POLICIES))
     setup = Setup(spec, cores, duration, seed)
@@ -96,8 +100,11 @@ def bench(
 ) -> None:
     """Run the app's synthetic workers on this machine under catanc's plan and the baselines; compare them."""
     from catanc.cli.progress import progress
+    from catanc.extras import require
     from catanc.realbench.bench import DEFAULT_POLICIES, BenchSetup, bench_policies
 
+    if plot is not None:
+        require("matplotlib", "catanc bench --plot")
     spec, _ = load_problem(spec_path)
     setup = BenchSetup(spec_path, spec, cores, duration, seed)
     chosen = policy or list(DEFAULT_POLICIES)

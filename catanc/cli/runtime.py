@@ -151,6 +151,9 @@ def report(
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of tables.")] = False,
 ) -> None:
     """Summarise a `catanc run` log: rates, latencies, compute times, re-plans; optionally plot a timeline."""
+    from catanc.extras import require
     from catanc.runtime.log_summary import report_command
 
+    if plot is not None:
+        require("matplotlib", "catanc report --plot")
     report_command(log, plot, as_json)

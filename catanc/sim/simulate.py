@@ -29,6 +29,7 @@ from catanc.core.graph import all_chains
 from catanc.core.problem import Problem
 from catanc.core.workload import ComputeSampler, NodeStream
 from catanc.errors import UsageError
+from catanc.extras import require
 from catanc.planning.planner import plan_problem, priorities
 from catanc.planning.replan import Replanner
 from catanc.planning.types import Plan
@@ -238,6 +239,7 @@ def _run_python(setup: Setup, prepared: Prepared, sampler_for: SamplerFactory) -
 
 
 def _run_compiled(setup: Setup, prepared: Prepared) -> Records:
+    require("numba", "the compiled simulation")
     from catanc.sim import fast, kernel  # noqa: PLC0415 (numba loads only when a compiled run is asked for)
 
     keep_freed_memory()  # the arrays below fault their pages in once per process, not once per run

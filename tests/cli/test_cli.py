@@ -187,3 +187,30 @@ def test_compile_reads_checks_and_builds_each_spec_once(
     result = runner.invoke(app, ["compile", "--dry-run", str(good), "-k", "1", "-k", "2"])
     assert result.exit_code == 0, result.output
     assert calls == {"read_spec_text": 1, "parse_yaml": 1, "validate_data": 1, "build": 1}
+
+
+@pytest.mark.parametrize(
+    ("missing", "command", "extra"),
+    [
+        ("numba", ["simulate", "{spec}", "-k", "1", "--duration", "1"], "sim"),
+        ("matplotlib", ["simulate", "{spec}", "-k", "1", "--duration", "1", "--plot", "{tmp}"], "plot"),
+        ("matplotlib", ["report", "{tmp}/run.jsonl", "--plot", "{tmp}/t.png"], "plot"),
+    ],
+)
+def test_a_missing_extra_is_one_line_naming_the_fix(
+    good: Path, tmp_path: Path, missing: str, command: list[str], extra: str
+) -> None:
+    # The module is made unimportable in a fresh interpreter, as if its extra were not installed.
+    (tmp_path / "run.jsonl").write_text("")
+    argv = [word.format(spec=good, tmp=tmp_path) for word in command]
+    code = (
+        f"import sys; sys.modules[{missing!r}] = None; sys.argv = ['catanc', *{argv!r}]\n"
+        "from catanc.cli import main; main()"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False)
+    assert result.returncode == ExitCode.BAD_INPUT, result.stderr
+    assert result.stderr.strip().splitlines() == [
+        f"catanc: catanc {argv[0]}{' --plot' if missing == 'matplotlib' else ''} needs {missing}, which is not "
+        f"installed: pip install 'catanc[{extra}]'"
+    ]
+    assert not list(tmp_path.glob("*.png"))
