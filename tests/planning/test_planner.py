@@ -197,6 +197,7 @@ def test_more_cores_never_give_a_worse_plan(document: dict[str, Any], cores: int
         assert more.objective <= fewer.objective * (1 + 1e-6) + 1e-9
 
 
+@pytest.mark.slow
 @settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(document=spec_documents(max_subchains=5), cores=st.integers(1, 3))
 def test_runners_up_never_lose_to_the_plain_two_stage_plan(document: dict[str, Any], cores: int) -> None:
@@ -218,6 +219,7 @@ def test_nav2d_two_cores_runner_up_beats_stage_one() -> None:
     assert result.allocation != result.stage1.allocation
 
 
+@pytest.mark.slow
 def test_same_plan_in_fresh_processes() -> None:
     # Runners-up, the conic ranking and the cvxpy re-solve: nothing may depend on hash seeds or clocks.
     import json

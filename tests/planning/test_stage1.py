@@ -40,6 +40,7 @@ def check_against_enumeration(problem: Problem, cores: int, solver: str) -> None
         assert found.allocation.cores_used == cores
 
 
+@pytest.mark.slow
 @settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(problem=problems(max_subchains=7), cores=st.integers(1, 4))
 def test_milp_highs_matches_enumeration(problem: Problem, cores: int) -> None:

@@ -116,6 +116,7 @@ def small_apps(draw: st.DrawFn) -> tuple[dict[str, Any], int]:
     return document, draw(st.integers(1, 2))
 
 
+@pytest.mark.slow
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(app=small_apps(), loose=st.booleans())
 def test_branch_and_bound_matches_enumeration(app: tuple[dict[str, Any], int], loose: bool) -> None:

@@ -176,6 +176,7 @@ def one_batch_apps(draw: st.DrawFn) -> tuple[Spec, Layout, dict[str, int]]:
     return spec, layout, runs
 
 
+@pytest.mark.slow
 @settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
 @given(app=one_batch_apps(), scale=st.sampled_from([0.7, 1.0, 2.0, 1e6]))
 def test_closed_form_against_grid_and_solver(app: tuple[Spec, Layout, dict[str, int]], scale: float) -> None:

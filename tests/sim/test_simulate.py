@@ -218,6 +218,7 @@ def test_unknown_policies_are_named() -> None:
     assert check_policies(["catan", "catan", "baseline"]) == ("catan", "baseline")
 
 
+@pytest.mark.slow
 @untimed
 @given(spec_documents(max_subchains=5), st.integers(1, 3))
 def test_no_simulated_output_is_later_than_the_models_bound(document: dict[str, Any], cores: int) -> None:

@@ -92,6 +92,7 @@ def _mutate(data: Any, path: tuple[Any, ...], action: str, value: Any) -> Any:
     return data
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not SPECS, reason="no example specs")
 @settings(max_examples=400, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(data=st.data())
