@@ -3,9 +3,10 @@
 A run of a subchain is triggered at its head and handed from node to node;
 it is *in flight* until its last node finishes.
 
-- A head trigger while the head still runs an earlier run is deferred, not
-  queued: the subchain is *pending*, and its next run starts the moment the
-  head finishes.  One trigger is deferred at most; those that come meanwhile
+- A head trigger while the head still runs an earlier run is deferred: the
+  subchain is *pending* under the next seq, and that run starts the moment the
+  head finishes (the enforcer sends its trigger at once, and the head takes it
+  when it is done).  One trigger is deferred at most; those that come meanwhile
   count once as skipped.
 - A run that ends later than the subchain's planned latency counts as late.
 - A node never gets a second run while it runs (:class:`NodeQueues`): the
@@ -44,13 +45,21 @@ class Handoff(Generic[FlightT]):
     head_done: bool  # the node was the head: a deferred head trigger may start the next run now
 
 
+@dataclass(frozen=True)
+class Started:
+    """A head trigger taken: run ``seq`` starts now, or (``deferred``) once the head is done with its run."""
+
+    seq: int
+    deferred: bool = False
+
+
 @dataclass
 class Flights(Generic[FlightT]):
     """One subchain's runs in flight, by seq (1, 2, ... in trigger order), and what became of them."""
 
     seq: int = 0
     in_flight: dict[int, FlightT] = field(default_factory=dict)
-    pending: bool = False  # a head trigger came while the head was busy: start a run as soon as it is done
+    pending: int | None = None  # the seq of a head trigger that came while the head was busy: it starts when done
     late: int = 0
     skipped: int = 0  # head triggers not started (the owner counts its own reasons here too)
 
@@ -58,17 +67,33 @@ class Flights(Generic[FlightT]):
         """When the oldest run in flight was triggered (None: none is)."""
         return min((flight.triggered_ms for flight in self.in_flight.values()), default=None)
 
-    def start(self, flight: FlightT) -> int | None:
-        """A head trigger: ``flight`` in flight under a new seq, returned; None when the head still runs a
-        run (deferred: :attr:`pending`)."""
-        if any(other.index == 0 for other in self.in_flight.values()):
-            self.skipped += not self.pending
-            self.pending = True
+    def head_busy(self) -> bool:
+        return any(other.index == 0 for other in self.in_flight.values())
+
+    def start(self, flight: FlightT) -> Started | None:
+        """A head trigger: ``flight`` in flight under a new seq; deferred (:attr:`pending`, the seq reserved) when
+        the head still runs a run; None when one is deferred already (or a deferred one is taken as started)."""
+        if self.head_busy():
+            if self.pending is not None:
+                return None
+            self.skipped += 1
+            self.seq += 1
+            self.pending = self.seq
+            return Started(self.seq, deferred=True)
+        if self.pending is not None:  # its head run vanished (lost): the deferred trigger, sent already, starts it
+            self.start_pending(flight)
             return None
-        self.pending = False
         self.seq += 1
         self.in_flight[self.seq] = flight
-        return self.seq
+        return Started(self.seq)
+
+    def start_pending(self, flight: FlightT) -> int | None:
+        """The head is done: the deferred run, if any, is in flight as ``flight`` now; its seq (None: none waited)."""
+        seq = self.pending
+        if seq is not None:
+            self.pending = None
+            self.in_flight[seq] = flight
+        return seq
 
     def node_done(self, seq: int, length: int) -> Handoff[FlightT] | None:
         """Run ``seq``'s current node finished (the subchain has ``length`` nodes): its next node, or the run

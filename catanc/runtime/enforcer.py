@@ -391,8 +391,10 @@ class Enforcer:
                 return  # given up as lost while the lock was free
             if handoff.next_index is not None:
                 self._trigger(run.nodes[handoff.next_index], done.seq)
-            if handoff.head_done and state.pending:  # its trigger came while it ran: the next run starts now
-                self._trigger_head(run)
+            if handoff.head_done:  # a trigger that came while it ran: the next run starts now
+                pending = state.start_pending(Flight(0, self.clock(), None))
+                if pending is not None:
+                    self._trigger(run.nodes[0], pending)
             if handoff.next_index is not None:
                 return
             latency = state.over(handoff.flight, self.clock(), run.latency_ms)
@@ -445,9 +447,10 @@ class Enforcer:
                 state.skipped += 1
                 return
             # Never queue triggers on a busy head (they would pile up in its socket): defer.
-            seq = state.start(Flight(0, now, None))
-            if seq is None:
+            started = state.start(Flight(0, now, None))
+            if started is None or started.deferred:  # sent when the head is done (at its done message)
                 return
+            seq = started.seq
             if state.last_trigger_ms is not None:
                 state.periods_ms.append(now - state.last_trigger_ms)
             state.last_trigger_ms = now

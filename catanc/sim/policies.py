@@ -1,7 +1,16 @@
 """Who triggers what, and at which priority: catanc's schedule and the hand-tuned baselines.
 
 - :class:`CatanPolicy` does what ``catan run`` does (catan-model.md sections
-  5 and 6, with :mod:`catanc.control.schedule`'s own per-period decisions):
+from catanc.control.flights import Flight, Flights, NodeQueues
+from catanc.control.policy import Cadence, boundary_ms, late_on, switch_at
+from catanc.control.schedule import CoreSchedule, RuntimeSchedule, SubchainRun, runtime_schedule
+from catanc.errors import UsageError
+from catanc.planning.replan import Replanner
+from catanc.runtime.measure import Measurements
+from catanc.sim.cpu import Discipline, Job, Pool
+from catanc.sim.dataflow import Dataflow, Origins
+from catanc.sim.engine import Engine
+from catanc.spec.language import Spec
   a clock per dedicated (or clock-triggered) subchain, a periodic slot
   schedule per shared core that raises one subchain at a time, later nodes
   event-triggered, priority stealing, and, given a replanner, the periodic
@@ -22,16 +31,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from catanc.control.flights import Flight, Flights, NodeQueues
-from catanc.control.schedule import (
-    CoreSchedule,
-    RuntimeSchedule,
-    Slot,
-    SubchainRun,
-    is_late,
-    runtime_schedule,
-    slot_owner,
-    triggers_at_slot,
-)
+from catanc.control.policy import Cadence, boundary_ms, late_on, switch_at
+from catanc.control.schedule import CoreSchedule, RuntimeSchedule, SubchainRun, runtime_schedule
 from catanc.errors import UsageError
 from catanc.planning.replan import Replanner
 from catanc.runtime.measure import Measurements
@@ -174,39 +175,26 @@ class CatanPolicy:
             core = next((c for c in self.schedule.shared if c.core == core_id), None)
             if core is None or not core.slots:
                 return
-            for slot in core.slots:
-                self.engine.at(start_ms + slot.start_ms - core.switch_ms, self._switcher(core, slot, generation, index))
-            last = core.slots[-1]
-            self.engine.at(start_ms + last.start_ms + last.length_ms, self._lowerer(core_id, generation))
+            for position in range(len(core.slots) + 1):  # each slot's switch, then the end of the last slice
+                self.engine.at(boundary_ms(core, start_ms, position), self._switcher(core, position, generation, index))
             self._period(core_id, generation, start_ms + core.period_ms, index + 1)
 
         self.engine.at(start_ms, begin)
 
-    def _switcher(self, core: CoreSchedule, slot: Slot, generation: int, index: int) -> Callable[[], None]:
+    def _switcher(self, core: CoreSchedule, position: int, generation: int, index: int) -> Callable[[], None]:
         def switch() -> None:
             if generation != self.generation:
                 return
             runs = self.schedule.subchains
-            now = self.engine.now
-            late = set()
-            for other in core.slots:
-                if is_late(self.states[other.subchain].oldest_ms(), now, runs[other.subchain]):
-                    late.add(other.subchain)
-            owner = slot_owner(slot, core, runs, late)
-            if owner != slot.subchain:
-                self.states[owner].steals += 1
-            self._raise(core.core, owner)
-            if triggers_at_slot(runs[slot.subchain], index):
-                self._trigger_head(runs[slot.subchain])
+            late = late_on(core, runs, lambda name: self.states[name].oldest_ms(), self.engine.now)
+            decision = switch_at(core, position, index, runs, late)
+            if decision.stolen and decision.owner is not None:
+                self.states[decision.owner].steals += 1
+            self._raise(core.core, decision.owner)
+            if decision.trigger is not None:
+                self._trigger_head(runs[decision.trigger])
 
         return switch
-
-    def _lowerer(self, core_id: int, generation: int) -> Callable[[], None]:
-        def lower() -> None:
-            if generation == self.generation:
-                self._raise(core_id, None)
-
-        return lower
 
     def _raise(self, core_id: int, owner: str | None) -> None:
         """The previous owner's jobs on ``core_id`` back to FIFO 1 (to the front), ``owner``'s to FIFO 2 (the back)."""
@@ -230,9 +218,9 @@ class CatanPolicy:
     # -------------------------------------------------------------- runs
 
     def _trigger_head(self, run: SubchainRun) -> None:
-        seq = self.states[run.name].start(Flight(0, self.engine.now))
-        if seq is not None:
-            self._trigger(run.nodes[0], seq)
+        started = self.states[run.name].start(Flight(0, self.engine.now))
+        if started is not None and not started.deferred:
+            self._trigger(run.nodes[0], started.seq)
 
     def _trigger(self, node: str, seq: int) -> None:
         if self.nodes.queued(node, seq):
@@ -282,8 +270,10 @@ class CatanPolicy:
             self._trigger(run.nodes[handoff.next_index], seq)
         else:
             state.over(handoff.flight, self.engine.now, run.latency_ms)
-        if handoff.head_done and state.pending:
-            self._trigger_head(run)
+        if handoff.head_done:  # a trigger that came while the head ran starts its run now
+            pending = state.start_pending(Flight(0, self.engine.now))
+            if pending is not None:
+                self._trigger(run.nodes[0], pending)
 
     def _free(self, node: str) -> None:
         waiting = self.nodes.free(node)
@@ -313,25 +303,21 @@ class Reoptimiser:
     def __init__(self, spec: Spec, replanner: Replanner) -> None:
         self.spec, self.replanner = spec, replanner
         self.measurements = Measurements.for_spec(spec)
-        runtime = spec.runtime
-        self.first_ms = runtime.first_solve_after_s * 1000.0
-        self._next_stage1 = (runtime.first_solve_after_s + runtime.stage1_every_s) * 1000.0
+        self.cadence = Cadence.start(spec.runtime)
+        self.first_ms = self.cadence.next_ms()
         self.replans: list[Replan] = []
 
     def step(self, now: float, before: RuntimeSchedule) -> tuple[RuntimeSchedule, bool, float]:
         """Re-solve now: the new schedule, whether it must be installed afresh, and when to re-solve next."""
-        runtime = self.spec.runtime
-        stage1 = now >= self._next_stage1
-        if stage1:
-            self._next_stage1 = now + runtime.stage1_every_s * 1000.0
-        next_stage2 = now + runtime.stage2_every_s * 1000.0
+        stage = self.cadence.due(now) or "stage2"
+        self.cadence.solved(stage, now)
         estimates = self.measurements.estimates(measured_only=True)
-        plan = self.replanner.reallocate(estimates or None) if stage1 else self.replanner.resolve(estimates)
+        plan = self.replanner.reallocate(estimates or None) if stage == "stage1" else self.replanner.resolve(estimates)
         after = runtime_schedule(plan, self.replanner.problem, self.spec.schedule)
         moved = _layout(before) != _layout(after)
         reinstall = moved or {r.name for r in before.clocked} != {r.name for r in after.clocked}
-        self.replans.append(Replan(now / 1000.0, "stage1" if stage1 else "stage2", moved, plan.objective))
-        return after, reinstall, min(self._next_stage1, next_stage2)
+        self.replans.append(Replan(now / 1000.0, stage, moved, plan.objective))
+        return after, reinstall, self.cadence.next_ms()
 
 
 def _layout(schedule: RuntimeSchedule) -> tuple[tuple[str, tuple[int, ...], bool], ...]:

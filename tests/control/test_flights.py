@@ -6,28 +6,41 @@ from __future__ import annotations
 from hypothesis import given
 from hypothesis import strategies as st
 
-from catanc.control.flights import Flight, Flights, NodeQueues
+from catanc.control.flights import Flight, Flights, NodeQueues, Started
 
 
 def test_a_head_trigger_while_the_head_runs_is_deferred_once() -> None:
     runs: Flights[Flight] = Flights()
-    assert runs.start(Flight(0, 10.0)) == 1
-    assert runs.start(Flight(0, 11.0)) is None  # the head still runs run 1
+    assert runs.start(Flight(0, 10.0)) == Started(1)
+    assert runs.start(Flight(0, 11.0)) == Started(2, deferred=True)  # the head still runs run 1: sent, queued
     assert runs.start(Flight(0, 12.0)) is None
-    assert (runs.pending, runs.skipped) == (True, 1)  # two deferred triggers count once
+    assert (runs.pending, runs.skipped) == (2, 1)  # two deferred triggers count once
     handoff = runs.node_done(1, length=2)
     assert handoff is not None
     assert (handoff.next_index, handoff.head_done) == (1, True)
-    assert runs.start(Flight(0, 13.0)) == 2  # what the owner does on head_done with a trigger pending
-    assert (runs.pending, runs.skipped) == (False, 1)
+    assert runs.start_pending(Flight(0, 13.0)) == 2  # what the owner does on head_done
+    assert (runs.pending, runs.skipped) == (None, 1)
+    assert runs.in_flight[2].triggered_ms == 13.0  # a deferred run counts from when it could start
+    assert runs.start_pending(Flight(0, 14.0)) is None
     assert runs.oldest_ms() == 10.0
+
+
+def test_a_deferred_run_whose_head_run_was_lost_starts_at_the_next_trigger() -> None:
+    runs: Flights[Flight] = Flights()
+    assert runs.start(Flight(0, 0.0)) == Started(1)
+    assert runs.start(Flight(0, 1.0)) == Started(2, deferred=True)
+    del runs.in_flight[1]  # given up as lost at the head
+    assert runs.start(Flight(0, 5.0)) is None  # no new trigger: the deferred one was sent already
+    assert (runs.pending, sorted(runs.in_flight)) == (None, [2])
+    assert runs.start(Flight(0, 6.0)) == Started(3, deferred=True)
 
 
 def test_a_run_over_its_latency_counts_as_late() -> None:
     runs: Flights[Flight] = Flights()
     for triggered, done in ((0.0, 4.0), (10.0, 15.0)):  # latencies 4 and 5 ms against 4.5 planned
-        seq = runs.start(Flight(0, triggered))
-        assert seq is not None
+        started = runs.start(Flight(0, triggered))
+        assert started is not None
+        seq = started.seq
         handoff = runs.node_done(seq, length=1)
         assert handoff is not None
         assert (handoff.next_index, handoff.head_done) == (None, True)
@@ -40,8 +53,9 @@ def test_a_run_over_its_latency_counts_as_late() -> None:
 def test_a_run_not_in_flight_is_ignored() -> None:
     runs: Flights[Flight] = Flights()
     assert runs.node_done(7, length=3) is None
-    seq = runs.start(Flight(0, 0.0))
-    assert seq is not None
+    started = runs.start(Flight(0, 0.0))
+    assert started is not None
+    seq = started.seq
     del runs.in_flight[seq]  # given up as lost
     assert runs.node_done(seq, length=3) is None
 
@@ -67,17 +81,23 @@ def test_a_random_walk_keeps_one_run_at_the_head_and_every_run_once(steps: list[
     runs: Flights[Flight] = Flights()
     model: dict[int, int] = {}
     started = over = 0
+    pending: int | None = None
     for now, (trigger, pick) in enumerate(steps):
         if trigger or not model:
-            seq = runs.start(Flight(0, float(now)))
+            got = runs.start(Flight(0, float(now)))
             if 0 in model.values():
-                assert seq is None
-                assert runs.pending
+                if pending is None:
+                    assert got == Started(started + 1, deferred=True)
+                    started += 1
+                    pending = started
+                else:
+                    assert got is None
+                assert runs.pending == pending
                 continue
-            assert seq == started + 1
-            assert not runs.pending
+            assert got == Started(started + 1)
+            assert runs.pending is None
             started += 1
-            model[seq] = 0
+            model[started] = 0
             continue
         seq = sorted(model)[pick % len(model)]
         handoff = runs.node_done(seq, length)
@@ -90,11 +110,11 @@ def test_a_random_walk_keeps_one_run_at_the_head_and_every_run_once(steps: list[
             del model[seq]
             over += 1
             assert handoff.next_index is None
-        if handoff.head_done and runs.pending:
-            restarted = runs.start(Flight(0, float(now)))
-            assert restarted == started + 1
-            started += 1
-            model[started] = 0
+        if handoff.head_done:
+            assert runs.start_pending(Flight(0, float(now))) == pending
+            if pending is not None:
+                model[pending] = 0
+                pending = None
         assert {seq: flight.index for seq, flight in runs.in_flight.items()} == model
         assert list(model.values()).count(0) <= 1
-    assert started == over + len(model)
+    assert started == over + len(model) + (pending is not None)

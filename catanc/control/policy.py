@@ -1,0 +1,188 @@
+"""The runtime policy: what ``catanc run`` does and ``catanc simulate`` models, decided in one place.
+
+Pure (no I/O, no clock): the enforcer (:mod:`catanc.runtime.enforcer`) and the simulator's
+Python engine (:mod:`catanc.sim.policies`) ask the same functions, with the time as an
+argument, so the simulation follows the enforcer's rules by construction.  Runs in flight and
+their hand-offs are :mod:`catanc.control.flights`'s; the schedule they run is
+:mod:`catanc.control.schedule`'s.  Here (catan-model.md sections 5 and 6):
+
+- **Walking a shared core's period** (:class:`CoreCursor`): its boundaries are each slot's
+  switch (``switch_ms`` before the slice) and the end of the last slice; a new schedule takes
+  effect at the next period's start; a core that fell a whole period behind resumes from now.
+- **Slot ownership and stealing** (:func:`switch_at`): at a slot's switch its subchain is
+  raised, unless a subchain of higher priority on the core is late (triggered, not done, past
+  its planned latency), which then takes the slot; slot-aligned heads are triggered at their
+  slot every ``runs`` periods; at the end of the last slice everything is lowered.
+- **Which boundaries need the enforcer awake** (:func:`needs_wake`): one that triggers a head,
+  or where a subchain of the core is running or raised; across an idle stretch nothing can
+  change, and the owner it would raise is raised when its head is next triggered.
+- **Clocks** (:func:`next_clock_ms`): dedicated subchains (and batch ones) every period, never
+  bunching up after a delay.
+- **Re-solve cadence** (:class:`Cadence`): the first re-solve after ``first_solve_after_s``,
+  Stage II every ``stage2_every_s``, both stages every ``stage1_every_s`` and when the cores
+  change.
+- **Lost runs** (:func:`lost_after_ms`): a run not done after 20 planned latencies (and a
+  second) is given up.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Set
+from dataclasses import dataclass
+from typing import Literal
+
+from catanc.control.schedule import CoreSchedule, SubchainRun, is_late, slot_owner, triggers_at_slot
+from catanc.spec.language import Runtime
+
+Stage = Literal["stage1", "stage2"]
+
+LOST_AFTER = 20.0
+"""A run not done after this many planned latencies (and at least :data:`LOST_MIN_MS`) is given up as lost."""
+LOST_MIN_MS = 1000.0
+
+
+# --------------------------------------------------------------------------- a shared core's period
+
+
+def boundary_ms(core: CoreSchedule, start_ms: float, position: int) -> float:
+    """When boundary ``position`` of a period starting at ``start_ms`` is: slot ``position``'s switch (budgeted
+    before its slice), or for ``position == len(slots)`` the end of the last slice."""
+    slots = core.slots
+    if position < len(slots):
+        return start_ms + slots[position].start_ms - core.switch_ms
+    last = slots[-1]
+    return start_ms + last.start_ms + last.length_ms
+
+
+@dataclass
+class CoreCursor:
+    """Where a shared core is in its periodic schedule: the next boundary of the current period."""
+
+    schedule: CoreSchedule  # the schedule of the current period (a new one waits for the next period)
+    start_ms: float  # the current period's start
+    index: int = 0  # periods since the cursor started
+    position: int = 0  # the next boundary: slot `position`'s switch, or the end of the last slice
+
+    @property
+    def at_end(self) -> bool:
+        return self.position >= len(self.schedule.slots)
+
+    def due_ms(self) -> float:
+        """When the next boundary is due."""
+        return boundary_ms(self.schedule, self.start_ms, self.position)
+
+    def advance(self, latest: CoreSchedule | None, now_ms: float) -> None:
+        """Past the next boundary; after the period's end, into the next period with ``latest`` (the core's schedule
+        now; None keeps this one).  A core a whole period behind (suspended, say) resumes from ``now_ms``."""
+        if not self.at_end:
+            self.position += 1
+            return
+        start = self.start_ms + self.schedule.period_ms
+        behind = now_ms - start
+        if behind > self.schedule.period_ms:
+            start += behind
+        self.start_ms = start
+        self.index += 1
+        self.position = 0
+        if latest is not None:
+            self.schedule = latest
+
+    def next_period_ms(self) -> float:
+        """When the next period starts (its first switch)."""
+        return self.start_ms + self.schedule.period_ms
+
+
+@dataclass(frozen=True)
+class Switch:
+    """What happens at a boundary: whose threads are raised (None: every one lowered), whose head is triggered."""
+
+    owner: str | None
+    trigger: str | None = None
+    stolen: bool = False  # the owner is a late subchain that took another's slot
+
+
+def late_on(
+    core: CoreSchedule, runs: Mapping[str, SubchainRun], oldest_ms: Callable[[str], float | None], now_ms: float
+) -> set[str]:
+    """The subchains of ``core`` whose oldest run in flight is late at ``now_ms``."""
+    late = set()
+    for slot in core.slots:
+        if is_late(oldest_ms(slot.subchain), now_ms, runs[slot.subchain]):
+            late.add(slot.subchain)
+    return late
+
+
+def switch_at(
+    core: CoreSchedule, position: int, period_index: int, runs: Mapping[str, SubchainRun], late: Set[str]
+) -> Switch:
+    """The decision at boundary ``position`` of period ``period_index`` (``late``: :func:`late_on` now)."""
+    if position >= len(core.slots):
+        return Switch(None)
+    slot = core.slots[position]
+    owner = slot_owner(slot, core, runs, late)
+    trigger = slot.subchain if triggers_at_slot(runs[slot.subchain], period_index) else None
+    return Switch(owner, trigger, owner != slot.subchain)
+
+
+def needs_wake(
+    core: CoreSchedule, position: int, period_index: int, runs: Mapping[str, SubchainRun], active: bool
+) -> bool:
+    """Whether the enforcer must be awake at this boundary.
+
+    ``active``: some subchain of the core has a run in flight or threads raised.  An idle core
+    (neither) changes nothing at a boundary unless a head is triggered there: its owner's
+    threads have no work, and they are put at the owner's level when its head is triggered.
+    """
+    if active:
+        return True
+    if position >= len(core.slots):
+        return False
+    return triggers_at_slot(runs[core.slots[position].subchain], period_index)
+
+
+# --------------------------------------------------------------------------- clocks and cadence
+
+
+def next_clock_ms(due_ms: float, period_ms: float, now_ms: float) -> float:
+    """A clock that fired (due at ``due_ms``) fires next a period later, or now if it fell behind."""
+    return max(due_ms + period_ms, now_ms)
+
+
+def lost_after_ms(run: SubchainRun | None) -> float:
+    """How long a run may stay in flight before it is given up as lost."""
+    return max(LOST_MIN_MS, LOST_AFTER * (run.latency_ms if run is not None else LOST_MIN_MS))
+
+
+@dataclass
+class Cadence:
+    """When to re-solve (times in ms from the run's start)."""
+
+    runtime: Runtime
+    next_stage1_ms: float
+    next_stage2_ms: float
+
+    @classmethod
+    def start(cls, runtime: Runtime) -> Cadence:
+        first = runtime.first_solve_after_s
+        return cls(runtime, (first + runtime.stage1_every_s) * 1000.0, first * 1000.0)
+
+    def due(self, now_ms: float) -> Stage | None:
+        """The stage to re-solve now, if any (both stages when Stage I is due)."""
+        if now_ms >= self.next_stage1_ms:
+            return "stage1"
+        if now_ms >= self.next_stage2_ms:
+            return "stage2"
+        return None
+
+    def solved(self, stage: Stage, now_ms: float) -> None:
+        """A re-solve of ``stage`` was made at ``now_ms``: the next ones count from it."""
+        if stage == "stage1":
+            self.next_stage1_ms = now_ms + self.runtime.stage1_every_s * 1000.0
+        self.next_stage2_ms = now_ms + self.runtime.stage2_every_s * 1000.0
+
+    def cores_changed(self, now_ms: float) -> None:
+        """Stage I ran now for new cores: the next periodic one counts from it (Stage II's does not)."""
+        self.next_stage1_ms = now_ms + self.runtime.stage1_every_s * 1000.0
+
+    def next_ms(self) -> float:
+        return min(self.next_stage1_ms, self.next_stage2_ms)

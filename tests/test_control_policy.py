@@ -1,0 +1,125 @@
+"""The runtime policy (catanc.control.policy), worked by hand: a core's boundaries, who owns a slot,
+which boundaries need the enforcer awake, and the re-solve cadence."""
+
+from __future__ import annotations
+
+from catanc.control.policy import (
+    Cadence,
+    CoreCursor,
+    Switch,
+    boundary_ms,
+    late_on,
+    lost_after_ms,
+    needs_wake,
+    next_clock_ms,
+    switch_at,
+)
+from catanc.control.schedule import CoreSchedule, Slot, SubchainRun
+from catanc.spec.language import Runtime
+
+
+def run(name: str, *, runs: int | None = 1, priority: int = 1, latency_ms: float = 10.0) -> SubchainRun:
+    return SubchainRun(name, (name,), (0,), True, 10.0, latency_ms, runs, priority)
+
+
+# T = 10 ms: a (2 ms) then b (3 ms), each after a 0.5 ms switch; slack from 6 ms on.
+CORE = CoreSchedule(0, 10.0, 0.5, (Slot("a", 0.5, 2.0), Slot("b", 3.0, 3.0)))
+RUNS = {"a": run("a", runs=1, priority=2), "b": run("b", runs=3, priority=1)}
+
+
+def test_a_periods_boundaries_are_each_switch_then_the_end_of_the_last_slice() -> None:
+    assert [boundary_ms(CORE, 100.0, position) for position in range(3)] == [100.0, 102.5, 106.0]
+
+
+def test_a_cursor_walks_the_period_and_takes_a_new_schedule_at_the_next_one() -> None:
+    cursor = CoreCursor(CORE, 0.0)
+    seen = []
+    for _ in range(2):
+        seen.append((cursor.index, cursor.position, cursor.due_ms()))
+        cursor.advance(None, cursor.due_ms())
+    seen.append((cursor.index, cursor.position, cursor.due_ms()))
+    assert seen == [(0, 0, 0.0), (0, 1, 2.5), (0, 2, 6.0)]
+    assert cursor.at_end
+    longer = CoreSchedule(0, 20.0, 0.5, (Slot("a", 0.5, 2.0), Slot("b", 3.0, 3.0)))
+    cursor.advance(longer, 6.0)  # the end of period 0: period 1 starts at 10 ms, with the new schedule
+    assert (cursor.index, cursor.position, cursor.start_ms, cursor.schedule) == (1, 0, 10.0, longer)
+    assert cursor.next_period_ms() == 30.0
+
+
+def test_a_cursor_a_whole_period_behind_resumes_from_now() -> None:
+    cursor = CoreCursor(CORE, 0.0, position=2)
+    cursor.advance(None, 25.0)  # period 1 was due at 10 ms; 15 ms late is more than T = 10
+    assert cursor.start_ms == 25.0
+    cursor = CoreCursor(CORE, 0.0, position=2)
+    cursor.advance(None, 19.0)  # 9 ms late: the period keeps its place
+    assert cursor.start_ms == 10.0
+
+
+def test_a_slot_goes_to_its_subchain_and_triggers_it_every_runs_periods() -> None:
+    assert switch_at(CORE, 0, 0, RUNS, set()) == Switch("a", "a")
+    assert [switch_at(CORE, 1, index, RUNS, set()).trigger for index in range(6)] == ["b", None, None, "b", None, None]
+    assert switch_at(CORE, 2, 0, RUNS, {"a"}) == Switch(None)  # the end lowers everything
+
+
+def test_a_late_subchain_of_higher_priority_steals_the_slot_but_not_the_other_way() -> None:
+    assert switch_at(CORE, 1, 1, RUNS, {"a"}) == Switch("a", None, stolen=True)
+    assert switch_at(CORE, 1, 0, RUNS, {"a"}) == Switch("a", "b", stolen=True)  # b's head is still triggered
+    assert switch_at(CORE, 0, 1, RUNS, {"b"}) == Switch("a", "a")  # b ranks below a
+
+
+def test_late_is_past_the_planned_latency_since_the_oldest_trigger() -> None:
+    oldest = {"a": 0.0, "b": None}
+    assert late_on(CORE, RUNS, oldest.get, 10.0) == set()  # exactly the latency: not yet
+    assert late_on(CORE, RUNS, oldest.get, 10.5) == {"a"}
+
+
+def test_an_idle_core_needs_the_enforcer_only_where_a_head_is_triggered() -> None:
+    needed = [
+        (index, position)
+        for index in range(3)
+        for position in range(3)
+        if needs_wake(CORE, position, index, RUNS, active=False)
+    ]
+    assert needed == [(0, 0), (0, 1), (1, 0), (2, 0)]
+    assert all(needs_wake(CORE, position, 1, RUNS, active=True) for position in range(3))
+
+
+def test_a_clock_fires_a_period_on_or_now_when_behind() -> None:
+    assert next_clock_ms(10.0, 5.0, 11.0) == 15.0
+    assert next_clock_ms(10.0, 5.0, 17.0) == 17.0
+
+
+def test_a_run_is_lost_after_20_latencies_and_at_least_a_second() -> None:
+    assert lost_after_ms(run("a", latency_ms=10.0)) == 1000.0
+    assert lost_after_ms(run("a", latency_ms=100.0)) == 2000.0
+    assert lost_after_ms(None) == 20000.0
+
+
+def test_the_cadence_re_solves_stage2_every_5_s_and_both_every_20_s_after_2_s() -> None:
+    cadence = Cadence.start(Runtime())
+    times = []
+    now = 0.0
+    while now < 50_000.0:
+        now = cadence.next_ms()
+        stage = cadence.due(now)
+        assert stage is not None
+        cadence.solved(stage, now)
+        times.append((now / 1000.0, stage))
+    assert times[:7] == [
+        (2.0, "stage2"),
+        (7.0, "stage2"),
+        (12.0, "stage2"),
+        (17.0, "stage2"),
+        (22.0, "stage1"),  # 2 + 20
+        (27.0, "stage2"),
+        (32.0, "stage2"),
+    ]
+    assert cadence.due(now + 1.0) is None
+
+
+def test_a_core_change_restarts_the_stage1_cadence_only() -> None:
+    cadence = Cadence.start(Runtime())
+    cadence.cores_changed(1000.0)
+    assert (cadence.next_stage1_ms, cadence.next_stage2_ms) == (21000.0, 2000.0)
+    assert cadence.due(1500.0) is None
+    assert cadence.due(2000.0) == "stage2"
