@@ -42,8 +42,11 @@ IDENTIFIER_PATTERN = r"^[A-Za-z_][A-Za-z0-9_]*$"
 APP_NAME_PATTERN = r"^[A-Za-z_][A-Za-z0-9_.-]*$"
 
 Name = Annotated[str, Field(pattern=IDENTIFIER_PATTERN, description="An identifier.")]
-PositiveMs = Annotated[float, Field(gt=0, description="Milliseconds, > 0.")]
-PositiveHz = Annotated[float, Field(gt=0, description="Hertz, > 0.")]
+MAX_QUANTITY = 1e9
+"""The largest time (ms), rate (Hz) or weight a spec may give: a billion, far beyond any robot's (a run of 11.6
+days, a GHz rate), and small enough that sums and products of them stay finite."""
+PositiveMs = Annotated[float, Field(gt=0, le=MAX_QUANTITY, description="Milliseconds, > 0.")]
+PositiveHz = Annotated[float, Field(gt=0, le=MAX_QUANTITY, description="Hertz, > 0.")]
 
 
 def field_error(model: str, loc: tuple[str | int, ...], message: str, value: Any) -> ValidationError:
@@ -407,7 +410,7 @@ class ChainSelector(_Model):
 
 
 ChainPath = Annotated[list[Name], Field(min_length=1, description="Nodes of a DAG path, in order.")]
-Weight = Annotated[float, Field(ge=0, description="Weight in the objective, >= 0.")]
+Weight = Annotated[float, Field(ge=0, le=MAX_QUANTITY, description="Weight in the objective, >= 0.")]
 
 
 class ChainTerm(_Model):
