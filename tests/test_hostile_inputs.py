@@ -7,6 +7,9 @@ leaves behind, which the next compile of the same folder removes.
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -44,3 +47,54 @@ def test_an_absurd_compute_time_is_a_compiler_style_error(tmp_path: Path, comput
         assert f"{spec}:4:" in output
         assert "internal error" not in output
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(
+    ("nesting", "line"),
+    [
+        ("nodes: " + "[" * 1000 + "]" * 1000, 3),
+        ("nodes:\n" + "".join("  " * (i + 1) + f"k{i}:\n" for i in range(400)), 3 + 64),  # where level 65 opens
+        ("nodes: " + "{a: " * 1000 + "1" + "}" * 1000, 3),
+    ],
+)
+def test_yaml_nested_a_thousand_levels_is_a_compiler_style_error(tmp_path: Path, nesting: str, line: int) -> None:
+    spec = tmp_path / "deep.yaml"
+    spec.write_text("catan: 1\napp: deep\n" + nesting + "\n")
+    code, output = run("validate", str(spec))
+    assert code == ExitCode.BAD_INPUT, output
+    assert "nested deeper than 64 levels" in output
+    assert output.startswith(f"{spec}:{line}:")
+
+
+def test_a_runtime_table_nested_a_thousand_levels_is_an_error(tmp_path: Path) -> None:
+    table = tmp_path / "runtime.json"
+    table.write_text("[" * 100_000 + "]" * 100_000)
+    code, output = run("run", str(table), "--no-rt", "--duration", "1")
+    assert code == ExitCode.BAD_INPUT, output
+    assert "internal error" not in output
+
+
+def test_a_spec_or_table_bigger_than_the_limit_is_refused_unread(tmp_path: Path) -> None:
+    big = tmp_path / "big.yaml"
+    with big.open("wb") as out:
+        out.truncate(64 * 1024 * 1024)  # sparse: 64 MiB of nothing, read by no one
+    code, output = run("validate", str(big))
+    assert code == ExitCode.BAD_INPUT
+    assert "67108864 bytes; at most 4194304 are read" in output
+    code, output = run("run", str(big), "--no-rt", "--duration", "1")
+    assert code == ExitCode.BAD_INPUT
+    assert "at most 16777216 are read" in output
+
+
+def test_a_fifo_a_device_or_a_folder_is_refused_without_blocking(tmp_path: Path) -> None:
+    fifo = tmp_path / "spec.fifo"
+    os.mkfifo(fifo)
+    for path, what in ((fifo, "not a regular file"), (Path("/dev/zero"), "not a regular file"), (tmp_path, "a folder")):
+        for command in (["validate", str(path)], ["run", str(path), "--no-rt", "--duration", "1"]):
+            # A subprocess with a timeout: reading a FIFO nobody writes would block for ever.
+            finished = subprocess.run(
+                [sys.executable, "-m", "catanc", *command], capture_output=True, text=True, timeout=60, check=False
+            )
+            assert finished.returncode == ExitCode.BAD_INPUT, finished.stderr
+            assert what in finished.stderr
+            assert "Traceback" not in finished.stderr

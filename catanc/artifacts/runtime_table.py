@@ -40,7 +40,7 @@ from catanc.core.problem import Chain, Problem, Stage
 from catanc.errors import Diagnostic, FieldPath, Location, SpecError
 from catanc.spec.language import Spec
 from catanc.spec.parse import validate_data
-from catanc.spec.source import SourceMap, parse_yaml
+from catanc.spec.source import SourceMap, parse_yaml, read_input
 
 if TYPE_CHECKING:
     from catanc.planning.types import ChainPlan, Plan
@@ -258,6 +258,9 @@ def normalised_spec(spec: Spec) -> dict[str, Any]:
 # --------------------------------------------------------------------------- reading
 
 
+MAX_TABLE_BYTES = 16 * 1024 * 1024
+"""The largest runtime table read (a real one is tens of kilobytes)."""
+
 REQUIRED = {"format": str, "app": str, "cores": int, "spec": dict, "plan": dict, "processes": list}
 
 
@@ -277,7 +280,7 @@ def load_table(path: str | Path) -> RuntimeTable:
     """Read and check a runtime table; raise :class:`SpecError` naming the file, line and field."""
     file = str(path)
     try:
-        text = Path(path).read_text(encoding="utf-8")
+        text = read_input(path, MAX_TABLE_BYTES).decode("utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
         raise SpecError([Diagnostic(None, "", f"{file}: cannot read the runtime table: {reason}")]) from None
@@ -286,6 +289,8 @@ def load_table(path: str | Path) -> RuntimeTable:
     except json.JSONDecodeError as exc:
         location = Location(file, exc.lineno, exc.colno)
         raise SpecError([Diagnostic(location, "", f"not JSON: {exc.msg}")]) from None
+    except RecursionError:
+        raise SpecError([Diagnostic(Location(file, 1, 1), "", "nested too deeply for a runtime table")]) from None
     source = _source_map(text, file)
 
     def fail(field: FieldPath, message: str) -> SpecError:

@@ -8,6 +8,8 @@ an error at ``FILE:LINE:COL`` given a field path such as
 
 from __future__ import annotations
 
+import os
+import stat
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,10 +24,40 @@ MAX_VALUES = 100_000
 
 MAX_DEPTH = 64
 
+MAX_FILE_BYTES = 4 * 1024 * 1024
+"""The largest spec (or runtime table) read: a real one is a few kilobytes."""
+
 _PLAIN_MAP = "tag:yaml.org,2002:map"
 _PLAIN_SEQ = "tag:yaml.org,2002:seq"
 _MERGE = "tag:yaml.org,2002:merge"
 _PLAIN_SCALARS = frozenset(f"tag:yaml.org,2002:{kind}" for kind in ("str", "int", "float", "bool", "null"))
+
+
+class UnreadableFile(OSError):  # noqa: N818 - an OSError like the ones it stands beside
+    """A file refused before it is read (not a regular file, or too big)."""
+
+
+def read_input(path: str | os.PathLike[str], limit: int = MAX_FILE_BYTES) -> bytes:
+    """A regular file's bytes, at most ``limit`` of them; :class:`UnreadableFile` (an ``OSError``, with the reason
+    as its ``strerror``) for a FIFO, a device such as /dev/zero, a folder or a bigger file, before reading it."""
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)  # a FIFO must not block the open
+    try:
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode):
+            what = "a folder" if stat.S_ISDIR(info.st_mode) else "not a regular file (a FIFO, a device?)"
+            raise UnreadableFile(0, f"{what}: refusing to read it")
+        if info.st_size > limit:
+            raise UnreadableFile(0, f"{info.st_size} bytes; at most {limit} are read")
+        chunks = []
+        size = 0
+        while chunk := os.read(fd, 1 << 16):
+            size += len(chunk)
+            if size > limit:  # it grew since fstat
+                raise UnreadableFile(0, f"more than {limit} bytes; at most {limit} are read")
+            chunks.append(chunk)
+        return b"".join(chunks)
+    finally:
+        os.close(fd)
 
 
 @dataclass(frozen=True)
@@ -66,7 +98,7 @@ def read_text(path: str | Path, what: str) -> tuple[bytes, str]:
     """A file's bytes and their UTF-8 text; a :class:`SpecError` naming the file (and where the bad byte is)."""
     file = str(path)
     try:
-        raw = Path(path).read_bytes()
+        raw = read_input(path)
     except OSError as exc:
         reason = exc.strerror or str(exc)
         raise SpecError([Diagnostic(None, "", f"{file}: cannot read {what}: {reason}")]) from None
@@ -88,6 +120,7 @@ def parse_yaml(text: str, file: str) -> ParsedYaml:
     loader: yaml.SafeLoader | None = None
     try:
         try:
+            _check_depth(text, file)  # before composing: PyYAML's composer recurses once per level
             loader = yaml.SafeLoader(text)  # checks every character up front
             root = loader.get_single_node()
         except yaml.MarkedYAMLError as exc:
@@ -107,6 +140,26 @@ def parse_yaml(text: str, file: str) -> ParsedYaml:
     finally:
         if loader is not None:
             loader.dispose()
+
+
+def _check_depth(text: str, file: str) -> None:
+    """:class:`SpecError` at the first collection nested deeper than :data:`MAX_DEPTH` (parsed event by event,
+    without recursion, so a document of a thousand ``[`` is an error and not a crash)."""
+    loader = yaml.SafeLoader(text)
+    try:
+        depth = 0
+        while (event := loader.get_event()) is not None:  # type: ignore[no-untyped-call]
+            if isinstance(event, yaml.CollectionStartEvent):
+                depth += 1
+                if depth > MAX_DEPTH:
+                    mark = event.start_mark
+                    line, column = (mark.line + 1, mark.column + 1) if mark is not None else (1, 1)
+                    message = f"nested deeper than {MAX_DEPTH} levels (a spec needs a handful)"
+                    raise SpecError([Diagnostic(Location(file, line, column), "", message)])
+            elif isinstance(event, yaml.CollectionEndEvent):
+                depth -= 1
+    finally:
+        loader.dispose()
 
 
 def _line_col(text: str, position: int) -> tuple[int, int]:

@@ -119,7 +119,7 @@ def test_bad_profiles_name_file_line_and_field(tmp_path: Path, bad: tuple[str, s
 def test_missing_unreadable_and_binary_profiles(tmp_path: Path) -> None:
     with pytest.raises(ProfileError, match=r"nothing\.yaml: cannot read machine profile: No such file"):
         read_machine(tmp_path / "nothing.yaml")
-    with pytest.raises(ProfileError, match="cannot read machine profile: Is a directory"):
+    with pytest.raises(ProfileError, match="cannot read machine profile: a folder"):
         read_machine(tmp_path)
     binary = tmp_path / "binary.yaml"
     binary.write_bytes(b"format: \xff\xfe\n")
