@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
+from catanc.artifacts.output import write
 from catanc.cli import app
 from catanc.errors import ExitCode
 
@@ -98,3 +99,25 @@ def test_a_fifo_a_device_or_a_folder_is_refused_without_blocking(tmp_path: Path)
             assert finished.returncode == ExitCode.BAD_INPUT, finished.stderr
             assert what in finished.stderr
             assert "Traceback" not in finished.stderr
+
+
+def test_a_compile_killed_mid_write_leaves_no_staging_folder_after_the_next(tmp_path: Path) -> None:
+    out = tmp_path / "cores-1"
+    dead = subprocess.run(
+        [sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True, check=True
+    )
+    dead_pid = int(dead.stdout)  # exited: its pid names no process (reuse within the test is unlikely)
+    killed = tmp_path / f".cores-1.{dead_pid}.abc123.partial"
+    killed.mkdir()
+    (killed / "runtime.json").write_text("{half")
+    swapping = tmp_path / f".cores-1.{dead_pid}.def456.partial.old"
+    swapping.mkdir()
+    running = tmp_path / f".cores-1.{os.getpid()}.ghi789.partial"  # a compile still going on: left alone
+    running.mkdir()
+    older = tmp_path / ".cores-1.zzz.partial"  # not named by a catanc that says its pid: left alone
+    older.mkdir()
+    other = tmp_path / f".cores-2.{dead_pid}.abc123.partial"  # another folder's: left alone
+    other.mkdir()
+    write(out, {"PLAN.md": "a plan\n"})
+    assert (out / "PLAN.md").read_text() == "a plan\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["cores-1", running.name, older.name, other.name])

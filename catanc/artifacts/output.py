@@ -17,6 +17,7 @@ import ctypes
 import ctypes.util
 import difflib
 import errno
+import glob
 import os
 import shutil
 import stat
@@ -159,8 +160,9 @@ def write(folder: Path, files: Mapping[str, str]) -> Comparison:
         raise _file_in_the_way(folder) from None
     except OSError as exc:
         raise OutputError(f"{parent}: cannot create the output folder's parent: {exc.strerror or exc}") from None
+    _remove_leftovers(folder)
     try:
-        staging = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".partial", dir=parent))
+        staging = Path(tempfile.mkdtemp(prefix=f".{folder.name}.{os.getpid()}.", suffix=".partial", dir=parent))
     except OSError as exc:
         raise OutputError(f"{parent}: cannot write here: {exc.strerror or exc}") from None
     try:
@@ -172,6 +174,30 @@ def write(folder: Path, files: Mapping[str, str]) -> Comparison:
         shutil.rmtree(staging, ignore_errors=True)  # after a swap it holds the old folder
     _sync(parent)
     return before
+
+
+def _remove_leftovers(folder: Path) -> None:
+    """Remove the staging folders of earlier writes of ``folder`` whose process is gone (a killed compile's).
+
+    A staging folder is named ``.<folder>.<pid>.<random>.partial`` (``.old`` added while swapping),
+    so one whose process still runs (a compile going on beside this one) is left alone.
+    """
+    prefix = f".{folder.name}."
+    for entry in folder.parent.glob(f"{glob.escape(prefix)}*.partial*"):
+        middle = entry.name[len(prefix) :].split(".", 1)[0]
+        if not middle.isdigit() or _alive(int(middle)) or not entry.is_dir() or entry.is_symlink():
+            continue
+        shutil.rmtree(entry, ignore_errors=True)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def _fill(staging: Path, files: Mapping[str, str]) -> None:
