@@ -3,6 +3,9 @@ which boundaries need the enforcer awake, and the re-solve cadence."""
 
 from __future__ import annotations
 
+from hypothesis import given
+from hypothesis import strategies as st
+
 from catanc.control.policy import (
     Cadence,
     CoreCursor,
@@ -12,9 +15,10 @@ from catanc.control.policy import (
     lost_after_ms,
     needs_wake,
     next_clock_ms,
+    slot_rules,
     switch_at,
 )
-from catanc.control.schedule import CoreSchedule, Slot, SubchainRun
+from catanc.control.schedule import CoreSchedule, Slot, SubchainRun, slot_owner, triggers_at_slot
 from catanc.spec.language import Runtime
 
 
@@ -74,14 +78,15 @@ def test_late_is_past_the_planned_latency_since_the_oldest_trigger() -> None:
 
 
 def test_an_idle_core_needs_the_enforcer_only_where_a_head_is_triggered() -> None:
+    rules = slot_rules(CORE, RUNS)
     needed = [
         (index, position)
         for index in range(3)
-        for position in range(3)
-        if needs_wake(CORE, position, index, RUNS, active=False)
+        for position, rule in enumerate(rules)
+        if needs_wake(rule, index, active=False)
     ]
     assert needed == [(0, 0), (0, 1), (1, 0), (2, 0)]
-    assert all(needs_wake(CORE, position, 1, RUNS, active=True) for position in range(3))
+    assert all(needs_wake(rule, 1, active=True) for rule in rules)
 
 
 def test_a_clock_fires_a_period_on_or_now_when_behind() -> None:
@@ -123,3 +128,24 @@ def test_a_core_change_restarts_the_stage1_cadence_only() -> None:
     assert (cadence.next_stage1_ms, cadence.next_stage2_ms) == (21000.0, 2000.0)
     assert cadence.due(1500.0) is None
     assert cadence.due(2000.0) == "stage2"
+
+
+@given(
+    st.lists(st.tuples(st.integers(0, 3), st.sampled_from([None, 1, 2, 3])), min_size=1, max_size=5),
+    st.sets(st.integers(0, 4)),
+    st.integers(0, 12),
+)
+def test_slot_rules_decide_as_slot_owner_and_triggers_at_slot(
+    shape: list[tuple[int, int | None]], late_indices: set[int], period_index: int
+) -> None:
+    """Against the schedule's own rules (slot_owner, triggers_at_slot), for any priorities, lateness and period."""
+    names = [f"s{i}" for i in range(len(shape))]
+    runs = {name: run(name, runs=every, priority=rank) for name, (rank, every) in zip(names, shape, strict=True)}
+    core = CoreSchedule(0, 10.0, 0.1, tuple(Slot(name, 0.1 + i, 0.5) for i, name in enumerate(names)))
+    late = {names[i] for i in late_indices if i < len(names)}
+    for position, slot in enumerate(core.slots):
+        decision = switch_at(core, position, period_index, runs, late)
+        assert decision.owner == slot_owner(slot, core, runs, late)
+        assert (decision.trigger is not None) == triggers_at_slot(runs[slot.subchain], period_index)
+        assert decision.stolen == (decision.owner != slot.subchain)
+    assert switch_at(core, len(core.slots), period_index, runs, late) == Switch(None)

@@ -22,10 +22,10 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Generic, TypeVar
+from typing import Generic, NamedTuple, TypeVar
 
 
-@dataclass
+@dataclass(slots=True)
 class Flight:
     """One run of a subchain in flight."""
 
@@ -36,17 +36,15 @@ class Flight:
 FlightT = TypeVar("FlightT", bound=Flight)
 
 
-@dataclass(frozen=True)
-class Handoff(Generic[FlightT]):
-    """What a node's finishing a run means for the run."""
+class Handoff(NamedTuple, Generic[FlightT]):
+    """What a node's finishing a run means for the run (a named tuple: the enforcer makes one per run and node)."""
 
     flight: FlightT
     next_index: int | None  # the subchain's node to run next, or None: the run is over (no longer in flight)
     head_done: bool  # the node was the head: a deferred head trigger may start the next run now
 
 
-@dataclass(frozen=True)
-class Started:
+class Started(NamedTuple):
     """A head trigger taken: run ``seq`` starts now, or (``deferred``) once the head is done with its run."""
 
     seq: int

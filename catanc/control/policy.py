@@ -28,10 +28,10 @@ their hand-offs are :mod:`catanc.control.flights`'s; the schedule they run is
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Set
-from dataclasses import dataclass
-from typing import Literal
+from dataclasses import dataclass, field
+from typing import Literal, NamedTuple
 
-from catanc.control.schedule import CoreSchedule, SubchainRun, is_late, slot_owner, triggers_at_slot
+from catanc.control.schedule import CoreSchedule, SubchainRun, is_late
 from catanc.spec.language import Runtime
 
 Stage = Literal["stage1", "stage2"]
@@ -62,6 +62,10 @@ class CoreCursor:
     start_ms: float  # the current period's start
     index: int = 0  # periods since the cursor started
     position: int = 0  # the next boundary: slot `position`'s switch, or the end of the last slice
+    due: float = field(init=False)  # when the next boundary is due
+
+    def __post_init__(self) -> None:
+        self.due = boundary_ms(self.schedule, self.start_ms, self.position)
 
     @property
     def at_end(self) -> bool:
@@ -69,36 +73,76 @@ class CoreCursor:
 
     def due_ms(self) -> float:
         """When the next boundary is due."""
-        return boundary_ms(self.schedule, self.start_ms, self.position)
+        return self.due
 
     def advance(self, latest: CoreSchedule | None, now_ms: float) -> None:
         """Past the next boundary; after the period's end, into the next period with ``latest`` (the core's schedule
         now; None keeps this one).  A core a whole period behind (suspended, say) resumes from ``now_ms``."""
         if not self.at_end:
             self.position += 1
-            return
-        start = self.start_ms + self.schedule.period_ms
-        behind = now_ms - start
-        if behind > self.schedule.period_ms:
-            start += behind
-        self.start_ms = start
-        self.index += 1
-        self.position = 0
-        if latest is not None:
-            self.schedule = latest
+        else:
+            start = self.start_ms + self.schedule.period_ms
+            behind = now_ms - start
+            if behind > self.schedule.period_ms:
+                start += behind
+            self.start_ms = start
+            self.index += 1
+            self.position = 0
+            if latest is not None:
+                self.schedule = latest
+        self.due = boundary_ms(self.schedule, self.start_ms, self.position)
 
     def next_period_ms(self) -> float:
         """When the next period starts (its first switch)."""
         return self.start_ms + self.schedule.period_ms
 
 
-@dataclass(frozen=True)
-class Switch:
+class Switch(NamedTuple):
     """What happens at a boundary: whose threads are raised (None: every one lowered), whose head is triggered."""
 
     owner: str | None
     trigger: str | None = None
     stolen: bool = False  # the owner is a late subchain that took another's slot
+
+
+@dataclass(frozen=True)
+class SlotRule:
+    """What one boundary of a core's period decides, worked out once from its schedule."""
+
+    subchain: str | None  # the slot's subchain; None at the end of the last slice
+    every: int | None = None  # its head is triggered here every `every` periods (None: never here)
+    thieves: tuple[str, ...] = ()  # subchains that take the slot when late, best first: the first late one wins
+
+
+def slot_rules(core: CoreSchedule, runs: Mapping[str, SubchainRun]) -> tuple[SlotRule, ...]:
+    """A rule per boundary of ``core``'s period: each slot's switch, then the end of the last slice.
+
+    A slot's thieves are the other subchains of the core that outrank its own, highest priority
+    (then name) first: the late one of highest priority above the slot's owner takes the slot.
+    """
+    rules = []
+    for slot in core.slots:
+        owner = runs[slot.subchain]
+        above = [runs[other.subchain] for other in core.slots if runs[other.subchain].priority > owner.priority]
+        above.sort(key=lambda run: (run.priority, run.name), reverse=True)
+        rules.append(SlotRule(slot.subchain, owner.runs, tuple(run.name for run in above)))
+    rules.append(SlotRule(None))
+    return tuple(rules)
+
+
+def decide(rule: SlotRule, period_index: int, late: Callable[[str], bool]) -> Switch:
+    """The decision at a boundary with ``rule`` in period ``period_index``; ``late(name)``: is it late now."""
+    subchain = rule.subchain
+    if subchain is None:
+        return Switch(None)
+    owner = subchain
+    for thief in rule.thieves:  # best first (a loop, not any(): the enforcer asks this at every switch)
+        if late(thief):
+            owner = thief
+            break
+    every = rule.every
+    trigger = subchain if every is not None and period_index % every == 0 else None
+    return Switch(owner, trigger, owner != subchain)
 
 
 def late_on(
@@ -116,28 +160,17 @@ def switch_at(
     core: CoreSchedule, position: int, period_index: int, runs: Mapping[str, SubchainRun], late: Set[str]
 ) -> Switch:
     """The decision at boundary ``position`` of period ``period_index`` (``late``: :func:`late_on` now)."""
-    if position >= len(core.slots):
-        return Switch(None)
-    slot = core.slots[position]
-    owner = slot_owner(slot, core, runs, late)
-    trigger = slot.subchain if triggers_at_slot(runs[slot.subchain], period_index) else None
-    return Switch(owner, trigger, owner != slot.subchain)
+    return decide(slot_rules(core, runs)[position], period_index, late.__contains__)
 
 
-def needs_wake(
-    core: CoreSchedule, position: int, period_index: int, runs: Mapping[str, SubchainRun], active: bool
-) -> bool:
-    """Whether the enforcer must be awake at this boundary.
+def needs_wake(rule: SlotRule, period_index: int, *, active: bool) -> bool:
+    """Whether the enforcer must be awake at a boundary with ``rule`` in period ``period_index``.
 
     ``active``: some subchain of the core has a run in flight or threads raised.  An idle core
     (neither) changes nothing at a boundary unless a head is triggered there: its owner's
     threads have no work, and they are put at the owner's level when its head is triggered.
     """
-    if active:
-        return True
-    if position >= len(core.slots):
-        return False
-    return triggers_at_slot(runs[core.slots[position].subchain], period_index)
+    return active or (rule.every is not None and period_index % rule.every == 0)
 
 
 # --------------------------------------------------------------------------- clocks and cadence

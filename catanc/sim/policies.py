@@ -2,8 +2,8 @@
 
 - :class:`CatanPolicy` does what ``catan run`` does (catan-model.md sections
 from catanc.control.flights import Flight, Flights, NodeQueues
-from catanc.control.policy import Cadence, boundary_ms, late_on, switch_at
-from catanc.control.schedule import CoreSchedule, RuntimeSchedule, SubchainRun, runtime_schedule
+from catanc.control.policy import Cadence, SlotRule, boundary_ms, decide, slot_rules
+from catanc.control.schedule import CoreSchedule, RuntimeSchedule, SubchainRun, is_late, runtime_schedule
 from catanc.errors import UsageError
 from catanc.planning.replan import Replanner
 from catanc.runtime.measure import Measurements
@@ -31,8 +31,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from catanc.control.flights import Flight, Flights, NodeQueues
-from catanc.control.policy import Cadence, boundary_ms, late_on, switch_at
-from catanc.control.schedule import CoreSchedule, RuntimeSchedule, SubchainRun, runtime_schedule
+from catanc.control.policy import Cadence, SlotRule, boundary_ms, decide, slot_rules
+from catanc.control.schedule import CoreSchedule, RuntimeSchedule, SubchainRun, is_late, runtime_schedule
 from catanc.errors import UsageError
 from catanc.planning.replan import Replanner
 from catanc.runtime.measure import Measurements
@@ -102,6 +102,7 @@ class CatanPolicy:
         self.pools: dict[str, Pool] = {}  # subchain -> the pool its nodes run on
         self.core_busy_ms: dict[int, float] = {}  # from pools of earlier allocations
         self.generation = 0
+        self._rule_cache: dict[tuple[int, int], tuple[CoreSchedule, dict[str, SubchainRun], tuple[SlotRule, ...]]] = {}
 
     # -------------------------------------------------------------- set-up
 
@@ -185,9 +186,12 @@ class CatanPolicy:
         def switch() -> None:
             if generation != self.generation:
                 return
-            runs = self.schedule.subchains
-            late = late_on(core, runs, lambda name: self.states[name].oldest_ms(), self.engine.now)
-            decision = switch_at(core, position, index, runs, late)
+            runs, now = self.schedule.subchains, self.engine.now
+
+            def late(name: str) -> bool:
+                return is_late(self.states[name].oldest_ms(), now, runs[name])
+
+            decision = decide(self._rules(core, runs)[position], index, late)
             if decision.stolen and decision.owner is not None:
                 self.states[decision.owner].steals += 1
             self._raise(core.core, decision.owner)
@@ -195,6 +199,14 @@ class CatanPolicy:
                 self._trigger_head(runs[decision.trigger])
 
         return switch
+
+    def _rules(self, core: CoreSchedule, runs: dict[str, SubchainRun]) -> tuple[SlotRule, ...]:
+        """``core``'s slot rules under ``runs``, worked out once per schedule (both are replaced, never changed)."""
+        key = (id(core), id(runs))
+        cached = self._rule_cache.get(key)
+        if cached is None or cached[0] is not core or cached[1] is not runs:
+            cached = self._rule_cache[key] = (core, runs, slot_rules(core, runs))
+        return cached[2]
 
     def _raise(self, core_id: int, owner: str | None) -> None:
         """The previous owner's jobs on ``core_id`` back to FIFO 1 (to the front), ``owner``'s to FIFO 2 (the back)."""
