@@ -1,174 +1,147 @@
-"""The app side of ``catanc run``: a node thread that runs when the enforcer triggers it.
+"""The app side of ``catanc run``: a node thread that runs when it is triggered.
 
-An app node does not know about cores or rates.  It registers its thread
-under its DAG node name, waits for a trigger, runs once, and says so::
+An app node does not know about cores or rates.  It registers its thread under its DAG node
+name, waits for a trigger, runs once, and says so::
 
     from catanc.client import Node
 
     with Node("LM") as node:   # registers this thread; the socket comes from $CATANC_SOCKET
         for trigger in node:   # blocks until triggered; ends when the enforcer stops
             do_work()
-            node.done()        # reports the thread CPU time used since the trigger arrived
+            node.done()        # records the run (its thread CPU time) and wakes the next node
 
-The enforcer (``catanc run``) pins and prioritises the registered thread
-(its native id, :func:`threading.get_native_id`), so the work must run in
-the thread that entered the ``with`` block.  :meth:`Node.wait` takes a
-timeout; :meth:`Node.done` takes the compute time when the node measures
-it itself; :meth:`Node.interrupt` ends the loop from another thread or a
-signal handler.  Calling :meth:`Node.wait` (or the next loop step) without
-:meth:`Node.done` reports the pending run as done.  Triggers are delivered
-in the order sent, one per run.
+The enforcer (``catanc run``) pins and prioritises the registered thread (its native id), so
+the work must run in the thread that entered the ``with`` block.  Only the head of a subchain
+is triggered by the enforcer: :meth:`Node.done` wakes the subchain's next node directly and
+records the run in the node's ring, which the enforcer reads when it wakes up anyway.
+:meth:`Node.wait` takes a timeout; :meth:`Node.done` takes the compute time when the node
+measures it itself; :meth:`Node.interrupt` ends the loop from another thread or a signal
+handler.  Calling :meth:`Node.wait` without :meth:`Node.done` reports the pending run first.
 
-Multi-threaded nodes: ``trigger.threads`` is how many threads the plan
-gives this run (more than 1 only for a node whose spec lists a speedup, on
-a subchain with dedicated cores).  Spread the work over that many threads
-and report the run's time with ``node.done(compute_ms=...)`` (wall time,
-or the registered thread's CPU time if it works throughout): the enforcer
-turns it back into one-thread time with the spec's speedup.  Only the
-registered thread is pinned and prioritised; register helper threads as
-nodes of their own if they must be too.
+A node that is not triggered (a ROS subscription callback later in a subchain: its input
+wakes it) registers the thread its callback runs in and reports each run, waiting for
+nothing::
 
-This module and :mod:`catanc.runtime.protocol` use only the standard
-library: importing them loads no solver.
+    node = Node("LP"); node.register()      # from the executor thread that runs the callback
+    def on_scan(msg):
+        with node.run():                    # or: start = node.begin(); ...; node.done()
+            plan(msg)
 
-ROS 2, rclpy
-------------
-Replace the node's wall timer with a thread that runs the timer callback's
-body on each trigger::
+Multi-threaded nodes: ``trigger.threads`` is how many threads the plan gives this run.
+Spread the work over that many and report the run's time with ``node.done(compute_ms=...)``
+(its wall time): the enforcer turns it back into one-thread time with the spec's speedup.
 
-    import threading
-
-    import rclpy.node
-    from catanc.client import Node as Triggers
-
-    class LocalMapper(rclpy.node.Node):
-        def __init__(self) -> None:
-            super().__init__("LM")
-            # was: self.create_timer(0.05, self.step)
-            self.triggers = Triggers("LM")
-            threading.Thread(target=self.run_triggered, daemon=True).start()
-
-        def run_triggered(self) -> None:
-            with self.triggers:              # registers *this* thread: the one catanc schedules
-                for _ in self.triggers:
-                    self.step()              # the old timer callback's body
-                    self.triggers.done()
-
-        def step(self) -> None: ...
-
-    # on shutdown: node.triggers.interrupt() ends the loop.
-
-``step`` runs in that thread, not in the executor: publishing is
-thread-safe; guard state the subscription callbacks also touch.
-
-ROS 2, rclcpp (or any language)
--------------------------------
-The protocol is just JSON datagrams (:mod:`catanc.runtime.protocol`):
-
-1. ``socket(AF_UNIX, SOCK_DGRAM)``; bind with an empty address
-   (``addrlen = sizeof(sa_family_t)``: Linux autobind gives a unique
-   abstract name, so the enforcer can answer); ``connect`` to the path in
-   ``$CATANC_SOCKET``.
-2. From the thread that runs the callback, send
-   ``{"v":1,"type":"hello","node":"LM","pid":<getpid()>,"tid":<gettid()>}``
-   and wait for ``{"v":1,"type":"welcome","node":"LM"}`` (or
-   ``{"v":1,"type":"reject","node":"LM","reason":"..."}``).
-3. Loop on ``recv``: on ``{"v":1,"type":"trigger","node":"LM","seq":17,"threads":1}``
-   run the callback body (on ``threads`` threads if it can use more than one), then send
-   ``{"v":1,"type":"done","node":"LM","tid":<tid>,"seq":17,"compute_ms":3.2}``
-   (``compute_ms``: ``CLOCK_THREAD_CPUTIME_ID`` elapsed since the trigger,
-   or ``null``); on ``{"v":1,"type":"stop"}`` leave the loop.
-4. When leaving on your own, send ``{"v":1,"type":"bye","node":"LM","tid":<tid>}``.
-
-Keep each datagram under 1 KiB; ignore messages you do not know.
+This file uses only the standard library and runs on Python 3.8 and newer: copy it next to a
+node if catanc is not installed there.  :mod:`catanc.runtime.protocol` documents the protocol
+(``catanc/2``) for clients in other languages.
 """
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import errno
 import logging
+import math
+import mmap
 import os
 import select
 import socket
+import struct
 import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
-from types import TracebackType
-from typing import ClassVar, Self
-
-from catanc.errors import CatancError
-from catanc.runtime.protocol import (
-    MAX_DATAGRAM,
-    SOCKET_ENV,
-    Bye,
-    Done,
-    Hello,
-    Message,
-    ProtocolError,
-    Reject,
-    SetCores,
-    Stop,
-    Trigger,
-    Welcome,
-    decode,
-)
+from typing import Iterator, NamedTuple
 
 __all__ = ["SOCKET_ENV", "ClientError", "Node", "Trigger", "set_cores"]
 
 log = logging.getLogger(__name__)
 
-_INTERRUPTED = object()
+SOCKET_ENV = "CATANC_SOCKET"
+PROTOCOL = b"catanc/2"
+MAX_DATAGRAM = 512
+_FD_SPACE = socket.CMSG_SPACE(4)
+_HEADER = struct.Struct("=IIIIQ")
+_ENTRY = struct.Struct("=QQQQIIQ")
+_WRITTEN = struct.Struct("=Q")
+_RING_MAGIC, _RING_VERSION, _HEADER_SIZE, _ENTRY_SIZE = 0x52544143, 1, 64, 48
+_UNKNOWN = 2**64 - 1
 
 
-class ClientError(CatancError):
+class ClientError(RuntimeError):
     """A node cannot register with, or lost, the enforcer (the message says which and why)."""
+
+
+class Trigger(NamedTuple):
+    """Run once: run ``seq`` of the node's subchain, on ``threads`` threads."""
+
+    node: str
+    seq: int
+    threads: int = 1
+
+
+def _trigger_bytes(node: str, seq: int, threads: int) -> bytes:
+    return b"%s trigger %s %d %d" % (PROTOCOL, node.encode(), seq, threads)
+
+
+def _check_name(name: str) -> None:
+    ok = isinstance(name, str) and 0 < len(name) <= 128 and name.isascii() and name.isidentifier()
+    if not ok:
+        raise ClientError(f"bad node name {name!r}: an identifier of 1 to 128 characters")
+
+
+def _address(text: bytes) -> bytes | None:
+    return None if text == b"-" else bytes.fromhex(text.decode("ascii"))
 
 
 class Node:
     """One DAG node's trigger loop, run by the thread that registers it.
 
-    ``socket_path`` defaults to ``$CATANC_SOCKET``.  ``timeout_s`` bounds
-    registration and each send to the enforcer.  While waiting for a trigger
-    the node checks every :attr:`PROBE_S` seconds that the enforcer's socket
-    is still alive, and raises :class:`ClientError` if it went away without
-    a stop.
+    ``socket_path`` defaults to ``$CATANC_SOCKET``.  ``timeout_s`` bounds registration.  While
+    waiting for a trigger the node checks every :attr:`PROBE_S` seconds that the enforcer's
+    socket is still there, and raises :class:`ClientError` if it went away without a stop.
     """
 
-    PROBE_S: ClassVar[float] = 1.0
+    PROBE_S = 1.0
 
-    def __init__(self, name: str, *, socket_path: str | os.PathLike[str] | None = None, timeout_s: float = 5.0) -> None:
-        try:
-            Welcome(name)
-        except ProtocolError as exc:
-            raise ClientError(f"bad node name: {exc}") from None
+    def __init__(self, name: str, *, socket_path: str | os.PathLike[str] | None = None, timeout_s: float = 5.0):
+        _check_name(name)
         if socket_path is None:
-            from_env = os.environ.get(SOCKET_ENV)
-            if not from_env:
+            socket_path = os.environ.get(SOCKET_ENV)
+            if not socket_path:
                 raise ClientError(
                     f"no catanc enforcer socket: {SOCKET_ENV} is not set (`catanc run` sets it for the nodes it "
                     "starts) and no socket_path was given"
                 )
-            socket_path = from_env
         self.name = name
-        self.socket_path = Path(socket_path)
+        self.socket_path = os.fspath(socket_path)
         self.timeout_s = timeout_s
         self.tid: int | None = None
         """The registered thread's native id (set by :meth:`register`)."""
         self.trigger: Trigger | None = None
         """The trigger being worked on (until :meth:`done`)."""
-        self._started = 0.0
+        self._start_ns = 0
+        self._cpu_start = 0.0
         self._thread: int | None = None
         self._sock: socket.socket | None = None
-        self._enforcer: tuple[int, int] | None = None
-        self._hello_sent = False
+        self._enforcer: bytes | None = None  # the address the enforcer talks to this node from
+        self._identity: tuple[int, int] | None = None
+        self._ring: mmap.mmap | None = None
+        self._slots = 0
+        self._written = 0
+        self._next: tuple[bytes, str, int] | None = None  # (address, node, threads): where a run goes next
+        self._prev: bytes | None = None
+        self._notify = False
+        self._queued: collections.deque[Trigger] = collections.deque(maxlen=64)  # bounded: a node that never waits
         self._registered = False
         self._ended = False  # the enforcer stopped or rejected us, or went away
         self._interrupted = False
         self._closed = False
         self._lock = threading.RLock()
-        self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
+        self._wake_r, self._wake_w = os.pipe()
+        for fd in (self._wake_r, self._wake_w):
+            os.set_blocking(fd, False)
+            os.set_inheritable(fd, False)
 
     @property
     def registered(self) -> bool:
@@ -180,6 +153,8 @@ class Node:
         """True once the enforcer said stop, or :meth:`interrupt` was called: :meth:`wait` returns None."""
         return self._ended or self._interrupted
 
+    # -- registering ---------------------------------------------------------------
+
     def register(self) -> None:
         """Register the calling thread as this node; wait up to ``timeout_s`` for the enforcer's welcome."""
         if self._sock is not None or self._closed:
@@ -188,38 +163,44 @@ class Node:
         self._thread = threading.get_ident()
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         try:
-            sock.bind("")  # Linux autobind: a unique abstract address the enforcer can answer
-            sock.connect(os.fspath(self.socket_path))  # and only the enforcer can send to
-            info = self.socket_path.stat()
+            sock.bind("")  # Linux autobind: a unique abstract address the enforcer and the previous node send to
+            info = Path(self.socket_path).stat()
+            sock.sendto(b"%s hello %s %d %d" % (PROTOCOL, self.name.encode(), os.getpid(), self.tid), self.socket_path)
         except OSError as exc:
             sock.close()
             self.close()
             raise ClientError(self._absent(exc.strerror or str(exc))) from None
-        sock.settimeout(self.timeout_s)
         self._sock = sock
-        self._enforcer = (info.st_dev, info.st_ino)
+        self._identity = (info.st_dev, info.st_ino)
         try:
-            self._send(Hello(self.name, os.getpid(), self.tid))
-            self._hello_sent = True
             deadline = time.monotonic() + self.timeout_s
-            while not self.stopped:
-                message = self._receive(deadline)
-                if message is None:
+            while not self.stopped and not self._registered:
+                if not self._receive(deadline):
                     if self.stopped:
                         break  # interrupted while registering
                     raise ClientError(self._absent(f"no answer in {self.timeout_s:g} s"))
-                if isinstance(message, Welcome) and message.node == self.name:
-                    self._registered = True
-                    return
-                if isinstance(message, Reject) and message.node == self.name:
-                    self._ended = True
-                    raise ClientError(
-                        f"the catanc enforcer at {self.socket_path} rejected node {self.name!r}: {message.reason}"
-                    )
-                self._other(message)
         except BaseException:
             self.close()
             raise
+
+    def _welcome(self, words: list[bytes], fds: list[int], sender: bytes) -> None:
+        if len(words) != 4 or words[2].decode("ascii", "replace") != self.name or len(fds) != 1:
+            for fd in fds:
+                os.close(fd)
+            return
+        fd = fds[0]
+        try:
+            magic, version, slots, entry_size, written = _HEADER.unpack(os.pread(fd, _HEADER.size, 0))
+            if (magic, version, entry_size) != (_RING_MAGIC, _RING_VERSION, _ENTRY_SIZE):
+                raise ClientError(f"node {self.name!r}: the enforcer's ring is of another layout (version {version})")
+            self._ring = mmap.mmap(fd, _HEADER_SIZE + slots * _ENTRY_SIZE)
+        finally:
+            os.close(fd)
+        self._slots, self._written = slots, written
+        self._enforcer = sender
+        self._registered = True
+
+    # -- running -------------------------------------------------------------------
 
     def wait(self, timeout_s: float | None = None) -> Trigger | None:
         """The next trigger; None after ``timeout_s`` seconds, or once :attr:`stopped`.
@@ -231,38 +212,72 @@ class Node:
             self.done()
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
         while not self.stopped:
-            message = self._receive(deadline)
-            if message is None:
+            if self._queued:
+                self.trigger = self._queued.popleft()
+                self._start_ns = time.monotonic_ns()
+                self._cpu_start = time.thread_time()
+                return self.trigger
+            if not self._receive(deadline):
                 return None
-            if isinstance(message, Trigger) and message.node == self.name:
-                self.trigger = message
-                self._started = time.thread_time()
-                return message
-            if isinstance(message, Reject) and message.node == self.name:
-                self._ended = True
-                raise ClientError(
-                    f"the catanc enforcer at {self.socket_path} dropped node {self.name!r}: {message.reason}"
-                )
-            self._other(message)
         return None
 
-    def done(self, compute_ms: float | None = None) -> None:
-        """Report the current run as finished.
+    def begin(self) -> int:
+        """Start a run nothing triggered (a subscription callback): its CLOCK_MONOTONIC start in ns."""
+        self._check_thread("begin")
+        self.trigger = Trigger(self.name, 0, 1)
+        self._start_ns = time.monotonic_ns()
+        self._cpu_start = time.thread_time()
+        return self._start_ns
 
-        ``compute_ms`` defaults to this thread's CPU time since the trigger
-        arrived (:func:`time.thread_time`), which time spent preempted does
-        not inflate.
+    @contextlib.contextmanager
+    def run(self) -> Iterator[None]:
+        """``with node.run(): body``: :meth:`begin`, the body, then :meth:`done`."""
+        self.begin()
+        try:
+            yield
+        finally:
+            self.done()
+
+    def done(self, compute_ms: float | None = None) -> None:
+        """Report the current run as finished, and wake the subchain's next node.
+
+        ``compute_ms`` defaults to this thread's CPU time since the trigger arrived, which time
+        spent preempted does not inflate.
         """
         self._check_thread("done")
         trigger = self.trigger
         if trigger is None:
             raise ClientError(f"node {self.name!r}: done() without a trigger (call it once per run, after wait())")
-        if compute_ms is None:
-            compute_ms = (time.thread_time() - self._started) * 1000.0
-        assert self.tid is not None  # set by register(), which _check_thread requires
-        message = Done(self.name, self.tid, trigger.seq, compute_ms)
         self.trigger = None
-        self._send(message)
+        end_ns = time.monotonic_ns()
+        if compute_ms is None:
+            compute_ns = int((time.thread_time() - self._cpu_start) * 1e9)
+        elif math.isfinite(compute_ms) and compute_ms >= 0:
+            compute_ns = min(int(compute_ms * 1e6), _UNKNOWN - 1)
+        else:
+            compute_ns = _UNKNOWN
+        self._drain()  # a route that changed while the run went on
+        sock = self._sock
+        if sock is not None and not self._ended and self._next is not None and trigger.seq:
+            address, node, threads = self._next
+            with contextlib.suppress(OSError):  # the next node is gone: the enforcer sees its run lost
+                sock.sendto(_trigger_bytes(node, trigger.seq, threads), socket.MSG_DONTWAIT, address)
+        self._record(trigger, end_ns, compute_ns)  # after a stop too: the enforcer reads its last runs' reports
+        if sock is None or self._ended:
+            return
+        if self._notify:
+            done = b"%s done %s %d %d" % (PROTOCOL, self.name.encode(), self.tid or 0, trigger.seq)
+            with contextlib.suppress(OSError):
+                sock.sendto(done, socket.MSG_DONTWAIT, self.socket_path)
+
+    def _record(self, trigger: Trigger, end_ns: int, compute_ns: int) -> None:
+        ring = self._ring
+        if ring is None:
+            return
+        offset = _HEADER_SIZE + (self._written % self._slots) * _ENTRY_SIZE
+        _ENTRY.pack_into(ring, offset, trigger.seq, self._start_ns, end_ns, compute_ns, trigger.threads, 0, 0)
+        self._written += 1
+        _WRITTEN.pack_into(ring, 16, self._written)  # after the entry: the enforcer reads up to `written`
 
     def interrupt(self) -> None:
         """End the trigger loop: a blocked :meth:`wait` returns None.  Safe from any thread and from signal handlers."""
@@ -280,31 +295,36 @@ class Node:
             self._closed = True
             sock, self._sock = self._sock, None
             if sock is not None:
-                if self._hello_sent and not self._ended and self.tid is not None:
+                if self._registered and not self._ended and self.tid is not None:
                     # If the enforcer is gone or busy, it notices the thread is gone anyway.
                     with contextlib.suppress(OSError):
-                        sock.send(Bye(self.name, self.tid).encode(), socket.MSG_DONTWAIT)
+                        bye = b"%s bye %s %d" % (PROTOCOL, self.name.encode(), self.tid)
+                        sock.sendto(bye, socket.MSG_DONTWAIT, self.socket_path)
                 sock.close()
+            if self._ring is not None:
+                self._ring.close()
+                self._ring = None
             os.close(self._wake_r)
             os.close(self._wake_w)
 
-    def __enter__(self) -> Self:
+    def __enter__(self) -> Node:
         self.register()
         return self
 
-    def __exit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, traceback: TracebackType | None
-    ) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
     def __iter__(self) -> Iterator[Trigger]:
-        while (trigger := self.wait()) is not None:
+        while True:
+            trigger = self.wait()
+            if trigger is None:
+                return
             yield trigger
 
     def __repr__(self) -> str:
-        return f"Node({self.name!r}, socket_path={os.fspath(self.socket_path)!r}, tid={self.tid})"
+        return f"Node({self.name!r}, socket_path={self.socket_path!r}, tid={self.tid})"
 
-    # -- internals ---------------------------------------------------------------
+    # -- internals -----------------------------------------------------------------
 
     def _absent(self, reason: str) -> str:
         return f"no catanc enforcer at {self.socket_path} ({reason}): is `catanc run` running?"
@@ -318,23 +338,21 @@ class Node:
                 "(it is the thread the enforcer schedules)"
             )
 
-    def _other(self, message: Message) -> None:
-        if isinstance(message, Stop):
-            self._ended = True
-        else:
-            log.debug("node %r ignores %r", self.name, message)
+    def _drain(self) -> None:
+        """Take every datagram waiting now (routes, stop; triggers are queued for :meth:`wait`)."""
+        sock = self._sock
+        while sock is not None and not self._ended:
+            try:
+                data, ancillary, _flags, sender = sock.recvmsg(MAX_DATAGRAM + 1, _FD_SPACE, socket.MSG_DONTWAIT)
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError:
+                return
+            self._handle(data, ancillary, sender)
 
-    def _send(self, message: Message) -> None:
-        assert self._sock is not None
-        try:
-            self._sock.send(message.encode())
-        except OSError as exc:
-            self._ended = True
-            reason = "it takes no messages" if isinstance(exc, TimeoutError) else (exc.strerror or str(exc))
-            raise ClientError(f"lost the catanc enforcer at {self.socket_path}: {reason}") from None
-
-    def _receive(self, deadline: float | None) -> Message | None:
-        """The next message from the enforcer, or None at the deadline or on interrupt."""
+    def _receive(self, deadline: float | None) -> bool:
+        """Wait for and handle datagrams until something changed (a trigger queued, registered, ended);
+        False at the deadline or on interrupt."""
         sock = self._sock
         assert sock is not None
         poller = select.poll()
@@ -342,48 +360,88 @@ class Node:
         poller.register(self._wake_r, select.POLLIN)
         while True:
             if self._interrupted:
-                return None
+                return False
             wait_s = self.PROBE_S
             if deadline is not None:
                 wait_s = min(wait_s, max(deadline - time.monotonic(), 0.0))
             ready = {fd for fd, _ in poller.poll(wait_s * 1000.0)}
             if self._wake_r in ready:
-                with contextlib.suppress(BlockingIOError):  # raised once drained
+                with contextlib.suppress(BlockingIOError):
                     while os.read(self._wake_r, 64):
                         pass
                 continue
             if sock.fileno() in ready:
                 try:
-                    data = sock.recv(MAX_DATAGRAM + 1, socket.MSG_DONTWAIT)
+                    data, ancillary, _flags, sender = sock.recvmsg(MAX_DATAGRAM + 1, _FD_SPACE, socket.MSG_DONTWAIT)
                 except BlockingIOError:
                     continue
                 except OSError as exc:
                     self._ended = True
                     reason = exc.strerror or str(exc)
                     raise ClientError(f"lost the catanc enforcer at {self.socket_path}: {reason}") from None
-                try:
-                    return decode(data)
-                except ProtocolError as exc:
-                    log.warning("node %r dropped a bad datagram from the enforcer: %s", self.name, exc)
-                    continue
+                before = (len(self._queued), self._registered, self._ended)
+                self._handle(data, ancillary, sender)
+                if (len(self._queued), self._registered, self._ended) != before:
+                    return True
+                continue
             if deadline is not None and time.monotonic() >= deadline:
-                return None
+                return False
             if not ready and not self._enforcer_alive():
                 self._ended = True
                 raise ClientError(
                     f"lost the catanc enforcer at {self.socket_path}: it went away without stopping node {self.name!r}"
                 )
 
+    def _handle(self, data: bytes, ancillary: list[tuple[int, int, bytes]], sender: object) -> None:
+        fds: list[int] = []
+        for level, what, payload in ancillary:
+            if level == socket.SOL_SOCKET and what == socket.SCM_RIGHTS:
+                fds += list(struct.unpack(f"={len(payload) // 4}i", payload[: len(payload) // 4 * 4]))
+        address = sender if isinstance(sender, bytes) else os.fsencode(sender) if isinstance(sender, str) else b""
+        words = data.split(b" ")
+        if words[0] != PROTOCOL or len(words) < 2:
+            for fd in fds:
+                os.close(fd)
+            log.warning("node %r dropped a datagram that is not %s", self.name, PROTOCOL.decode())
+            return
+        kind = words[1]
+        if kind == b"welcome" and not self._registered:
+            self._welcome(words, fds, address)
+            return
+        for fd in fds:
+            os.close(fd)
+        from_enforcer = self._registered and address == self._enforcer
+        if kind == b"reject" and len(words) >= 3 and words[2].decode("ascii", "replace") == self.name:
+            if from_enforcer or not self._registered:
+                self._ended = True
+                reason = b" ".join(words[3:]).decode("utf-8", "replace")
+                verb = "dropped" if self._registered else "rejected"
+                raise ClientError(f"the catanc enforcer at {self.socket_path} {verb} node {self.name!r}: {reason}")
+        elif kind == b"trigger" and len(words) == 5 and (from_enforcer or (self._prev and address == self._prev)):
+            if words[2].decode("ascii", "replace") == self.name and words[3].isdigit() and words[4].isdigit():
+                self._queued.append(Trigger(self.name, int(words[3]), max(int(words[4]), 1)))
+        elif kind == b"route" and len(words) == 8 and from_enforcer and words[2] == self.name.encode():
+            try:
+                next_address, prev_address = _address(words[6]), _address(words[7])
+                threads = int(words[5])
+            except ValueError:
+                return
+            self._notify = words[3] == b"1"
+            self._prev = prev_address
+            self._next = None if next_address is None else (next_address, words[4].decode("ascii"), threads)
+        elif kind == b"stop" and from_enforcer:
+            self._ended = True
+
     def _enforcer_alive(self) -> bool:
         try:
-            info = self.socket_path.stat()
+            info = Path(self.socket_path).stat()
         except OSError:
             return False
-        if (info.st_dev, info.st_ino) != self._enforcer:
+        if (info.st_dev, info.st_ino) != self._identity:
             return False  # a new enforcer: this registration belonged to the old one
         probe = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         try:
-            probe.connect(os.fspath(self.socket_path))
+            probe.connect(self.socket_path)
         except OSError as exc:
             return exc.errno not in (errno.ECONNREFUSED, errno.ENOENT)
         finally:
@@ -396,9 +454,10 @@ def set_cores(cores: int, socket_path: str | None = None) -> None:
     path = socket_path or os.environ.get(SOCKET_ENV)
     if not path:
         raise ClientError(f"no enforcer socket: pass one or set {SOCKET_ENV}")
-    message = SetCores(cores).encode()
+    if isinstance(cores, bool) or not isinstance(cores, int) or cores < 1:
+        raise ClientError(f"set_cores: a number of cores >= 1, not {cores!r}")
     with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as sock:
         try:
-            sock.sendto(message, path)
+            sock.sendto(b"%s set_cores %d" % (PROTOCOL, cores), path)
         except OSError as exc:
             raise ClientError(f"no catanc enforcer at {path}: {exc.strerror or exc}") from None

@@ -38,6 +38,7 @@ class ExitCode(IntEnum):
     OUTPUT_BLOCKED = 6  # a file, link or someone else's files where the output folder goes
     NOT_COMPILED = 7  # `compile --check` found no output folder
     MACHINE = 8  # `catanc doctor`: this machine lacks something the plan needs
+    SAFETY = 9  # `catanc run` stopped because its safety net (the watchdog) died; every thread was put back
     INTERNAL = 70  # a bug in catanc (EX_SOFTWARE)
 
 

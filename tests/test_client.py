@@ -1,14 +1,16 @@
-"""The trigger protocol, the node client and the synthetic worker.
+"""The node client and the synthetic worker, against the enforcer's side of the protocol.
 
-A real :class:`EnforcerSocket` in a temporary folder plays the enforcer in
-the test thread; clients run in threads, workers in processes.  Every wait
-has a generous timeout; nothing here measures speed.
+:class:`FakeEnforcer` plays the enforcer in the test thread with the enforcer's own socket and
+endpoints (:mod:`catanc.runtime.endpoints`): it welcomes nodes (each with its ring), sends
+triggers and routes by hand, and reads what the nodes report from their rings.  Clients run in
+threads, workers in processes.  Every wait has a generous timeout; nothing here measures speed.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import select
 import signal
 import socket
 import subprocess
@@ -20,30 +22,22 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import pytest
-from hypothesis import given
-from hypothesis import strategies as st
 
-from catanc.client import ClientError, Node
+from catanc.client import ClientError, Node, Trigger
 from catanc.core.load import load_spec
 from catanc.core.workload import ComputeSampler
+from catanc.runtime import ring
+from catanc.runtime.endpoints import Endpoint, EnforcerSocket, Received, open_endpoint
 from catanc.runtime.protocol import (
-    MAX_DATAGRAM,
     MAX_NAME,
-    MESSAGE_TYPES,
     SOCKET_ENV,
-    Address,
     Bye,
     Done,
-    EnforcerSocket,
     Hello,
     Message,
-    ProtocolError,
     Reject,
-    SetCores,
-    SocketPathError,
+    Route,
     Stop,
-    Trigger,
-    Welcome,
     decode,
     trigger_datagram,
 )
@@ -94,23 +88,66 @@ class Background:
         return self.result
 
 
-def expect(enforcer: EnforcerSocket, kind: type[M]) -> tuple[M, Address]:
-    received = enforcer.receive(TIMEOUT_S)
-    assert received is not None, f"no {kind.__name__} within {TIMEOUT_S} s"
-    message, sender = received
-    assert isinstance(message, kind), f"expected a {kind.__name__}, got {message!r}"
-    return message, sender
+class FakeEnforcer:
+    """The enforcer's side, driven by the test: its socket, and an endpoint (socket and ring) per welcomed node."""
 
+    def __init__(self, path: Path) -> None:
+        self.sock = EnforcerSocket(path)
+        self.path = path
+        self.endpoints: dict[str, Endpoint] = {}
 
-def welcome(enforcer: EnforcerSocket, names: set[str]) -> dict[str, tuple[Hello, Address]]:
-    """Receive a hello from each node in ``names`` and welcome it."""
-    seen: dict[str, tuple[Hello, Address]] = {}
-    while set(seen) != names:
-        hello, sender = expect(enforcer, Hello)
-        assert hello.node in names
-        seen[hello.node] = (hello, sender)
-        assert enforcer.send(Welcome(hello.node), sender)
-    return seen
+    def receive(self, timeout_s: float) -> tuple[Message, Received] | None:
+        if not select.select([self.sock], (), (), timeout_s)[0]:
+            return None
+        for received in self.sock.receive(limit=1):
+            return decode(received.data), received
+        return None
+
+    def expect(self, kind: type[M]) -> tuple[M, Received]:
+        got = self.receive(TIMEOUT_S)
+        assert got is not None, f"no {kind.__name__} within {TIMEOUT_S} s"
+        message, received = got
+        assert isinstance(message, kind), f"expected a {kind.__name__}, got {message!r}"
+        return message, received
+
+    def welcome(self, names: set[str]) -> dict[str, Hello]:
+        """Take a hello from each node in ``names`` and welcome it (its endpoint and ring)."""
+        seen: dict[str, Hello] = {}
+        while set(seen) != names:
+            hello, received = self.expect(Hello)
+            assert hello.node in names
+            assert received.sender is not None
+            seen[hello.node] = hello
+            self.endpoints[hello.node] = open_endpoint(hello.node, hello.pid, hello.tid, received.sender)
+        return seen
+
+    def send(self, node: str, message: Message) -> None:
+        assert self.endpoints[node].send(message.encode())
+
+    def trigger(self, node: str, seq: int, threads: int = 1) -> None:
+        assert self.endpoints[node].send(trigger_datagram(node, seq, threads))
+
+    def address(self, node: str) -> bytes:
+        address = self.endpoints[node].address
+        assert isinstance(address, bytes)
+        return address
+
+    def runs(self, node: str, count: int = 1) -> list[ring.Entry]:
+        """The next ``count`` runs ``node`` reports in its ring."""
+        reader = self.endpoints[node].reader
+        assert reader is not None
+        found: list[ring.Entry] = []
+        deadline = time.monotonic() + TIMEOUT_S
+        while len(found) < count:
+            assert time.monotonic() < deadline, f"{node} reported {len(found)} of {count} runs"
+            found += reader.new()
+            time.sleep(0.001)
+        return found
+
+    def close(self) -> None:
+        for endpoint in self.endpoints.values():
+            endpoint.close()
+        self.sock.close()
 
 
 def burn_ms(compute_ms: float) -> float:
@@ -122,15 +159,18 @@ def burn_ms(compute_ms: float) -> float:
 
 
 @pytest.fixture
-def enforcer(tmp_path: Path) -> Iterator[EnforcerSocket]:
-    with EnforcerSocket(tmp_path / "catanc.sock") as sock:
-        yield sock
+def enforcer(tmp_path: Path) -> Iterator[FakeEnforcer]:
+    fake = FakeEnforcer(tmp_path / "catanc.sock")
+    try:
+        yield fake
+    finally:
+        fake.close()
 
 
 # -- the client against a scripted enforcer ----------------------------------------------------
 
 
-def test_register_welcome_and_stop_ends_the_loop(enforcer: EnforcerSocket) -> None:
+def test_register_welcome_and_stop_ends_the_loop(enforcer: FakeEnforcer) -> None:
     def client() -> tuple[bool, int | None, int, list[Trigger], bool]:
         with Node("LM", socket_path=enforcer.path) as node:
             registered = node.registered
@@ -138,12 +178,10 @@ def test_register_welcome_and_stop_ends_the_loop(enforcer: EnforcerSocket) -> No
             return registered, node.tid, threading.get_native_id(), triggers, node.stopped
 
     background = Background(client)
-    hello, sender = expect(enforcer, Hello)
+    hello = enforcer.welcome({"LM"})["LM"]
     assert (hello.node, hello.pid) == ("LM", os.getpid())
-    assert isinstance(sender, bytes)  # an autobound abstract address
-    assert sender.startswith(b"\0")
-    assert enforcer.send(Welcome("LM"), sender)
-    assert enforcer.send(Stop(), sender)
+    assert enforcer.address("LM").startswith(b"\0")  # an autobound abstract address
+    enforcer.send("LM", Stop())
     registered, tid, native_id, triggers, stopped = background.join()
     assert registered
     assert hello.tid == tid == native_id
@@ -152,67 +190,176 @@ def test_register_welcome_and_stop_ends_the_loop(enforcer: EnforcerSocket) -> No
     assert enforcer.receive(0) is None  # stopped by the enforcer: no bye
 
 
-def test_trigger_work_done_round_trip(enforcer: EnforcerSocket) -> None:
-    def client() -> dict[int, float]:
-        burned: dict[int, float] = {}
+def test_a_run_is_reported_in_the_ring_with_its_seq_times_and_cpu(enforcer: FakeEnforcer) -> None:
+    def client() -> dict[int, tuple[float, int, int]]:
+        burned: dict[int, tuple[float, int, int]] = {}
         with Node("LM", socket_path=enforcer.path) as node:
             for trigger in node:
                 assert node.trigger == trigger
-                burned[trigger.seq] = burn_ms(30.0)
+                began = time.monotonic_ns()
+                used = burn_ms(30.0)
                 node.done()
+                burned[trigger.seq] = (used, began, time.monotonic_ns())
                 assert node.trigger is None
         return burned
 
     background = Background(client)
-    hello, sender = welcome(enforcer, {"LM"})["LM"]
-    reported: dict[int, float | None] = {}
+    enforcer.welcome({"LM"})
+    entries = []
     for seq in (7, 8):
-        assert enforcer.send(Trigger("LM", seq), sender)
-        done, _ = expect(enforcer, Done)
-        assert (done.node, done.tid, done.seq) == ("LM", hello.tid, seq)
-        reported[seq] = done.compute_ms
-    assert enforcer.send(Stop(), sender)
+        enforcer.trigger("LM", seq, threads=2)
+        entries += enforcer.runs("LM")
+    enforcer.send("LM", Stop())
     burned = background.join()
-    assert set(burned) == {7, 8}
-    for seq, used in burned.items():
-        compute = reported[seq]
-        assert compute is not None
-        assert used <= compute <= 1.5 * used  # the client's thread CPU time since the trigger arrived
+    assert [entry.seq for entry in entries] == [7, 8]
+    for entry in entries:
+        used, began, ended = burned[entry.seq]
+        assert entry.start_ns <= began <= ended
+        assert began <= entry.end_ns <= ended
+        assert entry.compute_ms is not None
+        assert used <= entry.compute_ms <= 1.5 * used  # the thread's CPU time since the trigger arrived
+        assert entry.threads == 2
+    assert enforcer.receive(0) is None  # no datagram per run: the ring is the report
 
 
-def test_done_takes_the_nodes_own_measurement_and_wait_completes_a_pending_run(enforcer: EnforcerSocket) -> None:
+def test_done_takes_the_nodes_own_measurement_and_wait_completes_a_pending_run(enforcer: FakeEnforcer) -> None:
     def client() -> None:
         with Node("LM", socket_path=enforcer.path) as node:
             for trigger in node:
                 if trigger.seq == 1:
                     node.done(compute_ms=2.5)
-                # seq 2: no done(); the next step of the loop reports it
+                elif trigger.seq == 2:
+                    node.done(compute_ms=float("nan"))  # not a time: reported as unknown
+                # seq 3: no done(); the next step of the loop reports it
 
     background = Background(client)
-    _, sender = welcome(enforcer, {"LM"})["LM"]
-    assert enforcer.send(Trigger("LM", 1), sender)
-    assert expect(enforcer, Done)[0].compute_ms == 2.5
-    assert enforcer.send(Trigger("LM", 2), sender)
-    done, _ = expect(enforcer, Done)
-    assert done.seq == 2
-    assert done.compute_ms is not None
-    assert enforcer.send(Stop(), sender)
+    enforcer.welcome({"LM"})
+    for seq in (1, 2, 3):
+        enforcer.trigger("LM", seq)
+    one, two, three = enforcer.runs("LM", 3)
+    assert (one.seq, one.compute_ms) == (1, 2.5)
+    assert (two.seq, two.compute_ms) == (2, None)
+    assert three.seq == 3
+    assert three.compute_ms is not None
+    enforcer.send("LM", Stop())
     background.join()
 
 
-def test_wait_times_out_with_none(enforcer: EnforcerSocket) -> None:
+def two_nodes(enforcer: FakeEnforcer, work_ms: float = 1.0) -> tuple[Background, Background, dict[str, Hello]]:
+    """Nodes A then B of one subchain, each in a thread; each returns the triggers it ran."""
+
+    def serve(name: str) -> Callable[[], list[Trigger]]:
+        def loop() -> list[Trigger]:
+            ran = []
+            with Node(name, socket_path=enforcer.path) as node:
+                for trigger in node:
+                    burn_ms(work_ms)
+                    ran.append(trigger)
+                    node.done()
+            return ran
+
+        return loop
+
+    a, b = Background(serve("A")), Background(serve("B"))
+    hellos = enforcer.welcome({"A", "B"})
+    enforcer.send("A", Route("A", False, "B", 2, enforcer.address("B"), None))
+    enforcer.send("B", Route("B", False, None, 1, None, enforcer.address("A")))
+    return a, b, hellos
+
+
+def test_a_finished_run_wakes_the_next_node_with_its_seq(enforcer: FakeEnforcer) -> None:
+    a, b, _ = two_nodes(enforcer)
+    for seq in (4, 5):
+        enforcer.trigger("A", seq)
+    runs_a, runs_b = enforcer.runs("A", 2), enforcer.runs("B", 2)
+    assert [entry.seq for entry in runs_b] == [4, 5]
+    for before, after in zip(runs_a, runs_b, strict=True):
+        assert after.start_ns >= before.end_ns  # B started when A was done
+        assert after.threads == 2  # on the threads the route said B's runs get
+    enforcer.send("A", Stop())
+    enforcer.send("B", Stop())
+    assert [trigger.seq for trigger in a.join()] == [4, 5]
+    assert b.join() == [Trigger("B", 4, 2), Trigger("B", 5, 2)]
+    assert enforcer.receive(0) is None  # no hop went through the enforcer
+
+
+def test_a_trigger_from_anyone_else_is_ignored(enforcer: FakeEnforcer) -> None:
+    a, b, _ = two_nodes(enforcer)
+    with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as stranger:
+        stranger.bind("")
+        stranger.sendto(trigger_datagram("B", 99), enforcer.address("B"))
+        stranger.sendto(trigger_datagram("A", 98), enforcer.address("A"))
+    enforcer.trigger("A", 1)
+    assert [entry.seq for entry in enforcer.runs("B")] == [1]
+    for node in ("A", "B"):
+        enforcer.send(node, Stop())
+    assert [trigger.seq for trigger in a.join()] == [1]
+    assert [trigger.seq for trigger in b.join()] == [1]
+
+
+def test_a_route_that_asks_for_it_gets_a_done_per_run(enforcer: FakeEnforcer) -> None:
+    def client() -> None:
+        with Node("LM", socket_path=enforcer.path) as node:
+            for _trigger in node:
+                node.done()
+
+    background = Background(client)
+    hello = enforcer.welcome({"LM"})["LM"]
+    enforcer.send("LM", Route("LM", notify=True))
+    enforcer.trigger("LM", 9)
+    done, received = enforcer.expect(Done)
+    assert done == Done("LM", hello.tid, 9)
+    assert received.sender == enforcer.address("LM")
+    assert [entry.seq for entry in enforcer.runs("LM")] == [9]
+    enforcer.send("LM", Stop())
+    background.join()
+
+
+def test_a_run_nothing_triggered_is_reported_with_seq_0(enforcer: FakeEnforcer) -> None:
+    """A subscription callback: the thread registers, then reports each run it makes, waiting for nothing."""
+    ready = threading.Event()
+    release = threading.Event()
+
+    def client() -> None:
+        node = Node("LP", socket_path=enforcer.path)
+        node.register()
+        try:
+            with node.run():
+                burn_ms(2.0)
+            start = node.begin()
+            assert start <= time.monotonic_ns()
+            node.done(compute_ms=1.25)
+            ready.set()
+            assert release.wait(TIMEOUT_S)
+        finally:
+            node.close()
+
+    background = Background(client)
+    enforcer.welcome({"LP"})
+    first, second = enforcer.runs("LP", 2)
+    assert (first.seq, second.seq) == (0, 0)
+    assert first.compute_ms is not None
+    assert first.compute_ms >= 2.0
+    assert second.compute_ms == 1.25
+    assert ready.wait(TIMEOUT_S)
+    release.set()
+    background.join()
+    assert enforcer.expect(Bye)[0].node == "LP"
+
+
+def test_wait_times_out_with_none(enforcer: FakeEnforcer) -> None:
     def client() -> tuple[Trigger | None, bool]:
         with Node("LM", socket_path=enforcer.path) as node:
             return node.wait(timeout_s=0.01), node.stopped
 
     background = Background(client)
-    welcome(enforcer, {"LM"})
+    enforcer.welcome({"LM"})
     assert background.join() == (None, False)
-    bye, _ = expect(enforcer, Bye)  # left on its own: says bye
+    bye, _ = enforcer.expect(Bye)  # left on its own: says bye
     assert bye.node == "LM"
 
 
-def test_interrupt_ends_the_loop_from_another_thread_and_says_bye(enforcer: EnforcerSocket) -> None:
+def test_interrupt_ends_the_loop_from_another_thread_and_says_bye(enforcer: FakeEnforcer) -> None:
     node = Node("LM", socket_path=enforcer.path)
 
     def client() -> list[Trigger]:
@@ -220,27 +367,28 @@ def test_interrupt_ends_the_loop_from_another_thread_and_says_bye(enforcer: Enfo
             return list(node)
 
     background = Background(client)
-    hello, _ = welcome(enforcer, {"LM"})["LM"]
+    hello = enforcer.welcome({"LM"})["LM"]
     node.interrupt()
     assert background.join() == []
     assert node.stopped
-    bye, _ = expect(enforcer, Bye)
+    bye, _ = enforcer.expect(Bye)
     assert bye == Bye("LM", hello.tid)
     node.interrupt()  # after close: harmless
 
 
-def test_interrupt_before_registering_skips_the_loop(enforcer: EnforcerSocket) -> None:
+def test_interrupt_before_registering_skips_the_loop(enforcer: FakeEnforcer) -> None:
     node = Node("LM", socket_path=enforcer.path)
     node.interrupt()
     with node:
         assert not node.registered
         assert node.stopped
         assert list(node) == []
-    hello, _ = expect(enforcer, Hello)
-    assert expect(enforcer, Bye)[0] == Bye("LM", hello.tid)
+    hello, _ = enforcer.expect(Hello)
+    assert enforcer.receive(0.05) is None  # never welcomed: no bye
+    assert hello.node == "LM"
 
 
-def test_wait_and_done_belong_to_the_registered_thread(enforcer: EnforcerSocket) -> None:
+def test_wait_and_done_belong_to_the_registered_thread(enforcer: FakeEnforcer) -> None:
     node = Node("LM", socket_path=enforcer.path)
     with pytest.raises(ClientError, match="register before wait"):
         node.wait(0)
@@ -256,26 +404,26 @@ def test_wait_and_done_belong_to_the_registered_thread(enforcer: EnforcerSocket)
             assert list(node) == []
 
     background = Background(client)
-    _, sender = welcome(enforcer, {"LM"})["LM"]
+    enforcer.welcome({"LM"})
     assert registered.wait(TIMEOUT_S)
     with pytest.raises(ClientError, match="call wait\\(\\) from that thread"):
         node.wait(0)
     release.set()
-    assert enforcer.send(Stop(), sender)
+    enforcer.send("LM", Stop())
     background.join()
     with pytest.raises(ClientError, match="already registered"):
         node.register()
 
 
-def test_reject_is_a_client_error_with_the_reason(enforcer: EnforcerSocket) -> None:
+def test_reject_is_a_client_error_with_the_reason(enforcer: FakeEnforcer) -> None:
     def client() -> None:
         with Node("XX", socket_path=enforcer.path):
             pytest.fail("registered although rejected")
 
     background = Background(client)
-    hello, sender = expect(enforcer, Hello)
-    assert enforcer.send(Reject(hello.node, "unknown node 'XX' (did you mean 'LM'?)"), sender)
-    with pytest.raises(ClientError, match="rejected node 'XX': unknown node 'XX' \\(did you mean 'LM'\\?\\)"):
+    hello, received = enforcer.expect(Hello)
+    assert enforcer.sock.reply(Reject(hello.node, "no node 'XX' in this app").encode(), received.sender)
+    with pytest.raises(ClientError, match="rejected node 'XX': no node 'XX' in this app"):
         background.join()
     assert enforcer.receive(0) is None  # rejected: no bye
 
@@ -294,29 +442,29 @@ def test_a_stale_socket_file_is_no_enforcer(tmp_path: Path) -> None:
         Node("LM", socket_path=path).register()
 
 
-def test_an_enforcer_that_never_answers(enforcer: EnforcerSocket) -> None:
+def test_an_enforcer_that_never_answers(enforcer: FakeEnforcer) -> None:
     with pytest.raises(ClientError, match=r"no answer in 0\.05 s\): is `catanc run` running\?"):
         Node("LM", socket_path=enforcer.path, timeout_s=0.05).register()
-    hello, _ = expect(enforcer, Hello)
+    hello, _ = enforcer.expect(Hello)
     assert hello.node == "LM"
 
 
 def test_the_socket_comes_from_the_environment(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv(SOCKET_ENV, str(tmp_path / "env.sock"))
-    assert Node("LM").socket_path == tmp_path / "env.sock"
+    assert Node("LM").socket_path == str(tmp_path / "env.sock")
     monkeypatch.delenv(SOCKET_ENV)
     with pytest.raises(ClientError, match="CATANC_SOCKET is not set"):
         Node("LM")
 
 
-@pytest.mark.parametrize("name", ["", "a\nb", "x" * (MAX_NAME + 1)])
+@pytest.mark.parametrize("name", ["", "a\nb", "a b", "9lives", "x" * (MAX_NAME + 1)])
 def test_bad_node_names(tmp_path: Path, name: str) -> None:
     with pytest.raises(ClientError, match="bad node name"):
         Node(name, socket_path=tmp_path / "catanc.sock")
 
 
 def test_a_vanished_enforcer_ends_the_wait_with_an_error(
-    enforcer: EnforcerSocket, monkeypatch: pytest.MonkeyPatch
+    enforcer: FakeEnforcer, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.setattr(Node, "PROBE_S", 0.02)
     registered = threading.Event()
@@ -327,193 +475,11 @@ def test_a_vanished_enforcer_ends_the_wait_with_an_error(
             list(node)
 
     background = Background(client)
-    welcome(enforcer, {"LM"})
+    enforcer.welcome({"LM"})
     assert registered.wait(TIMEOUT_S)
     enforcer.close()  # no stop: a crash, as the node sees it
     with pytest.raises(ClientError, match="went away without stopping node 'LM'"):
         background.join()
-
-
-# -- the protocol ------------------------------------------------------------------------------
-
-_printable = st.characters(exclude_categories=("C", "Z")) | st.just(" ")
-names = st.text(_printable, min_size=1, max_size=MAX_NAME).filter(str.isprintable)
-positive = st.integers(1, 2**63 - 1)
-counts = st.integers(0, 2**63 - 1)
-compute = st.none() | st.floats(0, allow_nan=False, allow_infinity=False) | st.integers(0, 10**9)
-
-messages: st.SearchStrategy[Message] = st.one_of(
-    st.builds(Hello, names, positive, positive),
-    st.builds(Done, names, positive, counts, compute),
-    st.builds(Bye, names, positive),
-    st.builds(Welcome, names),
-    st.builds(Trigger, names, counts, positive),
-    st.builds(Reject, names, st.text(max_size=3000)),
-    st.just(Stop()),
-    st.builds(SetCores, positive),
-)
-
-
-@given(messages)
-def test_decode_inverts_encode(message: Message) -> None:
-    data = message.encode()
-    assert len(data) <= MAX_DATAGRAM
-    assert json.loads(data)["v"] == 1
-    assert decode(data) == message
-
-
-@given(names | st.sampled_from(['"seq":0,', 'a","seq":0,"b']), counts, positive)
-def test_a_trigger_datagram_is_the_trigger_message_encoded(node: str, seq: int, threads: int) -> None:
-    data = trigger_datagram(node, seq, threads)
-    assert data == Trigger(node, seq, threads).encode()
-    assert decode(data) == Trigger(node, seq, threads)
-
-
-def _raises_only_protocol_errors(data: bytes) -> None:
-    try:
-        message = decode(data)
-    except ProtocolError as exc:
-        assert str(exc)
-    else:
-        assert decode(message.encode()) == message
-
-
-@given(st.binary(max_size=MAX_DATAGRAM + 8))
-def test_decode_raises_only_protocol_errors_on_any_bytes(data: bytes) -> None:
-    _raises_only_protocol_errors(data)
-
-
-json_values = st.recursive(
-    st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=12),
-    lambda inner: st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=6), inner, max_size=3),
-    max_leaves=6,
-)
-field_names = st.sampled_from(["node", "pid", "tid", "seq", "compute_ms", "reason", "cores", "extra"])
-field_values = json_values | names | st.integers(-3, 3) | st.floats(-1, 1e3)
-
-
-@given(
-    st.sampled_from([1, 1, 1, 2, 1.0, True, "1", None]),
-    st.sampled_from([*MESSAGE_TYPES, "dance", 3, None]),
-    st.dictionaries(field_names, field_values, max_size=6),
-)
-def test_decode_raises_only_protocol_errors_on_near_messages(version: Any, kind: Any, body: dict[str, Any]) -> None:
-    document = dict(body)
-    if version is not None:
-        document["v"] = version
-    if kind is not None:
-        document["type"] = kind
-    _raises_only_protocol_errors(json.dumps(document).encode())
-
-
-@pytest.mark.parametrize(
-    ("data", "error"),
-    [
-        (b"\xff{}", r"not UTF-8 \(byte 0\)"),
-        (b"{", "not JSON"),
-        (b"[1]", "a message is a JSON object, got list"),
-        (b'{"type":"stop"}', 'no protocol version: a message carries "v": 1'),
-        (b'{"v":2,"type":"stop"}', "protocol version 2; this catanc speaks version 1"),
-        (b'{"v":true,"type":"stop"}', "protocol version True"),
-        (b'{"v":1}', "no message type"),
-        (b'{"v":1,"type":"dance"}', r"unknown message type 'dance' \(expected one of: hello, done, bye,"),
-        (b'{"v":1,"type":"hello","node":"LM","pid":1}', r"hello: missing field\(s\): tid"),
-        (b'{"v":1,"type":"stop","why":0}', r"stop: unknown field\(s\): 'why' \(expected: none\)"),
-        (b'{"v":1,"type":"hello","node":"LM","pid":"1","tid":2}', "hello.pid: expected a positive integer, got '1'"),
-        (b'{"v":1,"type":"hello","node":"","pid":1,"tid":2}', "hello.node: a node name is 1 to 128 printable"),
-        (b'{"v":1,"type":"trigger","node":"LM","seq":-1}', "trigger.seq: expected a non-negative integer"),
-        (b'{"v":1,"type":"done","node":"LM","tid":1,"seq":1,"compute_ms":-1}', "done.compute_ms: expected a finite"),
-        (b'{"v":1,"type":"done","node":"LM","tid":1,"seq":1,"compute_ms":NaN}', "done.compute_ms"),
-        (b'{"v":1,"type":"done","node":"LM","tid":1,"seq":1,"compute_ms":true}', "done.compute_ms"),
-        (b'{"v":1,"type":"set_cores","cores":0}', "set_cores.cores: expected a positive integer, got 0"),
-        (b" " * (MAX_DATAGRAM + 1), "at most 1024 are accepted"),
-    ],
-)
-def test_decode_explains_what_is_wrong(data: bytes, error: str) -> None:
-    with pytest.raises(ProtocolError, match=error):
-        decode(data)
-
-
-def test_wire_format_is_compact_json_with_version_and_type() -> None:
-    assert Done("LM", 12, 3, 1.5).encode() == b'{"v":1,"type":"done","node":"LM","tid":12,"seq":3,"compute_ms":1.5}'
-    assert Stop().encode() == b'{"v":1,"type":"stop"}'
-    assert decode(b'{"type":"done","v":1,"seq":3,"node":"LM","tid":12,"compute_ms":null}') == Done("LM", 12, 3, None)
-    assert Done("LM", 1, 1, 2).compute_ms == 2.0
-    assert isinstance(ProtocolError("x"), ValueError)
-
-
-@pytest.mark.parametrize("reason", ["x" * 5000, "é" * 2000, "\n" * 1000])
-def test_long_reject_reasons_are_shortened_to_fit(reason: str) -> None:
-    reject = Reject("LM", reason)
-    assert len(reject.encode()) <= MAX_DATAGRAM
-    assert reject.reason.endswith("...")
-    assert reason.startswith(reject.reason[:-3])
-    assert decode(reject.encode()) == reject
-
-
-def test_messages_check_their_fields_when_built() -> None:
-    with pytest.raises(ProtocolError, match=r"hello.tid"):
-        Hello("LM", 1, 0)
-    with pytest.raises(ProtocolError, match=r"reject.reason: not encodable"):
-        Reject("LM", "\ud800")
-
-
-# -- the enforcer's socket ---------------------------------------------------------------------
-
-
-def test_enforcer_socket_refuses_to_replace_a_file(tmp_path: Path) -> None:
-    path = tmp_path / "catanc.sock"
-    path.write_text("keep me\n")
-    with pytest.raises(SocketPathError, match="exists and is not a socket: refusing"):
-        EnforcerSocket(path)
-    assert path.read_text() == "keep me\n"
-
-
-def test_enforcer_socket_replaces_a_stale_socket_but_not_a_live_one(tmp_path: Path) -> None:
-    path = tmp_path / "catanc.sock"
-    with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as crashed:
-        crashed.bind(str(path))
-    with EnforcerSocket(path) as first:
-        with pytest.raises(SocketPathError, match="another catanc enforcer is running at"):
-            EnforcerSocket(path)
-        assert path.exists()
-        assert first.receive(0) is None
-    assert not path.exists()
-    first.close()  # twice: harmless
-
-
-def test_enforcer_socket_leaves_a_successors_socket_alone(tmp_path: Path) -> None:
-    path = tmp_path / "catanc.sock"
-    old = EnforcerSocket(path)
-    path.unlink()
-    with EnforcerSocket(path):
-        old.close()
-        assert path.exists()
-
-
-def test_enforcer_socket_reports_an_unusable_path(tmp_path: Path) -> None:
-    with pytest.raises(SocketPathError, match=r"cannot bind the enforcer's socket at .*No such file"):
-        EnforcerSocket(tmp_path / "missing" / "catanc.sock")
-
-
-def test_receive_skips_garbage_and_hears_unbound_senders(enforcer: EnforcerSocket) -> None:
-    with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as control:
-        control.sendto(b"\xffnot a message", str(enforcer.path))
-        control.sendto(b'{"v":1,"type":"set_cores","cores":"3"}', str(enforcer.path))
-        control.sendto(SetCores(3).encode(), str(enforcer.path))
-    assert enforcer.receive(TIMEOUT_S) == (SetCores(3), None)
-    assert enforcer.dropped == 2
-    assert not enforcer.send(Stop(), None)  # an unbound sender cannot be answered
-
-
-def test_send_to_a_vanished_client_returns_false(enforcer: EnforcerSocket) -> None:
-    with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as client:
-        client.bind("")
-        address = client.getsockname()
-        assert enforcer.send(Welcome("LM"), address)
-        assert decode(client.recv(MAX_DATAGRAM)) == Welcome("LM")
-    assert not enforcer.send(Trigger("LM", 1), address)
-    assert not enforcer.send(Trigger("LM", 1), str(enforcer.path.with_name("gone.sock")))
 
 
 # -- the synthetic worker ----------------------------------------------------------------------
@@ -652,31 +618,31 @@ def finish(process: subprocess.Popen[str]) -> tuple[int, str]:
     return process.returncode, err
 
 
-def run_once(enforcer: EnforcerSocket, node: str, seq: int, sender: Address) -> float:
-    assert enforcer.send(Trigger(node, seq), sender)
-    done, _ = expect(enforcer, Done)
-    assert (done.node, done.seq) == (node, seq)
-    assert done.compute_ms is not None
-    return done.compute_ms
+def run_once(enforcer: FakeEnforcer, node: str, seq: int) -> float:
+    enforcer.trigger(node, seq)
+    (entry,) = enforcer.runs(node)
+    assert entry.seq == seq
+    assert entry.compute_ms is not None
+    return entry.compute_ms
 
 
-def test_worker_runs_its_nodes_in_threads_and_exits_on_stop(enforcer: EnforcerSocket, spawn: Spawn) -> None:
+def test_worker_runs_its_nodes_in_threads_and_exits_on_stop(enforcer: FakeEnforcer, spawn: Spawn) -> None:
     process = spawn(worker_command({"A": 20.0, "B": [(1.0, 5.0)]}, socket_path=enforcer.path))
-    hellos = welcome(enforcer, {"A", "B"})
-    assert hellos["A"][0].pid == hellos["B"][0].pid == process.pid
-    assert hellos["A"][0].tid != hellos["B"][0].tid
+    hellos = enforcer.welcome({"A", "B"})
+    assert hellos["A"].pid == hellos["B"].pid == process.pid
+    assert hellos["A"].tid != hellos["B"].tid
     for seq in (1, 2):
-        assert 20.0 <= run_once(enforcer, "A", seq, hellos["A"][1]) <= 30.0
-        assert 5.0 <= run_once(enforcer, "B", seq, hellos["B"][1]) <= 7.5
-    for _, sender in hellos.values():
-        assert enforcer.send(Stop(), sender)
+        assert 20.0 <= run_once(enforcer, "A", seq) <= 30.0
+        assert 5.0 <= run_once(enforcer, "B", seq) <= 7.5
+    for node in hellos:
+        enforcer.send(node, Stop())
     assert finish(process) == (0, "")
     assert enforcer.receive(0) is None  # stopped: no bye
 
 
 @pytest.mark.parametrize("shared", [False, True])
 def test_worker_runs_an_executors_nodes_one_after_the_other(
-    enforcer: EnforcerSocket, spawn: Spawn, tmp_path: Path, shared: bool
+    enforcer: FakeEnforcer, spawn: Spawn, tmp_path: Path, shared: bool
 ) -> None:
     # A and B (40 ms each) triggered together, three times. Apart, their threads run at once (the
     # interpreter lock interleaves them): every pair of runs overlaps. In one executor, never.
@@ -684,13 +650,14 @@ def test_worker_runs_an_executors_nodes_one_after_the_other(
     executors = [("A", "B")] if shared else []
     process = spawn([*worker_command({"A": 40.0, "B": 40.0}, socket_path=enforcer.path, executors=executors),
                      "--record", str(record)])  # fmt: skip
-    hellos = welcome(enforcer, {"A", "B"})
+    enforcer.welcome({"A", "B"})
     for seq in (1, 2, 3):
-        assert enforcer.send(Trigger("A", seq), hellos["A"][1])
-        assert enforcer.send(Trigger("B", seq), hellos["B"][1])
-        assert {expect(enforcer, Done)[0].node for _ in range(2)} == {"A", "B"}
-    for _, sender in hellos.values():
-        assert enforcer.send(Stop(), sender)
+        enforcer.trigger("A", seq)
+        enforcer.trigger("B", seq)
+        assert [entry.seq for entry in enforcer.runs("A")] == [seq]
+        assert [entry.seq for entry in enforcer.runs("B")] == [seq]
+    for node in ("A", "B"):
+        enforcer.send(node, Stop())
     assert finish(process) == (0, "")
     runs = read_records(record)
     a = [run for run in runs if run.node == "A"]
@@ -700,17 +667,18 @@ def test_worker_runs_an_executors_nodes_one_after_the_other(
     assert overlapping == (0 if shared else 3)
 
 
-def test_worker_draws_modes_from_its_seed(enforcer: EnforcerSocket, spawn: Spawn) -> None:
+def test_worker_draws_modes_from_its_seed(enforcer: FakeEnforcer, spawn: Spawn) -> None:
     def modes_drawn() -> list[bool]:
         process = spawn(worker_command({"M": [(0.5, 2.0), (0.5, 40.0)]}, seed=1, socket_path=enforcer.path))
-        _, sender = welcome(enforcer, {"M"})["M"]
+        enforcer.welcome({"M"})
         drawn = []
         for seq in range(16):
-            compute = run_once(enforcer, "M", seq, sender)
+            compute = run_once(enforcer, "M", seq)
             assert 2.0 <= compute <= 3.0 or 40.0 <= compute <= 60.0
             drawn.append(compute > 20.0)
-        assert enforcer.send(Stop(), sender)
+        enforcer.send("M", Stop())
         assert finish(process) == (0, "")
+        enforcer.endpoints.pop("M").close()
         return drawn
 
     first = modes_drawn()
@@ -719,15 +687,15 @@ def test_worker_draws_modes_from_its_seed(enforcer: EnforcerSocket, spawn: Spawn
     assert modes_drawn() == first
 
 
-def test_worker_scales_compute_after_the_given_time(enforcer: EnforcerSocket, spawn: Spawn) -> None:
+def test_worker_scales_compute_after_the_given_time(enforcer: FakeEnforcer, spawn: Spawn) -> None:
     process = spawn(worker_command({"A": 10.0}, scale_after=(2.0, 3.0), socket_path=enforcer.path))
-    _, sender = welcome(enforcer, {"A"})["A"]
-    computes = [run_once(enforcer, "A", 0, sender)]
+    enforcer.welcome({"A"})
+    computes = [run_once(enforcer, "A", 0)]
     deadline = time.monotonic() + TIMEOUT_S
     while computes[-1] < 20.0 and time.monotonic() < deadline:
-        computes.append(run_once(enforcer, "A", len(computes), sender))
-    computes += [run_once(enforcer, "A", len(computes) + i, sender) for i in range(3)]
-    assert enforcer.send(Stop(), sender)
+        computes.append(run_once(enforcer, "A", len(computes)))
+    computes += [run_once(enforcer, "A", len(computes) + i) for i in range(3)]
+    enforcer.send("A", Stop())
     assert finish(process) == (0, "")
     before, after = computes[0], computes[-4:]
     assert 10.0 <= before <= 15.0
@@ -739,14 +707,14 @@ def test_worker_scales_compute_after_the_given_time(enforcer: EnforcerSocket, sp
 
 
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
-def test_worker_exits_cleanly_on_signals(enforcer: EnforcerSocket, spawn: Spawn, signum: signal.Signals) -> None:
+def test_worker_exits_cleanly_on_signals(enforcer: FakeEnforcer, spawn: Spawn, signum: signal.Signals) -> None:
     process = spawn(worker_command({"A": 1.0, "B": 1.0}, socket_path=enforcer.path))
-    hellos = welcome(enforcer, {"A", "B"})
-    run_once(enforcer, "A", 1, hellos["A"][1])
+    hellos = enforcer.welcome({"A", "B"})
+    run_once(enforcer, "A", 1)
     process.send_signal(signum)
     assert finish(process) == (0, "")
-    byes = {expect(enforcer, Bye)[0], expect(enforcer, Bye)[0]}
-    assert byes == {Bye("A", hellos["A"][0].tid), Bye("B", hellos["B"][0].tid)}
+    byes = {enforcer.expect(Bye)[0], enforcer.expect(Bye)[0]}
+    assert byes == {Bye("A", hellos["A"].tid), Bye("B", hellos["B"].tid)}
 
 
 def test_worker_without_an_enforcer_fails_with_a_hint(tmp_path: Path) -> None:
@@ -817,7 +785,7 @@ def test_run_records_round_trip(tmp_path: Path) -> None:
 
 
 def test_worker_draws_from_the_specs_workload_and_records_every_run(
-    enforcer: EnforcerSocket, spawn: Spawn, tmp_path: Path
+    enforcer: FakeEnforcer, spawn: Spawn, tmp_path: Path
 ) -> None:
     spec_path = tmp_path / "spec.yaml"
     spec_path.write_text(WORKLOAD_SPEC)
@@ -829,11 +797,11 @@ def test_worker_draws_from_the_specs_workload_and_records_every_run(
         ["M", "G"], spec_path, seed=7, clock_start_ns=clock_start, record=record, socket_path=enforcer.path
     )
     process = spawn(argv)
-    hellos = welcome(enforcer, {"M", "G"})
-    measured = [run_once(enforcer, "M", seq, hellos["M"][1]) for seq in range(12)]
-    grown = [run_once(enforcer, "G", seq, hellos["G"][1]) for seq in range(3)]
-    for _, sender in hellos.values():
-        assert enforcer.send(Stop(), sender)
+    enforcer.welcome({"M", "G"})
+    measured = [run_once(enforcer, "M", seq) for seq in range(12)]
+    grown = [run_once(enforcer, "G", seq) for seq in range(3)]
+    for node in ("M", "G"):
+        enforcer.send(node, Stop())
     assert finish(process) == (0, "")
     ended = time.monotonic_ns()
     sampler = ComputeSampler(load_spec(spec_path), 7)
@@ -892,15 +860,6 @@ def client_imports() -> set[str]:
 def test_importing_the_client_loads_no_solver(client_imports: set[str], module: str) -> None:
     loaded = sorted(name for name in client_imports if name == module or name.startswith(module + "."))
     assert not loaded, f"importing catanc.client loads {loaded}"
-
-
-def test_a_trigger_without_threads_means_one_and_zero_threads_is_refused() -> None:
-    assert decode(b'{"v":1,"type":"trigger","node":"LM","seq":3}') == Trigger("LM", 3, 1)
-    assert decode(b'{"v":1,"type":"trigger","node":"LM","seq":3,"threads":2}') == Trigger("LM", 3, 2)
-    with pytest.raises(ProtocolError, match="threads"):
-        decode(b'{"v":1,"type":"trigger","node":"LM","seq":3,"threads":0}')
-    with pytest.raises(ProtocolError, match="missing field"):
-        decode(b'{"v":1,"type":"trigger","node":"LM"}')  # seq has no default
 
 
 def test_parallel_burn_uses_the_threads_the_speedup_makes_worth_it() -> None:

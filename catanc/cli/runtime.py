@@ -32,7 +32,10 @@ def run_(
     duration: Annotated[float | None, typer.Option(min=0.1, help="Stop after this many seconds.")] = None,
     no_rt: Annotated[bool, typer.Option("--no-rt", help="Rates and affinities only: no SCHED_FIFO.")] = False,
     log: Annotated[Path | None, typer.Option(help="JSON-lines log (default: catanc-run-<app>.jsonl).")] = None,
-    socket: Annotated[Path | None, typer.Option(help="The enforcer's socket (default: in /tmp).")] = None,
+    socket: Annotated[
+        Path | None,
+        typer.Option(help="The enforcer's socket (default: /run/catanc/<app>.sock as root, else a folder of yours)."),
+    ] = None,
     start: Annotated[
         str, typer.Option(help="First plan: bootstrap (every node 5 ms, as the paper) or spec (the table's).")
     ] = "bootstrap",
@@ -43,6 +46,7 @@ def run_(
     from catanc.artifacts.runtime_table import load_table
     from catanc.core.priorities import ENFORCER_FIFO
     from catanc.errors import UsageError
+    from catanc.runtime.endpoints import default_socket_path
     from catanc.runtime.enforcer import Enforcer
     from catanc.runtime.processes import Children, parse_attach, start_demo, start_launch
     from catanc.runtime.sched import Restorer, check_fifo_allowed, threads_of
@@ -57,7 +61,7 @@ def run_(
     attached = parse_attach(attach or [], table.spec)
     if not no_rt:
         check_fifo_allowed(ENFORCER_FIFO)
-    socket_path = str(socket or Path(f"/tmp/catanc-{os.getuid()}-{table.app}.sock"))
+    socket_path = str(socket or default_socket_path(table.app))
     log_path = log or Path(f"catanc-run-{table.app}.jsonl")
     children = Children()
     restorer = Restorer(Watchdog().start()) if not no_rt else Restorer()
@@ -83,13 +87,15 @@ def run_(
     if not quiet and sys.stdout.isatty():
         from rich.live import Live
 
-        live = Live(console=stdout_console(), refresh_per_second=4, transient=False)
+        # Refreshed by the enforcer's loop once a second: no rendering thread takes the interpreter lock meanwhile.
+        live = Live(console=stdout_console(), auto_refresh=False, transient=False)
         live.start()
 
     def tick(running: Enforcer) -> None:
         if live is not None:
             live.update(
-                status_view(table.app, running.schedule.cores, running.status(), running.events, running.elapsed_s())
+                status_view(table.app, running.schedule.cores, running.status(), running.events, running.elapsed_s()),
+                refresh=True,
             )
 
     try:
@@ -101,7 +107,13 @@ def run_(
             live.stop()
         children.stop()
     stdout_console().print(
-        status_view(table.app, enforcer.schedule.cores, enforcer.status(), enforcer.events, enforcer.elapsed_s())
+        status_view(
+            table.app,
+            enforcer.schedule.cores,
+            enforcer.final or enforcer.status(),
+            enforcer.events,
+            enforcer.elapsed_s(),
+        )
     )
     stdout_console().print(f"log: {log_path}", markup=False)
 
@@ -139,9 +151,13 @@ def set_cores_(
     socket: Annotated[Path, typer.Option(help="The enforcer's socket (as given to catanc run --socket).")],
 ) -> None:
     """Tell a running `catanc run` to re-plan for another number of cores (Stage I again, then re-pinning)."""
-    from catanc.client import set_cores
+    from catanc.client import ClientError, set_cores
+    from catanc.errors import UsageError
 
-    set_cores(cores, str(socket))
+    try:
+        set_cores(cores, str(socket))
+    except ClientError as exc:
+        raise UsageError(str(exc)) from None
 
 
 @reporting

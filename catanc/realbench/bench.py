@@ -41,12 +41,11 @@ from catanc.control.schedule import RuntimeSchedule
 from catanc.core.build import build_problem
 from catanc.core.priorities import ENFORCER_FIFO
 from catanc.errors import PrivilegeError, UsageError
-from catanc.realbench.driver import BenchError, Driver
+from catanc.realbench.driver import BenchError, Driver, DriverSocket
 from catanc.realbench.replay import measured_result, replay, utilisation
 from catanc.realbench.triggers import fifo_levels, trigger_rules
 from catanc.runtime import protocol
 from catanc.runtime.processes import Children
-from catanc.runtime.protocol import EnforcerSocket
 from catanc.runtime.sched import (
     Restorer,
     allowed_cpus,
@@ -266,8 +265,7 @@ def run_enforced(setup: BenchSetup, spec: Spec, folder: Path, workers: Workers) 
         workers.start(socket_path)
         deadline = time.monotonic() + REGISTER_TIMEOUT_S
         while True:
-            with enforcer.lock:
-                missing = [node for node in workers.nodes if not enforcer.endpoints.get(node)]
+            missing = [node for node in workers.nodes if not enforcer.registry.of(node)]
             if not missing:
                 break
             workers.check_alive()
@@ -323,8 +321,14 @@ def planned_model(spec: Spec, cores: int, resolves: Sequence[Mapping[str, Any]])
     replanner = Replanner(spec, cores)
     for event in resolves:
         compute = {str(k): float(v) for k, v in dict(event.get("compute_ms") or {}).items()}
+        plan = dict(event.get("plan") or {})
         try:
-            if event.get("stage1"):
+            if event.get("reason") == "costs" and event.get("error") is None:  # re-planned with measured costs
+                costs = {"switch_ms": float(plan["switch_ms"]), "slack": float(plan["slack"])}
+                spec = spec.model_copy(update={"schedule": spec.schedule.model_copy(update=costs)})
+                replanner = Replanner(spec, cores)
+                replanner.reallocate(compute or None)
+            elif event.get("stage1"):
                 replanner.reallocate(compute or None)
             else:
                 replanner.resolve(compute)
@@ -358,7 +362,7 @@ def run_timers(setup: BenchSetup, policy: str, folder: Path, workers: Workers) -
         if fifo:
             set_fifo(hello.tid, levels[hello.node])
 
-    with restorer, EnforcerSocket(folder / "driver.sock") as sock:
+    with restorer, DriverSocket(folder / "driver.sock") as sock:
         driver = Driver(sock, spec, rules, place=place)
         try:
             workers.start(sock.path)

@@ -1,21 +1,26 @@
 """The baselines' side of the trigger protocol: registrations, triggers on timers and inputs, stop.
 
-Plays the enforcer's part of :mod:`catanc.runtime.protocol` over the same socket class
-(:class:`~catanc.runtime.protocol.EnforcerSocket`), so the workers of every policy run the
-same client code, but only triggers: the rules of :mod:`catanc.realbench.triggers`, no slices,
-no re-planning.  Each registering thread is handed to ``place`` (pin it, set its priority)
-before it is welcomed.  One thread does everything, the caller's.
+Plays the enforcer's part of :mod:`catanc.runtime.protocol` (:class:`DriverSocket`: the
+enforcer's socket and an endpoint per node, as ``catanc run`` makes them), so the workers of
+every policy run the same client code, but only triggers: the rules of
+:mod:`catanc.realbench.triggers`, no slices, no re-planning.  Each node is routed to report
+every run with a ``done`` (``NOTIFY 1``), which its input-triggered successors wait for.  Each
+registering thread is handed to ``place`` (pin it, set its priority) before it is welcomed.
+One thread does everything, the caller's.
 """
 
 from __future__ import annotations
 
+import select
 import time
 from collections.abc import Callable, Collection
+from pathlib import Path
 
 from catanc.errors import CatancError, ExitCode
 from catanc.realbench.triggers import TIMER, Clock, TriggerRules, Triggers
 from catanc.runtime import protocol
-from catanc.runtime.protocol import Address, EnforcerSocket
+from catanc.runtime.endpoints import Endpoint, EnforcerSocket, decode_or_none, open_endpoint
+from catanc.runtime.protocol import Address
 from catanc.spec.language import Spec
 
 POLL_S = 0.05
@@ -32,12 +37,64 @@ def now_ms() -> float:
     return time.monotonic_ns() / 1e6
 
 
+class DriverSocket:
+    """The driver's transport: the enforcer's socket, and one endpoint (socket and ring) per welcomed node."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.sock = EnforcerSocket(path)
+        self.path = self.sock.path
+        self._endpoints: dict[Address, Endpoint] = {}
+        self._waiting: list[tuple[protocol.Message, Address]] = []
+
+    def receive(self, timeout_s: float | None) -> tuple[protocol.Message, Address] | None:
+        """The next message and its sender, waiting at most ``timeout_s`` (garbage is dropped)."""
+        if not self._waiting:
+            if not select.select([self.sock], (), (), timeout_s)[0]:
+                return None
+            for received in self.sock.receive():
+                message, _ = decode_or_none(received.data)
+                if message is not None and received.sender is not None:
+                    self._waiting.append((message, received.sender))
+        return self._waiting.pop(0) if self._waiting else None
+
+    def welcome(self, hello: protocol.Hello, address: Address) -> bool:
+        """Register ``hello``'s thread: its endpoint, welcome and ring, and a route asking for a done per run."""
+        try:
+            endpoint = open_endpoint(hello.node, hello.pid, hello.tid, address)
+        except OSError:
+            return False
+        self._endpoints[address] = endpoint
+        return endpoint.send(protocol.Route(hello.node, notify=True).encode())
+
+    def send(self, message: protocol.Message, address: Address) -> bool:
+        return self.send_bytes(message.encode(), address)
+
+    def send_bytes(self, datagram: bytes, address: Address) -> bool:
+        """Through the node's endpoint if it has one (a reject goes from the enforcer's socket)."""
+        endpoint = self._endpoints.get(address)
+        if endpoint is None:
+            return self.sock.reply(datagram, address)
+        return endpoint.send(datagram)
+
+    def close(self) -> None:
+        for endpoint in self._endpoints.values():
+            endpoint.close()
+        self._endpoints.clear()
+        self.sock.close()
+
+    def __enter__(self) -> DriverSocket:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
 class Driver:
     """Registers the app's node threads and triggers them as the baseline says."""
 
     def __init__(
         self,
-        sock: EnforcerSocket,
+        sock: DriverSocket,
         spec: Spec,
         rules: TriggerRules,
         *,
@@ -115,8 +172,8 @@ class Driver:
             self.sock.send(protocol.Reject(hello.node, f"node {hello.node!r} is registered already"), address)
             return
         self.place(hello)
-        self.endpoints[hello.node] = address
-        self.sock.send(protocol.Welcome(hello.node), address)
+        if self.sock.welcome(hello, address):
+            self.endpoints[hello.node] = address
 
     def _start(self, nodes: list[str]) -> None:
         for node in nodes:

@@ -1,129 +1,88 @@
 """``catanc run``: apply a plan on a live Linux system and keep it right as compute times drift.
 
-The enforcer (catan-model.md sections 5 and 6) is a handful of threads
-around one mutable state, each with one job:
+One event loop does everything time-critical (catan-model.md sections 5 and 6), in one thread
+at SCHED_FIFO 4 pinned to one CPU, sleeping in ``select`` until the next thing to do:
 
-- the *receiver* (SCHED_FIFO 4) takes registrations and completions from
-  the nodes (:mod:`catanc.runtime.protocol`), pins a node's threads as the
-  plan says, records compute times and triggers the next node of a
-  subchain when the previous one is done;
-- the *clock* (FIFO 4) triggers dedicated subchains, and shared ones that
-  run on their own clock, every planned period;
-- one *core scheduler* per shared core (FIFO 4, pinned there) runs the
-  periodic schedule: in order, it raises the owner of each slot (the slot's
-  subchain, or a late one of higher priority) to FIFO 2 for its slice and
-  puts it back to FIFO 1, triggering slot-aligned subchains every ``n``
-  periods; the rest of the period is slack;
-- the *re-optimiser* (SCHED_OTHER) re-solves Stage II every
-  ``stage2_every_s`` and both stages every ``stage1_every_s`` or when the
-  process's CPU set changes, with the measured p95 compute times, and
-  swaps the new schedule in; the core schedulers restart when the
-  allocation changes.
+- a shared core's **boundary** (:class:`~catanc.control.policy.CoreCursor`): the owner of each
+  slot is raised from FIFO 1 to 2 for its slice (or a late subchain of higher priority steals
+  it), slot-aligned heads are triggered every ``runs`` periods, everything is lowered at the
+  end of the last slice.  The loop sleeps through boundaries where nothing can change (an idle
+  core; :func:`~catanc.control.policy.needs_wake`);
+- a **clock**: dedicated subchains (and batch ones) are triggered every period;
+- a **datagram**: registrations, ``bye``, ``set_cores`` (:mod:`catanc.runtime.nodes`);
+- the **re-optimiser's answer**: the solvers run in a child process at SCHED_OTHER
+  (:mod:`catanc.runtime.planning`); the loop sends it a request when the cadence says
+  (:class:`~catanc.control.policy.Cadence`) and swaps the new schedule in when it answers;
+- the **watchdog's death**: every thread is put back and the run stops (exit 9, ``ExitCode.SAFETY``);
+- **housekeeping** four times a second: the rings of runs in flight, lost runs, and once a
+  second the status, the log, adopted threads and the CPU set.
 
-Every thread the enforcer changes is remembered first; they all get their
-policy, priority and affinity back on exit (and from the watchdog process
-if the enforcer is killed).
+Only heads are triggered by the enforcer; a finishing node wakes the next one itself and
+reports its run in its ring (:mod:`catanc.runtime.runs`), read when the loop is awake anyway.
+The main thread only waits for the loop (its CPUs show the process's CPU set; it handles the
+signals).  Every thread the enforcer changes, its own included, is remembered first and put
+back on exit, and by the watchdog process if the enforcer is killed.
 """
 
 from __future__ import annotations
 
+import contextlib
 import gc
 import heapq
+import math
 import os
+import select
 import signal
 import sys
 import threading
 import time
-from collections import deque
-from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any, Literal
 
 from catanc.artifacts.runtime_table import RuntimeTable
-from catanc.control import flights
-from catanc.control.schedule import (
-    CoreSchedule,
-    RuntimeSchedule,
-    SubchainRun,
-    is_late,
-    node_priority,
-    slot_owner,
-    triggers_at_slot,
-)
-from catanc.core.priorities import APP_FIFO_LEVELS, ENFORCER_FIFO, RUNNING_FIFO
+from catanc.control.policy import next_clock_ms
+from catanc.control.schedule import RuntimeSchedule, SubchainRun
+from catanc.core.priorities import ENFORCER_FIFO
+from catanc.errors import CatancError, ExitCode, SchedError
 from catanc.runtime import protocol
-from catanc.runtime.log import RunLog
-from catanc.runtime.measure import Measurements, OpenCpuClocks, cpu_ms, percentile, reconcile
-from catanc.runtime.planning import Answer, PlannerProcess, Request
-from catanc.runtime.sched import (
-    SCHED_RESET_ON_FORK,
-    Restorer,
-    ThreadGone,
-    allowed_cpus,
-    name_thread,
-    read_policy,
-    set_affinity,
-    set_fifo,
-    threads_of,
-)
+from catanc.runtime.cores import SharedCores
+from catanc.runtime.costs import Costs
+from catanc.runtime.endpoints import Endpoint, EnforcerSocket, Received, Registry, decode_or_none
+from catanc.runtime.levels import Levels
+from catanc.runtime.log import RunLog, Throttle
+from catanc.runtime.measure import Measurements, OpenCpuClocks
+from catanc.runtime.nodes import NodeThreads, Wiring
+from catanc.runtime.planning import PlannerProcess
+from catanc.runtime.replanning import Replanning
+from catanc.runtime.ring import RingReader
+from catanc.runtime.runs import Reader, RunBook
+from catanc.runtime.sched import Restorer, allowed_cpus, name_thread
+from catanc.runtime.status import status_rows
 
 Start = Literal["bootstrap", "spec"]
 
-RECEIVE_TIMEOUT_S = 0.05
-CPU_WATCH_S = 1.0
+HOUSEKEEPING_MS = 250.0
+"""Rings of runs in flight and lost runs are looked at this often; the status and the log once a second."""
+STATUS_EVERY_MS = 1000.0
 SWITCH_INTERVAL_S = 0.0002
-"""The interpreter lock passes to a waking FIFO-4 thread within this (Python's default: 5 ms)."""
-STATUS_EVERY_S = 1.0
-RATE_WINDOW = 20
-"""A subchain's measured rate is over its last 20 trigger-to-trigger periods."""
-KERNEL_CHECK_EVERY = 8
-"""Every 8th run, a node's reported compute time is checked against the kernel's (two /proc reads)."""
-SWITCH_SAMPLES = 2000
-"""Switch latencies kept per shared core: scheduled switch time to the slot owner raised (and triggered)."""
-STOP_CHECK_MS = 50.0
-"""A core scheduler's longest sleep before it looks whether the run is stopping."""
-LOST_AFTER = 20.0
-"""A run not done after this many planned latencies (and at least a second) is given up as lost."""
-LOST_CHECK_MS = 100.0
-"""How often runs in flight are looked at for lost ones."""
+"""Another thread holding the interpreter lock (the main thread handling a signal) gives it up within this."""
+QUIET_S = 0.05
+"""After a stop, runs still in flight are awaited until no ring moved for this (and twice their node's estimate)."""
 
 
 def now_ms() -> float:
     return time.monotonic_ns() / 1e6
 
 
-@dataclass
-class Endpoint:
-    """One registered node thread."""
+class WatchdogLostError(CatancError):
+    """The watchdog died: a SIGKILL of the enforcer would leave app threads raised, so the run stopped."""
 
-    node: str
-    pid: int
-    tid: int
-    address: Any
-
-
-@dataclass
-class Flight(flights.Flight):
-    """One run of a subchain in flight, with what measures its running node."""
-
-    cpu_ns: int | None  # the running node thread's CPU time when it was triggered (schedstat)
-    speedup: float = 1.0  # the running node's speedup with the threads its trigger gave it
-
-
-@dataclass
-class SubchainState(flights.Flights[Flight]):
-    """Runs of one subchain in flight, and what was seen of them (``skipped`` also counts the triggers not
-    sent because a node of the subchain is not registered yet)."""
-
-    last_trigger_ms: float | None = None
-    periods_ms: deque[float] = field(default_factory=lambda: deque(maxlen=RATE_WINDOW))  # trigger to trigger
-    lost: int = 0
-    steals: int = 0
+    exit_code = ExitCode.SAFETY
 
 
 class Enforcer:
-    """One app's enforcer; :meth:`run` blocks until ``stop()`` or the duration ends."""
+    """One app's enforcer; :meth:`run` blocks until :meth:`stop`, a signal or the duration ends."""
 
     def __init__(
         self,
@@ -146,29 +105,64 @@ class Enforcer:
         self.socket_path = socket_path
         self.restorer = restorer if restorer is not None else Restorer()
         self.measurements = Measurements.for_spec(self.spec)
-        self.cpu_clocks = OpenCpuClocks()  # node threads' kernel CPU counts (read under self.lock)
-        bootstrap = self.spec.runtime.bootstrap_ms if start == "bootstrap" else None
-        self.cpu_ids = sorted(allowed_cpus())  # plan core i runs on the i-th CPU this process may use
+        self.cpu_clocks = OpenCpuClocks()
         self.events: list[str] = []  # short notes for the live status (node crashed, ...)
-        planned_cores = self._fit_cores(cores or table.cores)
+        self.throttle = Throttle()
+        cpus = allowed_cpus()
+        planned_cores = min(cores or table.cores, len(cpus))  # two plan cores never share one CPU
+        if planned_cores < (cores or table.cores):
+            self._note(f"planning for {planned_cores} core(s), not {cores or table.cores}: CPUs {sorted(cpus)} only")
+        bootstrap = self.spec.runtime.bootstrap_ms if start == "bootstrap" else None
         self.planner = PlannerProcess(
             table.spec.model_dump(mode="json", by_alias=True), planned_cores, bootstrap_ms=bootstrap
         )
-        self.answer: Answer = self.planner.initial
-        self.lock = threading.RLock()  # guards the schedule, endpoints and subchain states
-        self.schedule: RuntimeSchedule = self.answer.schedule
-        self.generation = 0  # bumped when the allocation changes: core schedulers restart
-        self.endpoints: dict[str, list[Endpoint]] = {}
-        self.states = {name: SubchainState() for name in self.schedule.subchains}
-        self.raised: dict[int, str | None] = {}  # core -> subchain raised to FIFO 2 now
-        self.core_threads: list[threading.Thread] = []
-        self.switches: dict[int, deque[float]] = {}  # core -> recent switch latencies (ms)
-        self.nodes = flights.NodeQueues()  # the run each node was triggered for and has not finished
-        self.stopping = threading.Event()
-        self.requested_cores: int | None = None
-        self.last_resolve_s: float | None = None
+        self.replanning = Replanning(self.planner, self.spec.runtime, cpus, self._note)
+        self.schedule: RuntimeSchedule = self.replanning.answer.schedule
+        self.registry = Registry(set(self.spec.nodes))
+        self.levels = Levels(rt=rt)
+        speedups = {name: tuple(node.threads.speedups) for name, node in self.spec.nodes.items()}
+        self.book = RunBook(self.schedule.subchains, speedups, self._kernel_ns)
+        self.book.expected = self.measurements.estimates()
+        self.nodes = NodeThreads(
+            self.registry,
+            self.levels,
+            self.restorer,
+            self.schedule,
+            rt=rt,
+            cpus_of=self.cpus_of,
+            note=self._note_throttled,
+            log=self._log,
+        )
+        self.costs = Costs()
+        self.reader = Reader(
+            self.book,
+            readers=self._readers,
+            record=self.measurements.record,
+            measured=self.measurements.nodes,
+            hop=self.costs.hop,
+            sample=self._sample,
+        )
+        self.cores = SharedCores(
+            self.book,
+            self.levels,
+            self.costs,
+            trigger=self._trigger_head,
+            seen=self.reader.seen,
+            gone=self.nodes.gone_tids,
+        )
+        self.wiring: Wiring | None = None
+        self.clocks: list[tuple[float, str]] = []
+        self.stopping = False
+        self.failure: CatancError | None = None
         self.started_ms = clock()
-        self.preexisting: dict[int, set[int]] = {}  # pid -> its threads when a node of it registered
+        self.deadline_ms: float | None = None  # the end of a run of a given duration (set once the app is up)
+        self.next_housekeeping_ms = self.started_ms
+        self.next_status_ms = self.started_ms + STATUS_EVERY_MS
+        self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
+        self.loop_tid: int | None = None
+        self._loop_done = threading.Event()
+        self.attaching: list[tuple[str, int, list[int]]] = []  # from --attach, for the loop to place
+        self.final: dict[str, Any] | None = None  # the status as the run ended
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -179,539 +173,415 @@ class Enforcer:
         on_start: Callable[[Enforcer], None] | None = None,
         on_tick: Callable[[Enforcer], None] | None = None,
     ) -> None:
-        """Enforce until :meth:`stop`, SIGINT/SIGTERM or ``duration_s``.
+        """Enforce until :meth:`stop`, SIGINT/SIGTERM or ``duration_s``; call from the main thread.
 
-        ``on_start`` runs once the socket is bound (start the app's processes there); ``on_tick``
-        about every 0.2 s (a live status).  Call from the main thread: it installs the restorer's
-        signal handlers and runs at FIFO 4 itself, so a restore on SIGINT is never starved.
+        ``on_start`` runs once the socket is bound (start the app's processes there; ``duration_s``
+        counts from its return); ``on_tick``
+        once a second, from the loop (a live status).  The main thread runs at FIFO 4 too (a
+        restore on a signal is never starved) but only waits; it keeps the process's CPU set.
         """
-        sys.setswitchinterval(SWITCH_INTERVAL_S)
-        # SIGTERM (systemd, docker) ends the run as SIGINT does: nodes stopped, log closed, summary.
-        # The restorer, installed next, puts the threads back first and then calls this.
         previous_term = signal.signal(signal.SIGTERM, self._on_sigterm)
+        previous_interval = sys.getswitchinterval()
+        sys.setswitchinterval(SWITCH_INTERVAL_S)  # the loop gets the interpreter lock at once when it wakes
         try:
-            self._run(duration_s, on_start=on_start, on_tick=on_tick)
+            with EnforcerSocket(self.socket_path) as sock, self.restorer:
+                self.sock = sock
+                if self.log_path is not None:
+                    self.log = RunLog(self.log_path)
+                self._raise_self(pin=None)
+                self._log("start", cores=self.schedule.cores, plan=self.replanning.answer.summary)
+                failure: list[BaseException] = []
+                loop = threading.Thread(
+                    target=self._loop_thread, args=(on_tick, failure), name="catanc-loop", daemon=True
+                )
+                loop.start()
+                try:
+                    if on_start is not None:
+                        on_start(self)
+                    gc.freeze()  # start-up's objects never need collecting: later collections stay short
+                    if duration_s is not None:  # counted from here: the app is up
+                        self.deadline_ms = self.clock() + duration_s * 1000.0
+                        self._wake_loop()
+                    self._loop_done.wait()
+                finally:
+                    self.stop()
+                    self._await_loop()
+                    loop.join()
+                    self._finish()
+                if failure:
+                    raise failure[0]
+                if self.failure is not None:
+                    raise self.failure
         finally:
             signal.signal(signal.SIGTERM, previous_term)
+            sys.setswitchinterval(previous_interval)
+            for fd in (self._wake_r, self._wake_w):
+                with contextlib.suppress(OSError):
+                    os.close(fd)
 
-    def _run(
-        self,
-        duration_s: float | None,
-        *,
-        on_start: Callable[[Enforcer], None] | None,
-        on_tick: Callable[[Enforcer], None] | None,
-    ) -> None:
-        with protocol.EnforcerSocket(self.socket_path) as sock, self.restorer:
-            self.sock = sock
-            if self.log_path is not None:
-                self.log = RunLog(self.log_path)
-            self._raise_self(cpus=None)
-            self._log("start", cores=self.schedule.cores, plan=self.answer.summary)
-            threads = [
-                threading.Thread(target=self._receiver, name="catanc-receiver", daemon=True),
-                threading.Thread(target=self._clock_loop, name="catanc-clock", daemon=True),
-                threading.Thread(target=self._reoptimiser, name="catanc-reoptimiser", daemon=True),
-            ]
-            try:  # whatever fails from here on (a --launch command, say), every thread is stopped first
-                for thread in threads:
-                    thread.start()
-                self._start_core_schedulers()
-                if on_start is not None:
-                    on_start(self)
-                gc.freeze()  # start-up's objects never need collecting: later collections stay short
-                deadline = None if duration_s is None else time.monotonic() + duration_s
-                next_status = time.monotonic() + STATUS_EVERY_S
-                while not self.stopping.is_set():
-                    remaining = None if deadline is None else deadline - time.monotonic()
-                    if remaining is not None and remaining <= 0:
-                        break
-                    self.stopping.wait(0.2 if remaining is None else min(0.2, remaining))
-                    if on_tick is not None:
-                        on_tick(self)
-                    if time.monotonic() >= next_status:
-                        next_status += STATUS_EVERY_S
-                        self._adopt_spawned()
-                        self._log("status", **self.status())
-                        if self.log is not None:
-                            self.log.flush()
-            finally:
-                self.stopping.set()
-                for thread in [*threads, *self.core_threads]:  # no slot may raise a thread after this
-                    if thread.ident is not None:
-                        thread.join(timeout=2.0)
-                self._stop_nodes()
-                self._await_last_runs(protocol.STOP_GRACE_S)
-                with self.lock:
-                    self.cpu_clocks.close()
-                self.planner.close()
-                if self.log is not None:
-                    self.log.flush()  # the last second's samples before the stop line
-                self._log("stop", summary=self.status())
-                if self.log is not None:
-                    log, self.log = self.log, None
-                    log.close()
+    def _await_loop(self) -> None:
+        """Wait until the loop thread has ended, whatever signals come meanwhile.
+
+        Not ``Thread.join``: in Python 3.11 a KeyboardInterrupt in ``join`` can mark a thread that
+        still runs as stopped (bpo-45274's fix releases the lock the running thread holds), and the
+        end of the run would then close sockets the loop still sends on.
+        """
+        while not self._loop_done.is_set():
+            try:
+                self._loop_done.wait(0.1)
+            except KeyboardInterrupt:  # a second Ctrl-C: stopping already
+                self.stop()
 
     def stop(self) -> None:
-        self.stopping.set()
+        """End the run (from any thread or a signal handler)."""
+        self.stopping = True
+        self._wake_loop()
+
+    def _wake_loop(self) -> None:
+        with contextlib.suppress(OSError):
+            os.write(self._wake_w, b"!")
 
     def _on_sigterm(self, signum: int, frame: object) -> None:  # noqa: ARG002 - a signal handler's signature
         self.stop()
 
-    def _stop_nodes(self) -> None:
-        """Tell every registered node the run is over (their loops end; they are not killed)."""
-        with self.lock:
-            endpoints = [e for es in self.endpoints.values() for e in es if e.address is not None]
-        for endpoint in endpoints:
-            self.sock.send(protocol.Stop(), endpoint.address)
+    def _loop_thread(self, on_tick: Callable[[Enforcer], None] | None, failure: list[BaseException]) -> None:
+        try:
+            self.loop_tid = threading.get_native_id()
+            name_thread("catanc-loop")
+            self._raise_self(pin=self._loop_core())
+            self._install(self.clock())
+            self._loop(on_tick)
+        except BaseException as exc:  # re-raised by run(), in the main thread
+            failure.append(exc)
+        finally:
+            self.stopping = True
+            self._loop_done.set()
+
+    def _finish(self) -> None:
+        """After the loop: stop the nodes, wait for their last runs, close everything, log the end."""
+        self.final = self.status()  # as the run ended: rates and registrations before the nodes leave
+        self.nodes.stop_all()
+        self._await_last_runs(protocol.STOP_GRACE_S)
+        self.registry.close()
+        self.cpu_clocks.close()
+        self.planner.close()
+        self._flush_samples()
+        if self.log is not None:
+            self.log.flush()
+        self._log("stop", summary=self.final)
+        if self.log is not None:
+            log, self.log = self.log, None
+            log.close()
 
     def _await_last_runs(self, grace_s: float) -> None:
-        """Keep the socket open, at most ``grace_s``, until every node busy with a run has reported it.
+        """At most ``grace_s``, until every run in flight has been reported (nothing new is triggered).
 
-        A node in the middle of a run when the run ends still sends its done message (then
-        sees the Stop); with the socket gone it would fail there ("lost the catanc enforcer")
-        instead of ending cleanly.  Nothing new is triggered: the run is over.
+        Or until the rings go quiet for twice the longest estimate of the nodes those runs are at
+        (and :data:`QUIET_S`): a node told to stop before its trigger arrived never runs.
         """
         deadline = time.monotonic() + grace_s
-        while (remaining := deadline - time.monotonic()) > 0:
-            with self.lock:
-                if not self.nodes.any_busy():
+        quiet_until, progress = 0.0, -1
+        while (now := time.monotonic()) < deadline:
+            self._read_all(self.clock())
+            at = [
+                self.schedule.subchains[name].nodes[flight.index]
+                for name, state in self.book.states.items()
+                if name in self.schedule.subchains
+                for flight in state.in_flight.values()
+                if flight.index < len(self.schedule.subchains[name].nodes)
+            ]
+            if not at:
+                return
+            readers = self.wiring.readers if self.wiring is not None else {}
+            read = sum(reader.last for ring in readers.values() for _, _, reader in ring)
+            if read != progress:
+                progress = read
+                longest = max(self.book.expected.get(node, 0.0) for node in at)
+                quiet_until = now + QUIET_S + 2.0 * longest / 1000.0
+            elif now >= quiet_until:
+                return
+            time.sleep(0.01)
+
+    # ------------------------------------------------------------------ the loop
+
+    def _loop(self, on_tick: Callable[[Enforcer], None] | None) -> None:
+        sock = self.sock.fileno()
+        planner = self.planner.fileno()
+        watchdog = self._watchdog_fd()
+        fds = [sock, planner, self._wake_r] + ([watchdog] if watchdog is not None else [])
+        wait = select.select
+        clock = self.clock
+        costs = self.costs
+        while not self.stopping:
+            now = clock()
+            until = min(self.next_housekeeping_ms, self.cores.wake_ms)
+            if self.clocks and self.clocks[0][0] < until:
+                until = self.clocks[0][0]
+            deadline = self.deadline_ms
+            if deadline is not None:
+                if now >= deadline:
                     return
-            got = self.sock.receive(min(remaining, RECEIVE_TIMEOUT_S))
-            if got is not None and isinstance(got[0], protocol.Done | protocol.Bye):
-                with self.lock:
-                    self.nodes.free(got[0].node)  # what waited for it is not triggered: the run is over
+                until = min(until, deadline)
+            timeout = until - now
+            ready = wait(fds, (), (), timeout / 1000.0 if timeout > 0 else 0)[0]
+            costs.wakes += 1
+            now = clock()
+            self._on_time(now)
+            if ready:
+                if sock in ready:
+                    self._on_datagrams()
+                if planner in ready:
+                    self._on_answer()
+                if self._wake_r in ready:
+                    with contextlib.suppress(BlockingIOError):
+                        while os.read(self._wake_r, 64):
+                            pass
+                    while self.attaching:
+                        self.nodes.attach(*self.attaching.pop(0))
+                if watchdog is not None and watchdog in ready:
+                    self._watchdog_died()
+            if now >= self.next_housekeeping_ms:
+                self._housekeep(now, on_tick)
 
-    # ------------------------------------------------------------------ registration and completion
+    def _on_time(self, now: float) -> None:
+        wiring = self.wiring
+        if wiring is None or wiring.version != self.nodes.version or wiring.schedule is not self.schedule:
+            self.wiring = self.nodes.wiring(self.schedule)
+            self.cores.rewire(self.wiring)
+        cores = self.cores
+        cores.run_due(now)
+        clocks = self.clocks
+        if clocks and clocks[0][0] <= now:
+            shared = False
+            while clocks and clocks[0][0] <= now:
+                due, name = heapq.heappop(clocks)
+                run = self.schedule.subchains.get(name)
+                if run is None or not run.on_clock:
+                    continue
+                self._trigger_head(run, now, None if run.shared else math.inf)  # a dedicated one runs raised
+                shared = shared or run.shared
+                heapq.heappush(clocks, (next_clock_ms(due, run.period_ms, now), name))
+            if shared:  # a core with a run in flight needs its boundaries again
+                cores.rewake()
 
-    def _receiver(self) -> None:
-        self._raise_self(cpus=None)
-        checked_ms = self.clock()
-        while not self.stopping.is_set():
-            got = self.sock.receive(RECEIVE_TIMEOUT_S)  # skips and counts garbage datagrams
-            if self.clock() - checked_ms >= LOST_CHECK_MS:  # also under steady traffic, which never times out
-                checked_ms = self.clock()
-                self._check_lost()
-            if got is None:
-                continue
-            message, address = got
-            if isinstance(message, protocol.Hello):
-                self._register(message, address)
-            elif isinstance(message, protocol.Done):
-                self._done(message)
-            elif isinstance(message, protocol.Bye):
-                self._unregister(message.node, message.tid)
-            elif isinstance(message, protocol.SetCores):
-                self.requested_cores = message.cores
-
-    def _register(self, hello: protocol.Hello, address: Any) -> None:
-        if hello.node not in self.spec.nodes:
-            self.sock.send(protocol.Reject(hello.node, f"no node {hello.node!r} in app {self.spec.app}"), address)
+    def _trigger_head(
+        self, run: SubchainRun, now: float, raised_until: float | None = None, *, at_slot: bool = False
+    ) -> None:
+        head = self.wiring.heads.get(run.name) if self.wiring is not None else None
+        if head is None:
+            self.book.state(run.name).skipped += 1
             return
-        endpoint = Endpoint(hello.node, hello.pid, hello.tid, address)
-        before = threads_of(hello.pid)  # read before the thread is raised: what it starts later inherits
-        with self.lock:
-            self.preexisting.setdefault(hello.pid, set()).update(before)
-            self.endpoints.setdefault(hello.node, []).append(endpoint)
-            self._place(endpoint)
-        self.sock.send(protocol.Welcome(hello.node), address)
-        self._log("register", node=hello.node, pid=hello.pid, tid=hello.tid)
+        if not at_slot:  # at its slot the rings were just read and its threads raised
+            self._read(run, now)  # is the head still busy?
+            if run.shared and self.cores.raised_on(run):
+                self.cores.raise_owner(run.cores[0], run.name, triggered=True)
+        started = self.book.trigger(run, now, head, raised_until)
+        if started is None:
+            return
+        if not head.send(protocol.trigger_datagram(head.node, started.seq, run.threads_of(0)[0])):
+            self.nodes.gone(head, f"takes no triggers ({head.error})")
 
-    def _unregister(self, node: str, tid: int) -> None:
-        with self.lock:
-            self.endpoints[node] = [e for e in self.endpoints.get(node, []) if e.tid != tid]
-            self.cpu_clocks.forget(tid)
+    # ------------------------------------------------------------------ what the nodes report
 
-    def _place(self, endpoint: Endpoint) -> None:
-        """Pin a node thread to its subchain's cores at its resting priority (rates only without RT)."""
-        run = self.schedule.subchain_of(endpoint.node)
-        cores = run.cores if run is not None else range(self.schedule.cores)
-        cpus = self.cpus_of(cores)
+    def _read(self, run: SubchainRun, now: float) -> None:
+        self.reader.read(run, now)
+
+    def _readers(self, name: str) -> tuple[tuple[int, Endpoint, RingReader], ...]:
+        wiring = self.wiring
+        if wiring is None or wiring.version != self.nodes.version or wiring.schedule is not self.schedule:
+            self.wiring = wiring = self.nodes.wiring(self.schedule)
+            self.cores.rewire(wiring)
+        return wiring.readers.get(name, ())
+
+    def _read_name(self, name: str, now: float) -> None:
+        run = self.schedule.subchains.get(name)
+        if run is not None:
+            self._read(run, now)
+
+    def _read_all(self, now: float) -> None:
+        for name, run in self.schedule.subchains.items():
+            if self.book.busy(name):
+                self._read(run, now)
+
+    def _flush_samples(self) -> None:
+        self._read_all(self.clock())
+        self.reader.flush()
+
+    def _kernel_ns(self, endpoint: Endpoint) -> int | None:
+        """``endpoint``'s thread CPU time so far (ns), from the kernel; None if unreadable."""
         try:
-            self.restorer.remember(endpoint.tid)
-            set_affinity(endpoint.tid, cpus)
-            if self.rt:
-                set_fifo(endpoint.tid, node_priority(run))
-        except ThreadGone:
-            self._gone(endpoint)
+            return self.cpu_clocks.read_ns(endpoint.pid, endpoint.tid)
+        except (OSError, ValueError):
+            return None
 
-    def _adopt_spawned(self) -> None:
-        """Remember threads that node threads started after being raised, so they are put back too.
+    # ------------------------------------------------------------------ datagrams
 
-        A new thread inherits its creator's SCHED_FIFO priority and CPUs (a multi-threaded node's
-        helpers, say).  Their own original is unknowable; they get their creator's.  Threads that
-        the app raised itself are left alone (see below).  Looked for
-        once a second: one started less than a second before the enforcer is SIGKILLed stays as
-        it is.  Threads the process had when its node registered are its own business.
-        """
-        known = self.restorer.remembered
-        with self.lock:
-            creators = {e.pid: e.tid for endpoints in self.endpoints.values() for e in endpoints if e.tid in known}
-            preexisting = {pid: set(tids) for pid, tids in self.preexisting.items()}
-        for pid, creator in creators.items():
-            for tid in threads_of(pid):
-                if tid in known or tid in preexisting.get(pid, ()):
-                    continue
-                try:
-                    now = read_policy(tid)
-                    if now.policy & ~SCHED_RESET_ON_FORK == os.SCHED_FIFO and now.priority in APP_FIFO_LEVELS:
-                        self.restorer.remember(tid, original=known[creator])
-                except ThreadGone:
-                    continue
+    def _on_datagrams(self) -> None:
+        for received in self.sock.receive():
+            message, why = decode_or_none(received.data)
+            if message is None:
+                self._note_throttled("datagram", f"dropped a datagram: {why}")
+            elif isinstance(message, protocol.Hello):
+                self._hello(message, received)
+            elif isinstance(message, protocol.Bye):
+                self.nodes.bye(message, received.sender)
+            elif isinstance(message, protocol.SetCores):
+                self._set_cores(message, received)
+            elif not isinstance(message, protocol.Done):  # runs are read from the rings; a done is only a hint
+                self._note_throttled("datagram", f"dropped a {message.TYPE} message: not one a node sends")
+
+    def _hello(self, hello: protocol.Hello, received: Received) -> None:
+        try:
+            registered = self.nodes.hello(hello, received, self.sock)
+        except SchedError as exc:  # the watchdog's pipe broke: it is gone
+            self._watchdog_died(str(exc))
+            return
+        if registered is not None:
+            self.cpu_clocks.forget(hello.tid)
+
+    def _set_cores(self, message: protocol.SetCores, received: Received) -> None:
+        credentials = received.credentials
+        if credentials is None or credentials.uid not in (0, os.geteuid()):
+            uid = "unknown" if credentials is None else credentials.uid
+            self._note_throttled("set_cores", f"ignored set_cores from uid {uid}: only root or this user may")
+            return
+        self.replanning.requested_cores = message.cores
+
+    # ------------------------------------------------------------------ plans
+
+    def _install(self, now: float) -> None:
+        """Start the schedule in force from ``now``: every core's period and every clock (a new allocation too)."""
+        self.cores.install(self.schedule, now)
+        self.clocks = [(now, run.name) for run in self.schedule.clocked]
+        heapq.heapify(self.clocks)
+        self.costs.core = self._loop_core()
+
+    def _on_answer(self) -> None:
+        try:
+            request, answer = self.replanning.answered(self.elapsed_s())
+        except (EOFError, OSError):
+            self.failure = CatancError("the re-optimiser process ended; the run stops")
+            self.stop()
+            return
+        if request is None:  # pragma: no cover - the planner answers only what it is asked
+            return
+        changed = False
+        if answer.error is not None:  # keep the last good plan and its slots
+            self._note(f"re-plan failed, keeping the last plan: {answer.error}")
+        else:
+            before = self.schedule
+            self.schedule = answer.schedule
+            self.nodes.schedule = answer.schedule
+            changed = answer.layout != _layout(before)
+            clocked = {run.name for run in before.clocked} != {run.name for run in answer.schedule.clocked}
+            if changed or clocked:  # a new allocation: every thread re-pinned, every core and clock restarted
+                self.nodes.place_all()
+                self._pin_loop()
+                self._install(self.clock())
+            else:
+                self.cores.update(answer.schedule)
+            self.nodes.routes()
+        self._log(
+            "resolve",
+            reason=request.reason,
+            stage1=request.kind != "resolve",
+            allocation_changed=changed,
+            solve_ms=round(answer.solve_ms, 3),
+            error=answer.error,
+            compute_ms={k: round(v, 3) for k, v in sorted(request.compute_ms.items())},
+            plan=answer.summary,
+        )
+
+    # ------------------------------------------------------------------ housekeeping
+
+    def _housekeep(self, now: float, on_tick: Callable[[Enforcer], None] | None) -> None:
+        self.next_housekeeping_ms = now + HOUSEKEEPING_MS
+        self._read_all(now)
+        self.reader.flush()
+        self.cores.rewake()  # runs that ended may leave a core idle
+        for name, seq, node in self.book.lost(self.schedule.subchains, now):
+            self._note(f"{name}: run {seq} lost at {node} (no answer in time)")
+            self._log("lost", subchain=name, seq=seq, node=node)
+        self._cores_and_cadence(now)
+        if now < self.next_status_ms:
+            return
+        self.next_status_ms = now + STATUS_EVERY_MS
+        self.nodes.adopt_spawned()
+        self.book.expected = self.measurements.estimates()
+        if self.loop_tid is not None:
+            self.costs.cpu(time.monotonic_ns(), time.thread_time_ns())
+        self._log("status", **self.status())
+        if self.log is not None:
+            self.log.flush()
+        if on_tick is not None:
+            on_tick(self)
+
+    def _cores_and_cadence(self, now: float) -> None:
+        if self.replanning.asked is not None:
+            return  # one request at a time
+        step = self.replanning.step(
+            now - self.started_ms,
+            allowed_cpus(),
+            self.schedule.cores,
+            lambda: self.measurements.estimates(measured_only=True),
+            lambda: self.replanning.measured_costs(self.costs.summary(self.schedule.cores), self.spec.schedule),
+        )
+        if step.repin:  # as many CPUs, but others: the same plan, pinned to them
+            self.nodes.place_all()
+            self.cores.forget_raised()
+            self._pin_loop()
+            self._log("repin", cpus=self.cpu_ids)
+
+    # ------------------------------------------------------------------ the enforcer's own threads
+
+    @property
+    def cpu_ids(self) -> list[int]:
+        return self.replanning.cpu_ids
 
     def cpus_of(self, cores: Iterable[int]) -> frozenset[int]:
         """The CPUs of plan cores: core ``i`` is the ``i``-th allowed CPU (a cpuset {2, 3} runs cores 0, 1 there)."""
         ids = self.cpu_ids
         return frozenset(ids[core % len(ids)] for core in cores)
 
-    def _gone(self, endpoint: Endpoint) -> None:
-        self._unregister(endpoint.node, endpoint.tid)
-        self._note(f"{endpoint.node}: thread {endpoint.tid} exited")
-        self._log("gone", node=endpoint.node, tid=endpoint.tid)
+    def _loop_core(self) -> int:
+        """The plan core the loop runs on: the shared core with the most switches, else the last core."""
+        busiest = max(
+            self.schedule.shared, key=lambda core: ((len(core.slots) + 1) / core.period_ms, -core.core), default=None
+        )
+        return busiest.core if busiest is not None else self.schedule.cores - 1
 
-    def _done(self, done: protocol.Done) -> None:
-        run = self.schedule.subchain_of(done.node)
-        with self.lock:
-            state = self.states.get(run.name) if run is not None else None
-            flight = state.in_flight.get(done.seq) if state is not None else None
-            kernel_ms = self._cpu_ms_since(done.node, done.tid, flight)
-        compute = kernel_ms if done.compute_ms is None else reconcile(done.compute_ms, kernel_ms)
-        if compute is not None and flight is not None:
-            compute *= flight.speedup  # a run on q threads: back to the one-thread time the planner budgets
-        if compute is not None and done.node in self.measurements.nodes:
-            self.measurements.record(done.node, compute)
-        self._sample("compute", done.node, (compute, done.compute_ms, kernel_ms))
-        if run is None or state is None or flight is None:
-            with self.lock:
-                self._free(done.node)
-            return  # an unscheduled node, a run given up as lost, or one from before a re-plan
-        with self.lock:
-            self._free(done.node)
-            handoff = state.node_done(done.seq, len(run.nodes))
-            if handoff is None:
-                return  # given up as lost while the lock was free
-            if handoff.next_index is not None:
-                self._trigger(run.nodes[handoff.next_index], done.seq)
-            if handoff.head_done:  # a trigger that came while it ran: the next run starts now
-                pending = state.start_pending(Flight(0, self.clock(), None))
-                if pending is not None:
-                    self._trigger(run.nodes[0], pending)
-            if handoff.next_index is not None:
-                return
-            latency = state.over(handoff.flight, self.clock(), run.latency_ms)
-        self._sample("run", run.name, (done.seq, latency))
+    def _pin_loop(self) -> None:
+        if self.loop_tid is not None and threading.get_native_id() == self.loop_tid:
+            os.sched_setaffinity(0, self.cpus_of([self._loop_core()]))
 
-    def _cpu_ns(self, node: str) -> int | None:
-        """The CPU time (ns) of ``node``'s thread so far, from the kernel; None if unreadable."""
-        endpoint = next(iter(self.endpoints.get(node, [])), None)
-        if endpoint is None:
-            return None
-        try:
-            return self.cpu_clocks.read_ns(endpoint.pid, endpoint.tid)
-        except (OSError, ValueError):
-            return None
-
-    def _cpu_ms_since(self, node: str, tid: int, flight: Flight | None) -> float | None:
-        endpoint = next((e for e in self.endpoints.get(node, []) if e.tid == tid), None)
-        if flight is None or flight.cpu_ns is None or endpoint is None:
-            return None
-        try:
-            return cpu_ms(flight.cpu_ns, self.cpu_clocks.read_ns(endpoint.pid, endpoint.tid))
-        except (OSError, ValueError):
-            return None
-
-    def _check_lost(self) -> None:
-        now = self.clock()
-        with self.lock:
-            for name, state in self.states.items():
-                run = self.schedule.subchains.get(name)
-                limit = max(1000.0, LOST_AFTER * (run.latency_ms if run else 1000.0))
-                for seq, flight in list(state.in_flight.items()):
-                    if now - flight.triggered_ms > limit:
-                        del state.in_flight[seq]
-                        state.lost += 1
-                        node = run.nodes[flight.index] if run else "?"
-                        if self.nodes.busy_with(node) == seq:
-                            self._free(node)
-                        self._note(f"{name}: run {seq} lost at {node} (no answer in {limit / 1000:.1f} s)")
-                        self._log("lost", subchain=name, seq=seq, node=node)
-
-    # ------------------------------------------------------------------ triggering
-
-    def _trigger_head(self, run: SubchainRun) -> None:
-        now = self.clock()
-        with self.lock:
-            state = self.states[run.name]
-            # A run starts only when every node of it can be triggered: one started while a later
-            # node is still starting up would stall there and be given up as lost.
-            if any(self._speaker(node) is None for node in run.nodes):
-                state.skipped += 1
-                return
-            # Never queue triggers on a busy head (they would pile up in its socket): defer.
-            started = state.start(Flight(0, now, None))
-            if started is None or started.deferred:  # sent when the head is done (at its done message)
-                return
-            seq = started.seq
-            if state.last_trigger_ms is not None:
-                state.periods_ms.append(now - state.last_trigger_ms)
-            state.last_trigger_ms = now
-            self._trigger(run.nodes[0], seq)
-
-    def _speaker(self, node: str) -> Endpoint | None:
-        """``node``'s first thread registered through the client (attached ones run on their own timers)."""
-        return next((endpoint for endpoint in self.endpoints.get(node, []) if endpoint.address is not None), None)
-
-    def _trigger(self, node: str, seq: int) -> None:
-        """Trigger ``node`` for run ``seq`` now, or once it has finished the run it is busy with.
-
-        A node is never sent a second trigger while it runs: a pipelined subchain's runs
-        queue here, one per stage at most, instead of piling up in the node's socket.
-        """
-        if self.nodes.queued(node, seq):
-            return
-        endpoint = self._speaker(node)
-        if endpoint is None:
-            return
-        run = self.schedule.subchain_of(node)
-        flight = self.states[run.name].in_flight.get(seq) if run is not None else None
-        threads = 1
-        if run is not None and flight is not None:
-            threads, flight.speedup = run.threads_of(flight.index)
-            if seq % KERNEL_CHECK_EVERY == 0:
-                flight.cpu_ns = self._cpu_ns(node)
-        if self.sock.send_bytes(protocol.trigger_datagram(node, seq, threads), endpoint.address):
-            self.nodes.started(node, seq)
-        else:
-            self._gone(endpoint)
-
-    def _free(self, node: str) -> None:
-        """``node`` finished its run: start the next one queued for it, if any."""
-        waiting = self.nodes.free(node)
-        if waiting is not None:
-            self._trigger(node, waiting)
-
-    def attach(self, node: str, pid: int, tids: list[int]) -> None:
-        """Pin and prioritise the threads of a process that does not speak the protocol, as ``node``'s."""
-        with self.lock:
-            for tid in tids:
-                endpoint = Endpoint(node, pid, tid, None)
-                self.endpoints.setdefault(node, []).append(endpoint)
-                self._place(endpoint)
-
-    def _clock_loop(self) -> None:
-        self._raise_self(cpus=None)
-        generation = -1
-        heap: list[tuple[float, str]] = []
-        while not self.stopping.is_set():
-            with self.lock:
-                if generation != self.generation:  # a new plan: restart every clock from now
-                    generation = self.generation
-                    start = self.clock()
-                    heap = [(start, run.name) for run in self.schedule.clocked]
-                    heapq.heapify(heap)
-                schedule = self.schedule
-            if not heap:
-                self.stopping.wait(0.1)
-                continue
-            due, name = heap[0]
-            wait_ms = due - self.clock()
-            if wait_ms > 0:
-                self.stopping.wait(min(wait_ms / 1000.0, 0.1))
-                continue
-            heapq.heappop(heap)
-            run = schedule.subchains.get(name)
-            if run is None:
-                continue
-            self._trigger_head(run)
-            heapq.heappush(heap, (max(due + run.period_ms, self.clock()), name))
-
-    # ------------------------------------------------------------------ shared cores
-
-    def _start_core_schedulers(self) -> None:
-        with self.lock:
-            generation = self.generation
-            cores = self.schedule.shared
-        for core in cores:
-            thread = threading.Thread(
-                target=self._core_loop, args=(core, generation), name=f"catanc-core-{core.core}", daemon=True
-            )
-            thread.start()
-            self.core_threads.append(thread)
-
-    def _core_loop(self, core: CoreSchedule, generation: int) -> None:
-        self._raise_self(cpus=self.cpus_of([core.core]))
-        period_index = 0
-        start = self.clock()
-        while not self.stopping.is_set() and generation == self.generation:
-            with self.lock:
-                core = next((c for c in self.schedule.shared if c.core == core.core), core)
-                runs = self.schedule.subchains
-            period_start = start
-            for slot in core.slots:
-                switch_at = period_start + slot.start_ms - core.switch_ms  # the switch is budgeted before the slice
-                self._sleep_until(switch_at)
-                if self.stopping.is_set() or generation != self.generation:
-                    break
-                late = self._late_on(core, runs)
-                owner = slot_owner(slot, core, runs, late)
-                if owner != slot.subchain:
-                    self.states[owner].steals += 1
-                self._raise(core.core, owner)
-                if triggers_at_slot(runs[slot.subchain], period_index):
-                    self._trigger_head(runs[slot.subchain])
-                self.switches.setdefault(core.core, deque(maxlen=SWITCH_SAMPLES)).append(self.clock() - switch_at)
-                self._sleep_until(period_start + slot.start_ms + slot.length_ms)
-            if self.stopping.is_set():
-                break
-            self._raise(core.core, None)
-            start = period_start + core.period_ms
-            behind = self.clock() - start
-            if behind > core.period_ms:  # fell a whole period behind (e.g. suspended): resume from now
-                start += behind
-            self._sleep_until(start)
-            period_index += 1
-        self._raise(core.core, None)
-
-    def _late_on(self, core: CoreSchedule, runs: Mapping[str, SubchainRun]) -> set[str]:
-        now = self.clock()
-        late = set()
-        with self.lock:
-            for slot in core.slots:
-                if is_late(self.states[slot.subchain].oldest_ms(), now, runs[slot.subchain]):
-                    late.add(slot.subchain)
-        return late
-
-    def _raise(self, core: int, owner: str | None) -> None:
-        """Put the previous owner of ``core`` back to FIFO 1 and raise ``owner`` to FIFO 2."""
-        if not self.rt:
-            return
-        with self.lock:
-            previous = self.raised.get(core)
-            if previous == owner:
-                return
-            self.raised[core] = owner
-            resting = node_priority(self.schedule.subchains.get(previous or ""))
-            for name, level in ((previous, resting), (owner, RUNNING_FIFO)):
-                if name is None or name not in self.schedule.subchains:
-                    continue
-                for node in self.schedule.subchains[name].nodes:
-                    for endpoint in list(self.endpoints.get(node, [])):
-                        try:
-                            set_fifo(endpoint.tid, level)
-                        except ThreadGone:
-                            self._gone(endpoint)
-
-    def _sleep_until(self, when_ms: float) -> None:
-        """Sleep until ``when_ms``, looking at least every 50 ms whether the run stops (so no slot outlives it).
-
-        ``time.sleep`` rather than ``Event.wait``: a slot switch is the enforcer's most frequent
-        wake-up, and a plain sleep costs a quarter less CPU per wake (no lock made and waited on).
-        """
-        delay = when_ms - self.clock()
-        while delay > 0 and not self.stopping.is_set():
-            time.sleep(min(delay, STOP_CHECK_MS) / 1000.0)
-            delay = when_ms - self.clock()
-
-    def _raise_self(self, cpus: frozenset[int] | None) -> None:
-        """The calling enforcer thread: FIFO 4 (with RT), pinned to ``cpus`` if given."""
-        if threading.current_thread() is not threading.main_thread():  # the main thread's name is the process's
-            name_thread(threading.current_thread().name)
+    def _raise_self(self, pin: int | None) -> None:
+        """The calling thread: remembered (the watchdog restores it too), FIFO 4 with RT, pinned to plan core
+        ``pin`` if given."""
         tid = threading.get_native_id()
-        if cpus is not None:
-            os.sched_setaffinity(tid, cpus)
+        self.restorer.remember(tid)
+        if pin is not None:
+            os.sched_setaffinity(tid, self.cpus_of([pin]))
         if self.rt:  # processes it starts (--demo workers) must not inherit FIFO 4: reset on fork
             os.sched_setscheduler(tid, os.SCHED_FIFO | os.SCHED_RESET_ON_FORK, os.sched_param(ENFORCER_FIFO))
 
-    # ------------------------------------------------------------------ re-optimising
+    def _watchdog_fd(self) -> int | None:
+        watchdog = self.restorer.watchdog
+        if watchdog is None or watchdog.pid is None:
+            return None
+        try:
+            return os.pidfd_open(watchdog.pid)
+        except OSError:
+            self._watchdog_died()
+            return None
 
-    def _reoptimiser(self) -> None:
-        name_thread(threading.current_thread().name)
-        if self.rt:  # started by the FIFO-4 main thread: back to SCHED_OTHER (catan-model section 6)
-            os.sched_setscheduler(threading.get_native_id(), os.SCHED_OTHER, os.sched_param(0))
-        runtime = self.spec.runtime
-        begin = time.monotonic()
-        next_stage2 = begin + runtime.first_solve_after_s
-        next_stage1 = begin + runtime.first_solve_after_s + runtime.stage1_every_s
-        next_cpu_check = begin + CPU_WATCH_S
-        known_cpus = allowed_cpus()
-        while not self.stopping.wait(0.05):
-            now = time.monotonic()
-            cores = None
-            if self.requested_cores is not None:
-                cores, self.requested_cores = self.requested_cores, None
-            moved = False
-            if now >= next_cpu_check:
-                next_cpu_check = now + CPU_WATCH_S
-                cpus = allowed_cpus()
-                if cpus != known_cpus:
-                    known_cpus, moved = cpus, True
-                    self.cpu_ids = sorted(cpus)
-                    cores = len(cpus)
-            if cores is not None:
-                cores = self._fit_cores(cores)
-            if cores is not None and cores != self.schedule.cores:
-                self._replan(stage1=True, cores=cores, reason="cores")
-                next_stage1 = now + runtime.stage1_every_s
-            elif moved:  # as many CPUs, but others: the same plan, pinned to them
-                with self.lock:
-                    self._repin_locked()
-                self._start_core_schedulers()
-                self._log("repin", cpus=self.cpu_ids)
-            elif now >= next_stage1:
-                self._replan(stage1=True, cores=None, reason="stage1")
-                next_stage1 = now + runtime.stage1_every_s
-                next_stage2 = now + runtime.stage2_every_s
-            elif now >= next_stage2:
-                self._replan(stage1=False, cores=None, reason="stage2")
-                next_stage2 = now + runtime.stage2_every_s
-
-    def _fit_cores(self, cores: int) -> int:
-        """``cores``, or fewer if this process may use fewer CPUs: two plan cores never share one CPU."""
-        if cores <= len(self.cpu_ids):
-            return cores
-        self._note(
-            f"planning for {len(self.cpu_ids)} core(s), not {cores}: this process may use only CPUs {self.cpu_ids}"
-        )
-        return len(self.cpu_ids)
-
-    def _repin_locked(self) -> None:
-        """Stop the core schedulers (they restart with :meth:`_start_core_schedulers`) and re-pin every node thread.
-
-        Call with ``self.lock`` held, in the same hold as the schedule change, so no scheduler
-        runs a new schedule under an old generation.
-        """
-        self.generation += 1
-        self.raised.clear()
-        for endpoints in self.endpoints.values():
-            for endpoint in endpoints:
-                self._place(endpoint)
-
-    def _replan(self, *, stage1: bool, cores: int | None, reason: str) -> None:
-        # Nodes not measured yet keep the planner's current time (bootstrap or the spec's).
-        estimates = self.measurements.estimates(measured_only=True)
-        answer = self.planner.ask(Request("reallocate" if stage1 else "resolve", estimates, cores))
-        self.last_resolve_s = self.elapsed_s()
-        if answer.error is not None:
-            self._note(f"re-plan failed, keeping the last plan: {answer.error}")
-        with self.lock:
-            changed = answer.layout != self.answer.layout
-            self.answer = answer
-            self.schedule = answer.schedule
-            for name in self.schedule.subchains:
-                self.states.setdefault(name, SubchainState())
-            if changed:
-                self._repin_locked()
-        if changed:
-            self._start_core_schedulers()
-        self._log(
-            "resolve",
-            reason=reason,
-            stage1=stage1,
-            allocation_changed=changed,
-            solve_ms=round(answer.solve_ms, 3),
-            error=answer.error,
-            compute_ms={k: round(v, 3) for k, v in sorted(estimates.items())},
-            plan=answer.summary,
-        )
+    def _watchdog_died(self, why: str = "") -> None:
+        """The watchdog is gone: put every thread back now and stop (a SIGKILL would leave them raised)."""
+        report = self.restorer.restore_all()
+        message = "the watchdog process died: every thread was put back and the run stopped"
+        self._note(message)
+        self._log("watchdog", restored=len(report.restored), why=why or "exited")
+        self.failure = WatchdogLostError(message + (f" ({why})" if why else ""))
+        self.stop()
 
     # ------------------------------------------------------------------ observing
 
@@ -719,47 +589,45 @@ class Enforcer:
         return (self.clock() - self.started_ms) / 1000.0
 
     def status(self) -> dict[str, Any]:
-        """Per subchain: planned and measured rate, p95 compute, late, lost, steals; for the live view and the log."""
-        estimates = self.measurements.estimates()
-        rows = {}
-        with self.lock:
-            for name, run in sorted(self.schedule.subchains.items()):
-                state = self.states[name]
-                periods = state.periods_ms
-                measured = 1000.0 * len(periods) / sum(periods) if periods and sum(periods) > 0 else None
-                rows[name] = {
-                    "planned_hz": round(1000.0 / run.period_ms, 3),
-                    "measured_hz": None if measured is None else round(measured, 3),
-                    "compute_p95_ms": round(sum(estimates.get(node, 0.0) for node in run.nodes), 3),
-                    "late": state.late,
-                    "lost": state.lost,
-                    "steals": state.steals,
-                    "skipped": state.skipped,
-                    "registered": all(self.endpoints.get(node) for node in run.nodes),
-                }
-        since = None if self.last_resolve_s is None else self.elapsed_s() - self.last_resolve_s
-        switches = {}
-        for core, samples in sorted(self.switches.items()):
-            if samples:
-                switches[str(core)] = {
-                    "p50_ms": round(percentile(samples, 50), 4),
-                    "p95_ms": round(percentile(samples, 95), 4),
-                    "max_ms": round(max(samples), 4),
-                }
+        """Per subchain: planned and measured rate, p95 compute, late, lost, steals; the enforcer's costs."""
+        last = self.replanning.last_resolve_s
+        since = None if last is None else self.elapsed_s() - last
+        costs = self.costs.summary(self.schedule.cores)
         return {
-            "subchains": rows,
-            "last_resolve_s": self.last_resolve_s,
+            "subchains": status_rows(self.schedule, self.book, self.measurements, self.registry, self.clock()),
+            "last_resolve_s": last,
             "since_resolve_s": since,
-            "switches": switches,
+            "switches": costs["switch_by_core"],
+            "costs": costs,
         }
 
     def _note(self, text: str) -> None:
         self.events = [*self.events[-9:], text]
 
+    def _note_throttled(self, kind: str, text: str) -> None:
+        """A note (and a log line) at most once a second per kind, saying how many were left out."""
+        suppressed = self.throttle.due(kind, self.clock())
+        if suppressed is None:
+            return
+        more = f" (and {suppressed} more like it)" if suppressed else ""
+        self._note(text + more)
+        self._log("dropped", kind=kind, text=text, more=suppressed)
+
     def _log(self, event: str, **fields: Any) -> None:
         if self.log is not None:
             self.log.write(event, (self.clock() - self.started_ms) / 1000.0, fields)
 
-    def _sample(self, event: str, key: str, values: tuple[Any, ...]) -> None:
+    def _sample(self, event: str, at_ms: float, key: str, values: tuple[Any, ...]) -> None:
         if self.log is not None:
-            self.log.sample(event, (self.clock() - self.started_ms) / 1000.0, key, values)
+            self.log.sample(event, (at_ms - self.started_ms) / 1000.0, key, values)
+
+    def attach(self, node: str, pid: int, tids: list[int]) -> None:
+        """Pin and prioritise the threads of a process that does not speak the protocol, as ``node``'s (the loop
+        does it, at once)."""
+        self.attaching.append((node, pid, list(tids)))
+        with contextlib.suppress(OSError):
+            os.write(self._wake_w, b"a")
+
+
+def _layout(schedule: RuntimeSchedule) -> tuple[tuple[str, tuple[int, ...], bool], ...]:
+    return tuple((name, run.cores, run.shared) for name, run in sorted(schedule.subchains.items()))

@@ -17,12 +17,17 @@ expands batches back into single events.
 
 from __future__ import annotations
 
+import errno
 import json
+import os
+import stat
 import threading
 from collections import deque
 from pathlib import Path
 from types import TracebackType
 from typing import IO, Any
+
+from catanc.errors import CatancError, ExitCode
 
 BATCHED: dict[str, tuple[str, tuple[tuple[str, int | None], ...]]] = {
     "compute": ("node", (("ms", 4), ("reported_ms", None), ("kernel_ms", 4))),
@@ -32,12 +37,18 @@ BATCHED: dict[str, tuple[str, tuple[tuple[str, int | None], ...]]] = {
 BATCH_SUFFIX = "_batch"
 
 
+class LogError(CatancError):
+    """The log cannot be written where asked (a link, not a regular file, no permission)."""
+
+    exit_code = ExitCode.BAD_INPUT
+
+
 class RunLog:
     """Appends events to a file; safe to call from every enforcer thread."""
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
-        self._file: IO[str] = self.path.open("w", encoding="utf-8")  # one log per run
+        self._file: IO[str] = open_log(self.path)  # one log per run
         self._lock = threading.Lock()
         self._samples: deque[tuple[str, float, str, tuple[Any, ...]]] = deque()
 
@@ -68,6 +79,46 @@ class RunLog:
         self, kind: type[BaseException] | None, value: BaseException | None, traceback: TracebackType | None
     ) -> None:
         self.close()
+
+
+def open_log(path: Path) -> IO[str]:
+    """``path`` opened for writing, emptied, refusing a link (root must not overwrite a planted link's target)
+    and anything that is not a regular file (a FIFO would block, a device would not be a log)."""
+    flags = os.O_WRONLY | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC | os.O_NONBLOCK
+    try:
+        fd = os.open(path, flags, 0o644)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise LogError(f"{path}: is a symbolic link; refusing to write the log through it") from None
+        raise LogError(f"{path}: cannot write the log: {exc.strerror or exc}") from None
+    try:
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode):
+            raise LogError(f"{path}: not a regular file; refusing to write the log there")
+        os.set_blocking(fd, True)
+        os.ftruncate(fd, 0)
+        return os.fdopen(fd, "w", encoding="utf-8")
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+class Throttle:
+    """At most one report a second per kind: :meth:`due` says when, and how many were left out meanwhile."""
+
+    def __init__(self, every_ms: float = 1000.0) -> None:
+        self.every_ms = every_ms
+        self._last: dict[str, float] = {}
+        self._left_out: dict[str, int] = {}
+
+    def due(self, kind: str, now_ms: float) -> int | None:
+        """None: leave this one out; else report it, with the count left out since the last report."""
+        last = self._last.get(kind)
+        if last is not None and now_ms - last < self.every_ms:
+            self._left_out[kind] = self._left_out.get(kind, 0) + 1
+            return None
+        self._last[kind] = now_ms
+        return self._left_out.pop(kind, 0)
 
 
 def _batch_lines(samples: deque[tuple[str, float, str, tuple[Any, ...]]]) -> list[str]:

@@ -22,6 +22,8 @@ What the numbers mean:
   last ``status`` or ``stop`` event (None when the log has neither).
 - Percentiles are :func:`catanc.runtime.measure.percentile`'s (linear
   interpolation), the same definition the enforcer plans with.
+- The enforcer's own costs (switch latency, hop delay, its CPU share) are
+  its own figures from the last ``status`` or ``stop`` event.
 """
 
 from __future__ import annotations
@@ -111,6 +113,26 @@ class ResolveSummary:
 
 
 @dataclass(frozen=True)
+class Quantiles:
+    """p50, p95 and the maximum of some milliseconds the enforcer measured itself."""
+
+    count: int
+    p50_ms: float
+    p95_ms: float
+    max_ms: float
+
+
+@dataclass(frozen=True)
+class CostsSummary:
+    """The enforcer's own costs, as its last ``status`` or ``stop`` event gives them."""
+
+    switch: Quantiles | None  # a boundary's due time to its owner raised and its head triggered
+    hop: Quantiles | None  # a node's end (or a trigger) to the next node's start
+    share: float | None  # the enforcer's CPU share of the core its loop runs on
+    cpu_per_wake_ms: float | None
+
+
+@dataclass(frozen=True)
 class RunSummary:
     length_s: float
     cores: int | None  # from the ``start`` event
@@ -119,6 +141,7 @@ class RunSummary:
     subchains: tuple[SubchainSummary, ...]  # sorted by name
     nodes: tuple[NodeSummary, ...]  # sorted by name
     resolves: tuple[ResolveSummary, ...]  # in time order
+    costs: CostsSummary | None = None  # None: a log of a catanc that did not measure them
 
 
 def stats(samples: Sequence[float]) -> Stats | None:
@@ -154,6 +177,7 @@ def summarise(events: Iterable[Mapping[str, Any]]) -> RunSummary:
     counters: Mapping[str, Any] = {}  # subchain -> row of the last status or stop
     named: set[str] = set()
     resolves: list[ResolveSummary] = []
+    costs: CostsSummary | None = None
     for event in good:
         kind, t = event["event"], float(event["t"])
         if kind == "start":
@@ -190,6 +214,7 @@ def summarise(events: Iterable[Mapping[str, Any]]) -> RunSummary:
             row = event if kind == "status" else _mapping(event.get("summary"))
             counters = _mapping(row.get("subchains"))
             complete = complete or kind == "stop"
+            costs = _costs(_mapping(row.get("costs"))) or costs
     planned = _planned_rates(plans)
     last_plan = plans[-1][0] if plans else 0.0
     names = sorted(named | set(runs) | set(planned) | {str(name) for name in counters})
@@ -219,7 +244,29 @@ def summarise(events: Iterable[Mapping[str, Any]]) -> RunSummary:
             for node in sorted(samples)
         ),
         resolves=tuple(resolves),
+        costs=costs,
     )
+
+
+def _costs(row: Mapping[str, Any]) -> CostsSummary | None:
+    if not row:
+        return None
+    overhead = row.get("overhead")
+    shares = [share for share in overhead if _number(share) is not None] if isinstance(overhead, list) else []
+    return CostsSummary(
+        switch=_quantiles(_mapping(row.get("switch"))),
+        hop=_quantiles(_mapping(row.get("hop"))),
+        share=max(shares) if shares else None,
+        cpu_per_wake_ms=_number(row.get("cpu_per_wake_ms")),
+    )
+
+
+def _quantiles(row: Mapping[str, Any]) -> Quantiles | None:
+    p50, p95, top, count = (row.get(key) for key in ("p50_ms", "p95_ms", "max_ms", "count"))
+    numbers = [_number(p50), _number(p95), _number(top)]
+    if any(value is None for value in numbers) or _integer(count) is None:
+        return None
+    return Quantiles(int(count), *numbers)  # type: ignore[arg-type]
 
 
 def _subchain(
@@ -341,6 +388,7 @@ def summary_payload(summary: RunSummary) -> dict[str, Any]:
             node.name: {"compute_ms": _stats_json(node.compute), "unmeasured": node.unmeasured}
             for node in summary.nodes
         },
+        "costs": _costs_json(summary.costs),
         "resolves": [
             {
                 "t_s": _round(r.t_s),
@@ -353,6 +401,28 @@ def summary_payload(summary: RunSummary) -> dict[str, Any]:
             }
             for r in summary.resolves
         ],
+    }
+
+
+def _costs_json(costs: CostsSummary | None) -> dict[str, Any] | None:
+    if costs is None:
+        return None
+
+    def quantiles(value: Quantiles | None) -> dict[str, Any] | None:
+        if value is None:
+            return None
+        return {
+            "count": value.count,
+            "p50": _round(value.p50_ms, 4),
+            "p95": _round(value.p95_ms, 4),
+            "max": _round(value.max_ms, 4),
+        }
+
+    return {
+        "switch_ms": quantiles(costs.switch),
+        "hop_ms": quantiles(costs.hop),
+        "core_share": _round(costs.share, 5),
+        "cpu_per_wake_ms": _round(costs.cpu_per_wake_ms, 5),
     }
 
 
@@ -428,8 +498,11 @@ def render_summary(summary: RunSummary) -> tuple[Table, ...]:
             compute["max"],
             str(node.unmeasured),
         )
+    tables = [subchains, nodes]
+    if summary.costs is not None:
+        tables.append(_costs_table(summary.costs))
     if not summary.resolves:
-        return (subchains, nodes)
+        return tuple(tables)
     resolves = Table(title="re-plans", title_justify="left")
     for column in ("t s", "reason", "stage", "solve ms", "objective", "allocation changed", "error"):
         resolves.add_column(column, justify="left" if column in ("reason", "error") else "right")
@@ -443,7 +516,22 @@ def render_summary(summary: RunSummary) -> tuple[Table, ...]:
             "yes" if r.allocation_changed else "no",
             r.error or "",
         )
-    return (subchains, nodes, resolves)
+    return (*tables, resolves)
+
+
+def _costs_table(costs: CostsSummary) -> Table:
+    """The enforcer's own costs: switch latency, hop delay (a node's end to the next's start), its CPU."""
+    share = "-" if costs.share is None else f"{costs.share:.2%} of its core"
+    per_wake = "-" if costs.cpu_per_wake_ms is None else f"{1000 * costs.cpu_per_wake_ms:.0f} us per wake-up"
+    table = Table(title=f"the enforcer's own costs: {share}, {per_wake}", title_justify="left")
+    for column in ("ms", "samples", "p50", "p95", "max"):
+        table.add_column(column, justify="left" if column == "ms" else "right")
+    for label, value in (("switch latency", costs.switch), ("hop delay", costs.hop)):
+        if value is None:
+            table.add_row(label, "0", "-", "-", "-")
+        else:
+            table.add_row(label, str(value.count), f"{value.p50_ms:.3f}", f"{value.p95_ms:.3f}", f"{value.max_ms:.3f}")
+    return table
 
 
 # --------------------------------------------------------------------------- the plot

@@ -24,7 +24,7 @@ from typing import Any, Literal
 from catanc.control.schedule import RuntimeSchedule
 from catanc.errors import UsageError
 
-Kind = Literal["resolve", "reallocate"]
+Kind = Literal["resolve", "reallocate", "reconfigure"]
 
 
 @dataclass(frozen=True)
@@ -32,6 +32,8 @@ class Request:
     kind: Kind
     compute_ms: dict[str, float]  # new compute times for scheduled nodes (empty: keep)
     cores: int | None = None
+    reason: str = ""  # why it is asked (for the log): stage1, stage2, cores, costs
+    costs: tuple[float, float] | None = None  # reconfigure: plan with this (switch_ms, slack) from now on
 
 
 @dataclass(frozen=True)
@@ -67,9 +69,21 @@ class PlannerProcess:
         self.initial: Answer = first
 
     def ask(self, request: Request) -> Answer:
+        """Send ``request`` and wait for its answer."""
+        self.send(request)
+        return self.receive()
+
+    def send(self, request: Request) -> None:
+        """Send ``request``; its answer is read with :meth:`receive` once :meth:`fileno` is readable."""
         self._conn.send(request)
+
+    def receive(self) -> Answer:
         answer: Answer = self._conn.recv()
         return answer
+
+    def fileno(self) -> int:
+        """The connection's descriptor: readable when an answer waits (for ``select``)."""
+        return self._conn.fileno()
 
     def close(self) -> None:
         with contextlib.suppress(OSError):  # the child may be gone already
@@ -110,6 +124,14 @@ def serve(conn: Connection) -> None:
         try:
             if request.kind == "resolve":
                 replanner.resolve(request.compute_ms)
+            elif request.kind == "reconfigure" and request.costs is not None:
+                # The runtime's own costs, measured: a Replanner of its own (its models hold switch_ms and slack).
+                switch_ms, slack = request.costs
+                schedule = spec.schedule.model_copy(update={"switch_ms": switch_ms, "slack": slack})
+                raised = spec.model_copy(update={"schedule": schedule})
+                fresh = Replanner(raised, replanner.plan.cores)
+                fresh.reallocate(request.compute_ms or None)
+                spec, replanner = raised, fresh
             else:
                 replanner.reallocate(request.compute_ms or None, cores=request.cores)
         except Exception as exc:  # a bad measurement must not end the run: keep the last plan
@@ -128,6 +150,8 @@ def _answer(replanner: Any, spec: Any, began: float, error: str | None = None) -
         summary={
             "objective": round(plan.objective, 6),
             "cores": plan.cores,
+            "switch_ms": spec.schedule.switch_ms,
+            "slack": spec.schedule.slack,
             "subchains": {
                 name: {"cores": list(sub.cores), "shared": sub.shared, "period_ms": round(sub.period_ms, 6)}
                 for name, sub in sorted(plan.subchains.items())

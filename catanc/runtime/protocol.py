@@ -1,83 +1,130 @@
-"""The trigger protocol between ``catanc run`` (the enforcer) and app nodes.
+"""The trigger protocol between ``catanc run`` (the enforcer) and app nodes, version ``catanc/2``.
 
-App nodes know nothing about cores or rates: a node thread registers, waits
-for its trigger, runs once, and reports completion.  The enforcer decides
-when each node runs and on which cores its thread may run.
+This docstring is the protocol's reference: a client in any language that follows it is a
+catanc node.  :mod:`catanc.client` is the Python client (standard library only).
 
-Transport: Unix datagram sockets (``AF_UNIX``, ``SOCK_DGRAM``), one JSON
-object per datagram, UTF-8, at most :data:`MAX_DATAGRAM` bytes, always with
-``"v": 1`` and a ``"type"``.  The enforcer binds a socket at a filesystem
-path and passes it to nodes in the environment variable ``CATANC_SOCKET``.
-Each node thread binds its own socket with Linux autobind (``bind("")``: a
-unique abstract address), so the enforcer answers the datagram's sender.
+Sockets
+=======
+Unix datagram sockets (``AF_UNIX``, ``SOCK_DGRAM``).  The enforcer binds its socket at a
+filesystem path and gives it to the nodes it starts in ``$CATANC_SOCKET``.  Each node thread
+makes its own socket and binds it with Linux autobind (``bind`` with an empty address, i.e.
+``addrlen = sizeof(sa_family_t)``): the kernel gives it a unique abstract address, which the
+enforcer answers and tells other nodes.  A node never ``connect``s: it receives from the
+enforcer *and* from its predecessor in its subchain.
 
-Messages (JSON on the wire; the dataclasses below)::
+Datagrams
+=========
+One message per datagram, ASCII text, at most :data:`MAX_DATAGRAM` bytes, no trailing newline:
+words separated by one space, the first always ``catanc/2`` (the protocol and its version).
+Node names are identifiers (``[A-Za-z_][A-Za-z0-9_]*``, at most :data:`MAX_NAME` characters);
+numbers are decimal integers; an address is the hexadecimal of a socket's ``sun_path`` bytes as
+``getsockname`` returns them (an autobound one is a NUL and five hex digits, so ``003030306131``
+for ``"\\0""000a1"``); ``-`` stands for "none".  Unknown message types are
+ignored by both sides (so later versions may add some); a datagram whose first word is not
+``catanc/2`` is not for this version.
 
-    node -> enforcer   {"v":1,"type":"hello","node":"LM","pid":4242,"tid":4245}
-                       {"v":1,"type":"done","node":"LM","tid":4245,"seq":17,"compute_ms":3.2}
-                       {"v":1,"type":"bye","node":"LM","tid":4245}
-    enforcer -> node   {"v":1,"type":"welcome","node":"LM"}
-                       {"v":1,"type":"trigger","node":"LM","seq":17,"threads":1}
-                       {"v":1,"type":"reject","node":"LM","reason":"unknown node 'LM'"}
-                       {"v":1,"type":"stop"}
-    anyone -> enforcer {"v":1,"type":"set_cores","cores":3}
+Node -> enforcer (sent to the path in ``$CATANC_SOCKET``)::
 
-``compute_ms`` may be ``null`` (the node does not measure itself).  A
-trigger's ``threads`` (optional, 1 when absent) is how many threads the plan
-gives the run: a multi-threaded node spreads its work over that many and
-reports the run's time; the enforcer multiplies it by the spec's speedup for
-those threads to get back the one-thread time the planner budgets.  Field
-rules, checked when a message is built or decoded: node names are 1 to
-:data:`MAX_NAME` printable characters; ``pid``, ``tid`` and ``cores`` are
-positive integers (``threads`` too) and ``seq`` a non-negative one (all below 2**63);
-``compute_ms`` is a finite number >= 0 or null; a reject's ``reason`` is
-shortened so that the datagram fits.  Unknown fields are refused: a change
-of shape is a new version.
+    catanc/2 hello NODE PID TID       thread TID of process PID registers as NODE
+    catanc/2 bye NODE TID             the thread leaves NODE (it takes no more triggers)
+    catanc/2 done NODE TID SEQ        run SEQ is over; only when the route asks for it (NOTIFY 1)
 
-Only the standard library is used here: :mod:`catanc.client`, which app
-nodes import, builds on this module.
+Anyone -> enforcer: ``catanc/2 set_cores N`` (plan for N cores; only root or the enforcer's
+user may).
+
+Enforcer -> node (each from the node's own *enforcer address*, the sender of its welcome)::
+
+    catanc/2 welcome NODE SLOTS       registered; carries the node's ring (SCM_RIGHTS, one fd)
+    catanc/2 route NODE NOTIFY NEXT NEXT_THREADS NEXT_ADDR PREV_ADDR
+    catanc/2 trigger NODE SEQ THREADS run once now, on THREADS threads (run SEQ of its subchain)
+    catanc/2 reject NODE REASON...    refused (registration) or dropped; REASON is the rest
+    catanc/2 stop                     the enforcer ends: leave the trigger loop
+
+Node -> node: when a run ends, the node sends ``catanc/2 trigger NEXT SEQ NEXT_THREADS`` to
+``NEXT_ADDR`` (its route's), with the run's SEQ: only the head of a subchain is triggered by the
+enforcer; each later node is woken by the one before it.  A node accepts triggers from its
+enforcer address and from its route's ``PREV_ADDR`` only, and everything else from its enforcer
+address only (a reject may come from the enforcer's path, before the welcome).  It sends every
+datagram with ``MSG_DONTWAIT`` and carries on if a send fails.
+
+A route arrives after the welcome and again whenever it changes (a neighbour registers or
+leaves).  ``NOTIFY`` 1 asks the node to send ``done`` after each run (a driver that triggers
+every node itself, as ``catanc bench``'s baselines do); ``catanc run`` says 0: completions
+reach it through the ring alone, without a wake-up per run.
+
+The ring
+========
+Each registration gets a ring: a sealed ``memfd`` (it can neither grow nor shrink) passed with
+the welcome, ``mmap``-ed read-write by the node, read-only by the enforcer.  The node appends
+one entry per run, which the enforcer reads at its slot switches.  Host byte order, naturally
+aligned: :mod:`catanc.runtime.ring` holds the layout (header, then ``SLOTS`` entries).
+
+A client, step by step
+======================
+1. ``socket(AF_UNIX, SOCK_DGRAM)``, autobind it, and from the thread that will run the node's
+   work, ``sendto`` the path in ``$CATANC_SOCKET``: ``catanc/2 hello NODE PID TID`` (``getpid()``,
+   ``gettid()``).
+2. ``recvmsg`` with room for one descriptor (``CMSG_SPACE(sizeof(int))``).  A ``welcome`` for
+   NODE with one ``SCM_RIGHTS`` fd: ``mmap`` the fd (``64 + SLOTS * 48`` bytes, read-write,
+   shared), close it, and remember the datagram's sender as the enforcer address.  A ``reject``
+   for NODE: registration failed, for the reason given.
+3. Loop on ``recvfrom``: keep the latest ``route`` (from the enforcer address); on a ``trigger``
+   for NODE (from the enforcer address or the route's ``PREV_ADDR``) note ``CLOCK_MONOTONIC``
+   and ``CLOCK_THREAD_CPUTIME_ID``, run, then read what waits in the socket without blocking
+   (a newer route, a stop), send the next node its trigger (``NEXT_ADDR``, the run's SEQ,
+   ``NEXT_THREADS``), append the run to the ring, and send ``done`` if the route says
+   ``NOTIFY 1``.  On ``stop``, leave the loop (its last run is still appended).
+4. A node no trigger starts (a subscription callback) appends a ring entry with SEQ 0 per run.
+5. Leaving on its own, send ``catanc/2 bye NODE TID``.  While waiting, check every second or so
+   that the path still names a socket that takes datagrams: if not, the enforcer is gone.
+
+Limits the enforcer applies
+===========================
+A hello is answered only if its sender may register: the credentials the kernel attaches
+(``SO_PASSCRED``) must be root's, the enforcer's user's, or those of the owner of process
+``PID``, and ``TID`` must be a thread of ``PID``.  One registration per (node, thread): a second
+hello replaces the first.  At most :data:`MAX_THREADS_PER_NODE` threads per node, and
+registrations are rate-limited.  Anything else from a peer that is not registered is dropped
+unanswered.
+
+Only the standard library is used here.
 """
 
 from __future__ import annotations
 
-import errno
-import functools
-import json
-import logging
-import math
-import os
-import socket
-import stat
-import time
-from dataclasses import MISSING, dataclass, fields
-from pathlib import Path
-from types import TracebackType
-from typing import Any, ClassVar, Self
+import re
+from dataclasses import dataclass
+from typing import ClassVar
 
 from catanc.errors import CatancError, ExitCode
 
-VERSION = 1
-"""The protocol version every message carries as ``"v"``."""
+PROTOCOL = b"catanc/2"
+"""The first word of every datagram: the protocol's name and version."""
+
+VERSION = 2
 
 SOCKET_ENV = "CATANC_SOCKET"
 """The environment variable naming the enforcer's socket path."""
 
-MAX_DATAGRAM = 1024
+MAX_DATAGRAM = 512
 """The largest datagram, in bytes, that is sent or accepted."""
 
 MAX_NAME = 128
 """The longest node name, in characters."""
 
-STOP_GRACE_S = 2.0
-"""After a Stop, how long the enforcer keeps its socket open for the done messages of runs still
-going: a node in the middle of a run when the run ends reports it before its loop ends."""
+MAX_THREADS_PER_NODE = 16
+"""Threads that may register as one node at a time (a further one is rejected)."""
 
+STOP_GRACE_S = 2.0
+"""After a stop, how long the enforcer keeps its socket open for the runs still going: a node in
+the middle of one finishes and reports it before its loop ends."""
+
+NAME_RE = re.compile(rb"[A-Za-z_][A-Za-z0-9_]{0,127}")
+ADDRESS_RE = re.compile(rb"(?:[0-9a-f]{2}){1,108}")
 _MAX_INT = 2**63 - 1
 
-Address = str | bytes | None
-"""A datagram sender: a path, an abstract address (bytes), or None for an unbound socket (cannot be answered)."""
-
-log = logging.getLogger(__name__)
+Address = str | bytes
+"""A socket address: a path, or an abstract address (bytes starting with NUL)."""
 
 
 class ProtocolError(CatancError, ValueError):
@@ -86,46 +133,56 @@ class ProtocolError(CatancError, ValueError):
     exit_code = ExitCode.BAD_INPUT
 
 
-class SocketPathError(CatancError):
-    """The enforcer's socket cannot be bound at the given path."""
-
-    exit_code = ExitCode.BAD_INPUT
-
-
-def _show(value: object) -> str:
+def _show(value: bytes | str) -> str:
     text = repr(value)
     return text if len(text) <= 40 else text[:37] + "..."
 
 
-def _check_name(kind: str, value: object) -> str:
-    if not isinstance(value, str) or not 1 <= len(value) <= MAX_NAME or not value.isprintable():
-        raise ProtocolError(f"{kind}.node: a node name is 1 to {MAX_NAME} printable characters, got {_show(value)}")
+def check_name(value: str) -> str:
+    """``value`` if it is a node name the protocol carries; :class:`ProtocolError` otherwise."""
+    if not isinstance(value, str) or not NAME_RE.fullmatch(value.encode("utf-8", "replace")):
+        raise ProtocolError(f"a node name is an identifier of 1 to {MAX_NAME} characters, got {_show(value)}")
     return value
 
 
-def _check_int(kind: str, field: str, value: object, minimum: int) -> int:
+def _check_int(field: str, value: int, minimum: int) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or not minimum <= value <= _MAX_INT:
         what = "a positive" if minimum > 0 else "a non-negative"
-        raise ProtocolError(f"{kind}.{field}: expected {what} integer, got {_show(value)}")
+        raise ProtocolError(f"{field}: expected {what} integer, got {value!r}")
     return value
+
+
+def format_address(address: Address | None) -> str:
+    """An address as the protocol writes it: the hex of its bytes, ``-`` for none."""
+    if address is None:
+        return "-"
+    raw = address.encode() if isinstance(address, str) else bytes(address)
+    return raw.hex() if raw else "-"
+
+
+def parse_address(text: str) -> bytes | None:
+    """:func:`format_address` undone; :class:`ProtocolError` for a malformed one."""
+    if text == "-":
+        return None
+    if not ADDRESS_RE.fullmatch(text.encode("ascii", "replace")):
+        raise ProtocolError(f"an address is hex digits (pairs) or '-', got {_show(text)}")
+    return bytes.fromhex(text)
+
+
+# --------------------------------------------------------------------------- messages
 
 
 @dataclass(frozen=True)
 class _Message:
     TYPE: ClassVar[str] = ""
+    FIELDS: ClassVar[tuple[str, ...]] = ()
 
-    def _body(self) -> dict[str, Any]:
-        body: dict[str, Any] = {"v": VERSION, "type": self.TYPE}
-        for name in FIELD_NAMES[self.TYPE]:
-            body[name] = getattr(self, name)
-        return body
-
-    def _raw(self) -> bytes:
-        return json.dumps(self._body(), ensure_ascii=False, separators=(",", ":"), allow_nan=False).encode("utf-8")
+    def words(self) -> list[str]:
+        return [str(getattr(self, name)) for name in self.FIELDS]
 
     def encode(self) -> bytes:
-        """This message as one datagram (compact JSON, UTF-8)."""
-        data = self._raw()
+        """This message as one datagram."""
+        data = b" ".join([PROTOCOL, self.TYPE.encode(), *(word.encode("utf-8") for word in self.words())])
         if len(data) > MAX_DATAGRAM:  # pragma: no cover - field checks keep every message smaller
             raise ProtocolError(f"{self.TYPE}: {len(data)} bytes encoded; a datagram holds at most {MAX_DATAGRAM}")
         return data
@@ -136,36 +193,15 @@ class Hello(_Message):
     """Node -> enforcer: thread ``tid`` of process ``pid`` registers as DAG node ``node``."""
 
     TYPE: ClassVar[str] = "hello"
+    FIELDS: ClassVar[tuple[str, ...]] = ("node", "pid", "tid")
     node: str
     pid: int
     tid: int
 
     def __post_init__(self) -> None:
-        _check_name(self.TYPE, self.node)
-        _check_int(self.TYPE, "pid", self.pid, 1)
-        _check_int(self.TYPE, "tid", self.tid, 1)
-
-
-@dataclass(frozen=True)
-class Done(_Message):
-    """Node -> enforcer: finished the run triggered with ``seq``; ``compute_ms`` is the node's own measurement."""
-
-    TYPE: ClassVar[str] = "done"
-    node: str
-    tid: int
-    seq: int
-    compute_ms: float | None
-
-    def __post_init__(self) -> None:
-        _check_name(self.TYPE, self.node)
-        _check_int(self.TYPE, "tid", self.tid, 1)
-        _check_int(self.TYPE, "seq", self.seq, 0)
-        value: object = self.compute_ms
-        if value is None:
-            return
-        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or value < 0:
-            raise ProtocolError(f"done.compute_ms: expected a finite number >= 0 or null, got {_show(value)}")
-        object.__setattr__(self, "compute_ms", float(value))
+        check_name(self.node)
+        _check_int("hello.pid", self.pid, 1)
+        _check_int("hello.tid", self.tid, 1)
 
 
 @dataclass(frozen=True)
@@ -173,90 +209,123 @@ class Bye(_Message):
     """Node -> enforcer: the thread leaves (it will not answer triggers any more)."""
 
     TYPE: ClassVar[str] = "bye"
+    FIELDS: ClassVar[tuple[str, ...]] = ("node", "tid")
     node: str
     tid: int
 
     def __post_init__(self) -> None:
-        _check_name(self.TYPE, self.node)
-        _check_int(self.TYPE, "tid", self.tid, 1)
+        check_name(self.node)
+        _check_int("bye.tid", self.tid, 1)
+
+
+@dataclass(frozen=True)
+class Done(_Message):
+    """Node -> enforcer: run ``seq`` is over (sent only when the route asks for it)."""
+
+    TYPE: ClassVar[str] = "done"
+    FIELDS: ClassVar[tuple[str, ...]] = ("node", "tid", "seq")
+    node: str
+    tid: int
+    seq: int
+
+    def __post_init__(self) -> None:
+        check_name(self.node)
+        _check_int("done.tid", self.tid, 1)
+        _check_int("done.seq", self.seq, 0)
+
+
+@dataclass(frozen=True)
+class SetCores(_Message):
+    """Control -> enforcer: plan for ``cores`` cores from now on."""
+
+    TYPE: ClassVar[str] = "set_cores"
+    FIELDS: ClassVar[tuple[str, ...]] = ("cores",)
+    cores: int
+
+    def __post_init__(self) -> None:
+        _check_int("set_cores.cores", self.cores, 1)
 
 
 @dataclass(frozen=True)
 class Welcome(_Message):
-    """Enforcer -> node: the registration of ``node`` is accepted."""
+    """Enforcer -> node: registered; the datagram carries the node's ring (``slots`` entries) as an fd."""
 
     TYPE: ClassVar[str] = "welcome"
+    FIELDS: ClassVar[tuple[str, ...]] = ("node", "slots")
     node: str
+    slots: int
 
     def __post_init__(self) -> None:
-        _check_name(self.TYPE, self.node)
+        check_name(self.node)
+        _check_int("welcome.slots", self.slots, 1)
+
+
+@dataclass(frozen=True)
+class Route(_Message):
+    """Enforcer -> node: where its runs go next (``next_node`` at ``next_address`` on ``next_threads`` threads),
+    who may trigger it besides the enforcer (``prev_address``), and whether to send ``done`` after each run."""
+
+    TYPE: ClassVar[str] = "route"
+    FIELDS: ClassVar[tuple[str, ...]] = ("node", "notify", "next_node", "next_threads", "next_address", "prev_address")
+    node: str
+    notify: bool = False
+    next_node: str | None = None
+    next_threads: int = 1
+    next_address: bytes | None = None
+    prev_address: bytes | None = None
+
+    def __post_init__(self) -> None:
+        check_name(self.node)
+        if self.next_node is not None:
+            check_name(self.next_node)
+        _check_int("route.next_threads", self.next_threads, 1)
+        if (self.next_node is None) != (self.next_address is None):
+            raise ProtocolError("route: a next node and its address go together")
+
+    def words(self) -> list[str]:
+        return [
+            self.node,
+            "1" if self.notify else "0",
+            self.next_node or "-",
+            str(self.next_threads),
+            format_address(self.next_address),
+            format_address(self.prev_address),
+        ]
 
 
 @dataclass(frozen=True)
 class Trigger(_Message):
-    """Enforcer -> node: run once now; answer with a :class:`Done` carrying the same ``seq``.
-
-    ``threads`` is how many threads the plan gives this run (Eq. 1's q, where the node's
-    speedup gains from more than one; optional in a datagram, 1 when absent).
-    """
+    """Enforcer (or the previous node) -> node: run once now, as run ``seq`` of its subchain, on ``threads`` threads."""
 
     TYPE: ClassVar[str] = "trigger"
+    FIELDS: ClassVar[tuple[str, ...]] = ("node", "seq", "threads")
     node: str
     seq: int
     threads: int = 1
 
     def __post_init__(self) -> None:
-        _check_name(self.TYPE, self.node)
-        _check_int(self.TYPE, "seq", self.seq, 0)
-        _check_int(self.TYPE, "threads", self.threads, 1)
-
-
-@functools.lru_cache(maxsize=1024)  # an app has tens of nodes
-def _trigger_parts(node: str, threads: int) -> tuple[bytes, bytes]:
-    """A trigger's bytes before and after its ``seq``, made once per node and thread count."""
-    probe = json.dumps(
-        {"v": VERSION, "type": Trigger.TYPE, "node": node, "seq": 0, "threads": threads},
-        ensure_ascii=False,
-        separators=(",", ":"),
-    ).encode("utf-8")
-    before, after = probe.rsplit(b'"seq":0,', 1)
-    return before + b'"seq":', b"," + after
-
-
-def trigger_datagram(node: str, seq: int, threads: int = 1) -> bytes:
-    """``Trigger(node, seq, threads).encode()`` without building a message or JSON per call.
-
-    The enforcer sends hundreds of triggers a second, and encoding each through ``json``
-    was a tenth of its CPU; the bytes are the same (a property test holds them to it).
-    """
-    before, after = _trigger_parts(node, threads)
-    return before + str(seq).encode("ascii") + after
+        check_name(self.node)
+        _check_int("trigger.seq", self.seq, 0)
+        _check_int("trigger.threads", self.threads, 1)
 
 
 @dataclass(frozen=True)
 class Reject(_Message):
-    """Enforcer -> node: the registration of ``node`` is refused, and why.
-
-    A reason too long for one datagram is shortened (ending in ``...``) when
-    the message is built, so every reject can be sent.
-    """
+    """Enforcer -> node: the registration of ``node`` is refused (or dropped), and why (shortened to fit)."""
 
     TYPE: ClassVar[str] = "reject"
+    FIELDS: ClassVar[tuple[str, ...]] = ("node", "reason")
     node: str
     reason: str
 
     def __post_init__(self) -> None:
-        _check_name(self.TYPE, self.node)
-        if not isinstance(self.reason, str):
-            raise ProtocolError(f"reject.reason: expected a string, got {_show(self.reason)}")
-        try:
-            self.reason.encode("utf-8")
-        except UnicodeEncodeError:
-            raise ProtocolError("reject.reason: not encodable as UTF-8 (a lone surrogate?)") from None
-        while (excess := len(self._raw()) - MAX_DATAGRAM) > 0:
-            # Each character takes at least one byte, so cutting `excess` more characters makes room.
-            keep = max(len(self.reason) - excess - 3, 0)
-            object.__setattr__(self, "reason", self.reason[:keep] + "...")
+        check_name(self.node)
+        reason = " ".join(str(self.reason).split()) or "no reason given"
+        room = MAX_DATAGRAM - len(PROTOCOL) - len(self.TYPE) - len(self.node) - 3
+        encoded = reason.encode("utf-8", "replace")
+        if len(encoded) > room:
+            reason = encoded[: room - 3].decode("utf-8", "ignore") + "..."
+        object.__setattr__(self, "reason", reason)
 
 
 @dataclass(frozen=True)
@@ -266,173 +335,61 @@ class Stop(_Message):
     TYPE: ClassVar[str] = "stop"
 
 
-@dataclass(frozen=True)
-class SetCores(_Message):
-    """Control -> enforcer: plan for ``cores`` cores from now on."""
+Message = Hello | Bye | Done | SetCores | Welcome | Route | Trigger | Reject | Stop
 
-    TYPE: ClassVar[str] = "set_cores"
-    cores: int
-
-    def __post_init__(self) -> None:
-        _check_int(self.TYPE, "cores", self.cores, 1)
-
-
-Message = Hello | Done | Bye | Welcome | Trigger | Reject | Stop | SetCores
-"""Any protocol message."""
-
-MESSAGE_TYPES: dict[str, type[Message]] = {
-    cls.TYPE: cls for cls in (Hello, Done, Bye, Welcome, Trigger, Reject, Stop, SetCores)
+MESSAGE_TYPES: dict[bytes, type[Message]] = {
+    cls.TYPE.encode(): cls for cls in (Hello, Bye, Done, SetCores, Welcome, Route, Trigger, Reject, Stop)
 }
-"""Message classes by their ``"type"``."""
 
-FIELD_NAMES: dict[str, tuple[str, ...]] = {
-    kind: tuple(field.name for field in fields(cls)) for kind, cls in MESSAGE_TYPES.items()
-}
-"""Each message type's fields, in order (looked up once: the enforcer decodes hundreds of datagrams a second)."""
 
-REQUIRED_FIELDS: dict[str, frozenset[str]] = {
-    kind: frozenset(f.name for f in fields(cls) if f.default is MISSING) for kind, cls in MESSAGE_TYPES.items()
-}
-"""The fields a datagram must carry; the others have defaults."""
+def trigger_datagram(node: str, seq: int, threads: int = 1) -> bytes:
+    """``Trigger(node, seq, threads).encode()`` without building a message (the enforcer's hot path)."""
+    return b"%s trigger %s %d %d" % (PROTOCOL, node.encode(), seq, threads)
+
+
+def _int(kind: bytes, field: str, word: bytes) -> int:
+    if not word.isdigit() or len(word) > 19:
+        raise ProtocolError(f"{kind.decode()}.{field}: expected a decimal integer, got {_show(word)}")
+    return int(word)
 
 
 def decode(data: bytes) -> Message:
     """Parse and check one datagram; raise :class:`ProtocolError` (and nothing else) if it is not a message."""
     if len(data) > MAX_DATAGRAM:
         raise ProtocolError(f"a datagram of {len(data)}+ bytes; at most {MAX_DATAGRAM} are accepted")
-    try:
-        text = bytes(data).decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise ProtocolError(f"not UTF-8 (byte {exc.start})") from None
-    try:
-        body = json.loads(text)
-    except (ValueError, RecursionError) as exc:
-        reason = exc.msg if isinstance(exc, json.JSONDecodeError) else str(exc)
-        raise ProtocolError(f"not JSON: {reason}") from None
-    if not isinstance(body, dict):
-        raise ProtocolError(f"a message is a JSON object, got {type(body).__name__}")
-    version = body.pop("v", None)
-    if version is None:
-        raise ProtocolError(f'no protocol version: a message carries "v": {VERSION}')
-    if isinstance(version, bool) or not isinstance(version, int) or version != VERSION:
-        raise ProtocolError(f"protocol version {_show(version)}; this catanc speaks version {VERSION}")
-    kind = body.pop("type", None)
-    cls = MESSAGE_TYPES.get(kind) if isinstance(kind, str) else None
+    words = bytes(data).split(b" ")
+    if words[0] != PROTOCOL:
+        if words[0].startswith(b"catanc/") or data[:1] == b"{":
+            raise ProtocolError(f"not protocol {PROTOCOL.decode()} (an older or newer catanc client?)")
+        raise ProtocolError(f"not a catanc datagram (it starts {_show(data[:20])})")
+    if len(words) < 2:
+        raise ProtocolError("no message type")
+    kind, args = words[1], words[2:]
+    cls = MESSAGE_TYPES.get(kind)
     if cls is None:
-        known = ", ".join(MESSAGE_TYPES)
-        what = "no message type" if kind is None else f"unknown message type {_show(kind)}"
-        raise ProtocolError(f"{what} (expected one of: {known})")
-    names = FIELD_NAMES[cls.TYPE]
-    missing = [name for name in names if name in REQUIRED_FIELDS[cls.TYPE] and name not in body]
-    if missing:
-        raise ProtocolError(f"{cls.TYPE}: missing field(s): {', '.join(missing)}")
-    unknown = sorted(name for name in body if name not in names)
-    if unknown:
-        listed = ", ".join(_show(name) for name in unknown[:5])
-        raise ProtocolError(f"{cls.TYPE}: unknown field(s): {listed} (expected: {', '.join(names) or 'none'})")
-    return cls(**body)
-
-
-class EnforcerSocket:
-    """The enforcer's end: a datagram socket bound at ``path``.
-
-    Binding removes a stale socket file left by a crashed enforcer, but
-    refuses to touch anything else at ``path``: a file that is not a socket,
-    or the socket of an enforcer that is still running.  :meth:`receive`
-    skips datagrams that are not messages (logging them and counting them in
-    :attr:`dropped`), so garbage never reaches the caller.  :meth:`close`
-    removes the socket file if it is still this socket's.
-    """
-
-    def __init__(self, path: str | os.PathLike[str]) -> None:
-        self.path = Path(path)
-        self.dropped = 0
-        _remove_stale_socket(self.path)
-        self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-        try:
-            self._sock.bind(os.fspath(self.path))
-            info = self.path.stat()
-        except OSError as exc:
-            self._sock.close()
-            reason = exc.strerror or str(exc)
-            raise SocketPathError(f"cannot bind the enforcer's socket at {self.path}: {reason}") from None
-        self._identity: tuple[int, int] | None = (info.st_dev, info.st_ino)
-
-    def fileno(self) -> int:
-        """The socket's file descriptor, for ``selectors``."""
-        return self._sock.fileno()
-
-    def receive(self, timeout_s: float | None) -> tuple[Message, Address] | None:
-        """The next message and its sender, or None if none arrives within ``timeout_s`` (None: wait forever)."""
-        deadline = None if timeout_s is None else time.monotonic() + timeout_s
-        while True:
-            remaining = None if deadline is None else max(deadline - time.monotonic(), 0.0)
-            self._sock.settimeout(remaining)
-            try:
-                data, sender = self._sock.recvfrom(MAX_DATAGRAM + 1)
-            except (TimeoutError, BlockingIOError):  # BlockingIOError: timeout_s == 0
-                return None
-            try:
-                return decode(data), sender
-            except ProtocolError as exc:
-                self.dropped += 1
-                log.warning("dropped a datagram from %r: %s", sender, exc)
-
-    def send(self, message: Message, address: Address) -> bool:
-        """Send without blocking; False if the receiver is gone, unbound, or not taking datagrams."""
-        return self.send_bytes(message.encode(), address)
-
-    def send_bytes(self, datagram: bytes, address: Address) -> bool:
-        """:meth:`send` for an already encoded message (see :func:`trigger_datagram`)."""
-        if address is None:
-            return False
-        try:
-            self._sock.sendto(datagram, socket.MSG_DONTWAIT, address)
-        except OSError as exc:
-            log.debug("could not send %r to %r: %s", datagram[:60], address, exc)
-            return False
-        return True
-
-    def close(self) -> None:
-        """Close the socket and remove its file (if no one has replaced it since); safe to call twice."""
-        self._sock.close()
-        identity, self._identity = self._identity, None
-        if identity is None:
-            return
-        try:
-            info = self.path.lstat()
-            if (info.st_dev, info.st_ino) == identity:
-                self.path.unlink()
-        except FileNotFoundError:
-            pass
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, traceback: TracebackType | None
-    ) -> None:
-        self.close()
-
-
-def _remove_stale_socket(path: Path) -> None:
+        raise ProtocolError(f"unknown message type {_show(kind)}")
     try:
-        info = path.lstat()
-    except FileNotFoundError:
-        return
-    except OSError as exc:
-        raise SocketPathError(f"cannot use {path} for the enforcer's socket: {exc.strerror or exc}") from None
-    if not stat.S_ISSOCK(info.st_mode):
-        raise SocketPathError(f"{path} exists and is not a socket: refusing to replace it with the enforcer's socket")
-    probe = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-    try:
-        probe.connect(os.fspath(path))
-    except OSError as exc:
-        if exc.errno not in (errno.ECONNREFUSED, errno.ENOENT):
-            raise SocketPathError(f"cannot check the socket at {path}: {exc.strerror or exc}") from None
-    else:
-        raise SocketPathError(f"another catanc enforcer is running at {path} (its socket answers)")
-    finally:
-        probe.close()
-    log.info("removing the stale socket %s", path)
-    path.unlink(missing_ok=True)
+        if cls is Reject:
+            if not args:
+                raise ProtocolError("reject: missing its node")
+            return Reject(args[0].decode("ascii"), b" ".join(args[1:]).decode("utf-8", "replace"))
+        if len(args) != len(cls.FIELDS):
+            raise ProtocolError(f"{kind.decode()}: expected {len(cls.FIELDS)} fields ({' '.join(cls.FIELDS)})")
+        if cls is Route:
+            notify = args[1]
+            if notify not in (b"0", b"1"):
+                raise ProtocolError(f"route.notify: expected 0 or 1, got {_show(notify)}")
+            return Route(
+                args[0].decode("ascii"),
+                notify == b"1",
+                None if args[2] == b"-" else args[2].decode("ascii"),
+                _int(kind, "next_threads", args[3]),
+                parse_address(args[4].decode("ascii")),
+                parse_address(args[5].decode("ascii")),
+            )
+        values: list[str | int] = []
+        for name, word in zip(cls.FIELDS, args, strict=True):
+            values.append(word.decode("ascii") if name == "node" else _int(kind, name, word))
+        return cls(*values)  # type: ignore[arg-type]
+    except UnicodeDecodeError:
+        raise ProtocolError(f"{kind.decode('ascii', 'replace')}: a field is not ASCII") from None

@@ -64,9 +64,9 @@ from pathlib import Path
 from types import FrameType
 from typing import NamedTuple
 
-from catanc.client import ClientError, Node
+from catanc.client import ClientError, Node, Trigger
 from catanc.errors import CatancError, ExitCode
-from catanc.runtime.protocol import ProtocolError, Trigger, Welcome
+from catanc.runtime.protocol import ProtocolError, check_name
 from catanc.spec.speedup import threads_and_speedup
 
 MODULE = "catanc.runtime.worker"
@@ -609,7 +609,7 @@ def _run(
 
 def _check_name(name: str) -> None:
     try:
-        Welcome(name)
+        check_name(name)
     except ProtocolError as exc:
         raise ValueError(f"bad node name: {exc}") from None
 

@@ -261,11 +261,14 @@ class FakeSocket:
         if self.pending and self.pending[0][0] <= until:
             self.now, node, seq = heapq.heappop(self.pending)
             self.done_ms[node].append(self.now)
-            return protocol.Done(node, 1, seq, None), node
+            return protocol.Done(node, 1, seq), node
         self.now = until
         return None
 
     def send(self, message: protocol.Message, address: Address) -> bool:  # noqa: ARG002 - the socket's signature
+        return True
+
+    def welcome(self, hello: protocol.Hello, address: Address) -> bool:  # noqa: ARG002 - the socket's signature
         return True
 
     def send_bytes(self, datagram: bytes, address: Address) -> bool:  # noqa: ARG002
@@ -333,6 +336,10 @@ def test_the_driver_rejects_nodes_it_does_not_run(tmp_path: Path) -> None:
             sent.append(message)
             return True
 
+        def welcome(self, hello: protocol.Hello, address: Address) -> bool:  # noqa: ARG002
+            sent.append(protocol.Welcome(hello.node, 1))
+            return True
+
     fake = Recorder(spec)
     fake.hellos = [protocol.Hello("imu", 1, 1), protocol.Hello("nope", 1, 2), protocol.Hello("cam", 1, 3)]
     driver = Driver(fake, spec, trigger_rules(spec), place=lambda _hello: None, clock=fake.clock)  # type: ignore[arg-type]
@@ -341,7 +348,7 @@ def test_the_driver_rejects_nodes_it_does_not_run(tmp_path: Path) -> None:
     assert sent == [
         protocol.Reject("imu", "no scheduled node 'imu' in app trig"),
         protocol.Reject("nope", "no node 'nope' in app trig"),
-        protocol.Welcome("cam"),
+        protocol.Welcome("cam", 1),
     ]
 
 

@@ -386,22 +386,17 @@ def test_node_threads_get_the_planned_policy_priority_and_cpus(mixed: MixedRun) 
     }
 
 
-def test_enforcer_threads_run_at_fifo_4_and_each_core_scheduler_on_its_core(mixed: MixedRun) -> None:
+def test_the_enforcer_is_one_loop_at_fifo_4_pinned_to_the_shared_core(mixed: MixedRun) -> None:
+    """The main thread only waits (its CPUs are the process's); one loop thread does everything, pinned to the
+    shared core whose switches it makes; the solvers run in a process of their own at SCHED_OTHER."""
     found = {tid: sched for tid, sched in mixed.enforcer_threads.items() if sched is not None}
     main = next(iter(found))
     assert found[main] == Sched(os.SCHED_FIFO, ENFORCER_FIFO, MINE)  # the main thread (lowest tid)
-    at_4 = [sched for sched in found.values() if sched.policy == os.SCHED_FIFO]
-    assert all(sched.priority == ENFORCER_FIFO for sched in at_4), [str(s) for s in found.values()]
-    # main, receiver, clock and one core scheduler: the only one pinned, to the shared core 1
-    assert len(at_4) >= 4, [str(s) for s in found.values()]
-    assert [sched.cpus for sched in at_4 if sched.cpus != MINE] == [frozenset({1})]
+    assert sorted(found.values(), key=str) == sorted(
+        [Sched(os.SCHED_FIFO, ENFORCER_FIFO, MINE), Sched(os.SCHED_FIFO, ENFORCER_FIFO, frozenset({1}))], key=str
+    ), [str(s) for s in found.values()]
     assert mixed.helpers["planner"] == OTHER  # the solvers never run at a real-time priority
     assert mixed.helpers["watchdog"] == Sched(os.SCHED_FIFO, WATCHDOG_PRIORITY, MINE)
-
-
-def test_the_reoptimiser_thread_runs_at_sched_other(mixed: MixedRun) -> None:
-    found = [sched for sched in mixed.enforcer_threads.values() if sched is not None]
-    assert [sched for sched in found if sched.policy == os.SCHED_OTHER] == [OTHER], [str(s) for s in found]
 
 
 def test_measured_rates_are_within_10_percent_of_the_plan_in_force(mixed: MixedRun) -> None:
@@ -535,7 +530,9 @@ def test_a_node_that_slows_down_3x_gets_a_re_solve_that_lowers_its_rate(harness:
     after = [r for r in resolves if r["t"] > slowed_at + 1.0]  # its window holds slow runs by then
     assert before, f"no re-solve before the slow-down at {slowed_at:.2f} s"
     assert len(after) >= 3, f"re-solves: {[round(r['t'], 2) for r in resolves]}, slow-down at {slowed_at:.2f} s"
-    assert all(r["error"] is None and not r["allocation_changed"] for r in resolves)
+    assert all(r["error"] is None for r in resolves)
+    # Only a re-plan for the runtime's measured costs (switch_ms, slack) may take a new allocation.
+    assert all(not r["allocation_changed"] for r in resolves if r["reason"] != "costs")
     last_fast, first_slow = before[-1], after[0]
     assert last_fast["compute_ms"]["map"] == pytest.approx(MIXED_COMPUTE["map"], rel=0.1)
     assert first_slow["compute_ms"]["map"] / last_fast["compute_ms"]["map"] == pytest.approx(3.0, rel=0.1)

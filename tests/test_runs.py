@@ -1,0 +1,206 @@
+"""The enforcer's runs in flight as its nodes' rings report them (catanc.runtime.runs), worked by hand.
+
+Rings are real (a memfd written with the documented layout); the kernel's CPU count is a fake
+the test sets, so the numbers are known.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import pytest
+
+from catanc.control.schedule import SubchainRun
+from catanc.runtime import ring
+from catanc.runtime.endpoints import Endpoint
+from catanc.runtime.runs import KERNEL_CHECK_EVERY, RunBook, Seen
+
+MS = 1_000_000  # ns
+
+
+Readers = list[tuple[int, Endpoint, ring.RingReader]]
+TwoNodes = tuple[RunBook, SubchainRun, list[ring.RingWriter], Readers]
+
+
+@pytest.fixture
+def two_nodes() -> Iterator[TwoNodes]:
+    """Subchain ``s`` of nodes a -> b (planned latency 10 ms), each with a ring; a kernel clock the test sets."""
+    run = SubchainRun("s", ("a", "b"), (0,), True, 20.0, 10.0, 1, 1)
+    fds = [ring.create(slots=8) for _ in run.nodes]
+    writers = [ring.RingWriter(fd) for fd in fds]
+    readers = []
+    for index, (node, fd) in enumerate(zip(run.nodes, fds, strict=True)):
+        endpoint = Endpoint(node, 1, 100 + index, None, reader=ring.RingReader(fd, 8), ring_fd=fd)
+        assert endpoint.reader is not None
+        readers.append((index, endpoint, endpoint.reader))
+    kernel: dict[int, int] = {}
+    book = RunBook(["s"], {"a": (1.0,), "b": (1.0, 1.5)}, lambda endpoint: kernel.get(endpoint.tid))
+    book.kernel_counts = kernel  # type: ignore[attr-defined]
+    yield book, run, writers, readers
+    for writer in writers:
+        writer.close()
+    for _, endpoint, _ in readers:
+        endpoint.close()
+
+
+def read(book: RunBook, run: SubchainRun, readers: Readers, now: float) -> Seen:
+    seen = Seen()
+    book.read(run, readers, now, seen)
+    return seen
+
+
+def test_a_run_goes_node_by_node_and_its_latency_hops_and_computes_are_seen(two_nodes: TwoNodes) -> None:
+    book, run, (a, b), readers = two_nodes
+    started = book.trigger(run, 100.0, None, until_ms=110.0)
+    assert started is not None
+    seq = started.seq
+    a.append(seq, 100_200 * 1000, 103_000 * 1000, 2_500_000, 1)  # starts 0.2 ms after the trigger, runs 2.8 ms
+    seen = read(book, run, readers, 103.5)
+    assert [(c.node, c.ms) for c in seen.computes] == [("a", 2.5)]
+    assert [(h.node, round(h.delay_ms, 6)) for h in seen.hops] == [("a", 0.2)]
+    assert seen.runs == []
+    assert book.first_index("s") == 1  # at b now
+    b.append(seq, 103_100 * 1000, 106_000 * 1000, 2_000_000, 2)  # on 2 threads: 2 ms of wall is 3 ms on one
+    seen = read(book, run, readers, 107.0)
+    assert [(c.node, c.ms) for c in seen.computes] == [("b", 3.0)]
+    assert [(h.node, round(h.delay_ms, 6)) for h in seen.hops] == [("b", 0.1)]
+    assert [(r.seq, r.latency_ms) for r in seen.runs] == [(seq, 6.0)]  # trigger at 100 ms, b ended at 106 ms
+    assert not book.busy("s")
+    assert book.state("s").late == 0
+
+
+def test_hops_after_the_slot_are_waits_not_costs(two_nodes: TwoNodes) -> None:
+    book, run, (a, b), readers = two_nodes
+    started = book.trigger(run, 0.0, None, until_ms=5.0)  # raised until 5 ms
+    assert started is not None
+    a.append(started.seq, 1 * MS, 4 * MS, 3 * MS)
+    b.append(started.seq, 9 * MS, 10 * MS, 1 * MS)  # started after the slot: it waited for the CPU
+    seen = read(book, run, readers, 12.0)
+    assert [h.node for h in seen.hops] == ["a"]
+    assert len(seen.runs) == 1
+
+
+def test_a_run_started_behind_an_earlier_one_measures_no_hops(two_nodes: TwoNodes) -> None:
+    # On one core the earlier run's b runs first, at the same level: the later head waits for the
+    # CPU, which is no cost of the runtime's (counted, it raised switch_ms on every re-plan).
+    book, run, (a, b), readers = two_nodes
+    first = book.trigger(run, 0.0, None, until_ms=20.0)
+    assert first is not None
+    a.append(first.seq, 0, 2 * MS, 2 * MS)
+    read(book, run, readers, 2.5)  # the first run is at b
+    second = book.trigger(run, 3.0, None, until_ms=20.0)
+    assert second is not None
+    b.append(first.seq, 2 * MS, 7 * MS, 5 * MS)
+    a.append(second.seq, 7 * MS, 9 * MS, 2 * MS)  # started when b was done: 4 ms after its trigger
+    b.append(second.seq, 9 * MS, 10 * MS, 1 * MS)
+    seen = read(book, run, readers, 11.0)
+    assert [(r.seq, r.latency_ms) for r in seen.runs] == [(first.seq, 7.0), (second.seq, 7.0)]
+    assert [h.node for h in seen.hops] == ["b"]  # the first run's hop only
+
+
+def test_an_entry_of_a_run_not_at_that_node_is_dropped(two_nodes: TwoNodes) -> None:
+    book, run, (a, b), readers = two_nodes
+    started = book.trigger(run, 0.0, None)
+    assert started is not None
+    b.append(started.seq, 1 * MS, 2 * MS, 1 * MS)  # b reports a run that is still at a
+    a.append(10**9, 1 * MS, 2 * MS, 10**17)  # a run never triggered
+    a.append(started.seq + 1, 1 * MS, 2 * MS, 1 * MS)  # nor this one
+    seen = read(book, run, readers, 3.0)
+    assert seen.computes == []
+    assert book.state("s").unmatched == 3
+    assert book.first_index("s") == 0  # nothing moved
+
+
+def test_a_run_nothing_triggered_is_the_oldest_waiting_at_its_node(two_nodes: TwoNodes) -> None:
+    book, run, (a, b), readers = two_nodes
+    first = book.trigger(run, 0.0, None)
+    assert first is not None
+    a.append(first.seq, 0, 1 * MS, 1 * MS)
+    read(book, run, readers, 1.5)
+    second = book.trigger(run, 2.0, None)
+    assert second is not None
+    a.append(second.seq, 2 * MS, 3 * MS, 1 * MS)
+    read(book, run, readers, 3.5)  # both runs wait at b now
+    b.append(0, 4 * MS, 5 * MS, 1 * MS)  # a subscription callback: it took the older one
+    seen = read(book, run, readers, 5.5)
+    assert [r.seq for r in seen.runs] == [first.seq]
+    assert list(book.state("s").in_flight) == [second.seq]
+
+
+def test_a_compute_time_is_clamped_to_the_time_since_the_trigger(two_nodes: TwoNodes) -> None:
+    book, run, (a, _b), readers = two_nodes
+    started = book.trigger(run, 100.0, None)
+    assert started is not None
+    a.append(started.seq, 100 * MS, 104 * MS, 10**17)  # 1e8 ms claimed after 4.5 ms
+    seen = read(book, run, readers, 104.5)
+    assert [c.ms for c in seen.computes] == [4.5]
+
+
+def test_a_report_far_above_the_estimate_is_held_to_the_kernels_count(two_nodes: TwoNodes) -> None:
+    book, run, (a, _b), readers = two_nodes
+    book.expected = {"a": 2.0}
+    kernel: dict[int, int] = book.kernel_counts  # type: ignore[attr-defined]
+    claims = []
+    for i in range(3):
+        started = book.trigger(run, 100.0 * i, None)
+        assert started is not None
+        kernel[100] = (i + 1) * 3 * MS  # the thread used 3 ms of CPU per run
+        a.append(started.seq, int(100.0 * i * MS), int((100.0 * i + 50) * MS), 40 * MS)  # claims 40 ms each
+        claims += [c.ms for c in read(book, run, readers, 100.0 * i + 60).computes]
+        book.state("s").in_flight.clear()  # b never runs here: only a's reports matter
+    # the first check marks where to count from (the elapsed bound holds, 40 ms); then the kernel's 3 ms
+    assert claims == [40.0, pytest.approx(3.05), pytest.approx(3.05)]
+
+
+@pytest.mark.parametrize("again", [False, True])
+def test_the_heads_kernel_check_spans_no_later_run_of_it(two_nodes: TwoNodes, again: bool) -> None:
+    book, run, (a, _b), readers = two_nodes
+    head = readers[0][1]
+    kernel: dict[int, int] = book.kernel_counts  # type: ignore[attr-defined]
+    for _ in range(KERNEL_CHECK_EVERY - 1):  # up to the run the kernel checks
+        book.trigger(run, 0.0, head)
+        book.state("s").in_flight.clear()
+    kernel[100] = 0
+    checked = book.trigger(run, 100.0, head)
+    assert checked is not None
+    assert checked.seq % KERNEL_CHECK_EVERY == 0
+    a.append(checked.seq, 100 * MS, 102 * MS, 2 * MS)  # 2 ms, as its thread used...
+    kernel[100] = 5 * MS  # ...then 3 ms more: its next run, if the head was triggered again
+    if again:
+        assert book.trigger(run, 102.5, head) is not None  # taken while the entry was unread
+    computes = [c.ms for c in read(book, run, readers, 103.0).computes]
+    # Not triggered again: the kernel's 5 ms stand (the client under-reported); triggered again,
+    # the thread's CPU since spans the next run: the client's 2 ms.
+    assert computes == ([2.0] if again else [5.0])
+
+
+def test_a_trigger_while_the_head_runs_is_sent_and_starts_when_the_head_is_done(two_nodes: TwoNodes) -> None:
+    book, run, (a, _b), readers = two_nodes
+    first = book.trigger(run, 0.0, None)
+    second = book.trigger(run, 1.0, None)
+    assert first is not None
+    assert second is not None
+    assert second.deferred
+    assert book.trigger(run, 2.0, None) is None  # one deferred at most
+    a.append(first.seq, 0, 3 * MS, 3 * MS)
+    read(book, run, readers, 3.5)
+    deferred = book.state("s").in_flight[second.seq]
+    assert (deferred.index, deferred.triggered_ms) == (0, 3.0)  # in flight since the head was done
+
+
+def test_the_measured_rate_decays_to_zero_once_triggers_stop(two_nodes: TwoNodes) -> None:
+    book, run, _, _ = two_nodes
+    for i in range(50):
+        book.trigger(run, 20.0 * i, None)
+        book.state("s").in_flight.clear()
+    assert book.measured_hz("s", 20.0, 1000.0) == pytest.approx(50.0, rel=0.05)
+    assert book.measured_hz("s", 20.0, 1000.0 + 5000.0) == 0.0
+
+
+def test_lost_runs_are_given_up_after_20_latencies_and_a_second(two_nodes: TwoNodes) -> None:
+    book, run, _, _ = two_nodes
+    started = book.trigger(run, 0.0, None)
+    assert started is not None
+    assert book.lost({"s": run}, 999.0) == []
+    assert book.lost({"s": run}, 1000.5) == [("s", started.seq, "a")]
+    assert book.state("s").lost == 1
