@@ -1,8 +1,7 @@
-"""Commands of the runtime: ``run`` (the enforcer), ``doctor``, ``set-cores`` and ``report`` (a run's log)."""
+"""Commands of the runtime: ``run`` (the enforcer), ``doctor``, ``calibrate``, ``set-cores``, ``report`` (a log)."""
 
 from __future__ import annotations
 
-import os
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
@@ -143,6 +142,30 @@ def doctor(
     sys.stdout.write(render(findings, title))
     if any(finding.verdict is Verdict.FAIL for finding in findings):
         raise typer.Exit(int(ExitCode.MACHINE))
+
+
+@reporting
+def calibrate(
+    out: Annotated[Path, typer.Option("--out", help="Where to write the machine profile (YAML).")] = Path(
+        "machine.yaml"
+    ),
+    duration: Annotated[float, typer.Option(min=1.0, help="Seconds of measuring.")] = 6.0,
+) -> None:
+    """Measure the enforcer's own costs on this machine (a few seconds of a synthetic app) into a machine profile."""
+    from catanc.core.priorities import ENFORCER_FIFO
+    from catanc.runtime.calibrate import calibrate as measure
+    from catanc.runtime.sched import Restorer, check_fifo_allowed
+    from catanc.runtime.watchdog import Watchdog
+    from catanc.spec.machine import write_machine
+
+    check_fifo_allowed(ENFORCER_FIFO)
+    profile = measure(duration_s=duration, restorer=Restorer(Watchdog().start()))
+    write_machine(out, profile)
+    stdout_console().print(
+        f"{out}: switch {profile.switch_ms:.4f} ms, hop {profile.hop_ms:.4f} ms (p95), "
+        f"overhead {max(profile.overhead):.2%} of a core, RT limit {profile.rt.share:.0%}",
+        markup=False,
+    )
 
 
 @reporting
