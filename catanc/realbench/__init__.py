@@ -7,7 +7,7 @@ burn CPU as the spec's workload model says, once under the real enforcer
 driver; every run's timestamps are then replayed through the simulator's
 dataflow and metrics, so both commands report the same figures.
 
-- :mod:`catanc.realbench.triggers`: the baselines' trigger rules (pure);
+- :mod:`catanc.control.timers`: the baselines' trigger rules (pure);
 - :mod:`catanc.realbench.driver`: the baselines' side of the protocol (I/O);
 - :mod:`catanc.realbench.replay`: records -> :class:`~catanc.sim.metrics.PolicyResult` (pure);
 - :mod:`catanc.realbench.bench`: one run per policy: workers, enforcer or driver, clean-up.

@@ -12,7 +12,7 @@ of them, and records every run); then
   ``baseline.rates_hz`` says, every node thread under SCHED_OTHER (CFS) on the first ``K``
   CPUs this process may use;
 - ``fifo-static``: the same triggers, each node thread at a static SCHED_FIFO level by its
-  subchain's weight (:func:`~catanc.realbench.triggers.fifo_levels`), the driver one level above
+  subchain's weight (:func:`~catanc.control.timers.fifo_levels`), the driver one level above
   them (it stands for the timers, which the simulator fires on time).
 - ``static-fullrun`` / ``static-20s`` (not run by default): the real enforcer with one plan made
   before the run from the workload model's p95 compute times over the whole run / its first 20 s,
@@ -38,12 +38,12 @@ from pathlib import Path
 from typing import Any
 
 from catanc.control.schedule import RuntimeSchedule
+from catanc.control.timers import fifo_levels, trigger_rules
 from catanc.core.build import build_problem
 from catanc.core.priorities import ENFORCER_FIFO
 from catanc.errors import PrivilegeError, UsageError
 from catanc.realbench.driver import BenchError, Driver, DriverSocket
 from catanc.realbench.replay import measured_result, replay, utilisation
-from catanc.realbench.triggers import fifo_levels, trigger_rules
 from catanc.runtime import protocol
 from catanc.runtime.processes import Children
 from catanc.runtime.sched import (

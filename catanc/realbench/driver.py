@@ -3,7 +3,7 @@
 Plays the enforcer's part of :mod:`catanc.runtime.protocol` (:class:`DriverSocket`: the
 enforcer's socket and an endpoint per node, as ``catanc run`` makes them), so the workers of
 every policy run the same client code, but only triggers: the rules of
-:mod:`catanc.realbench.triggers`, no slices, no re-planning.  Each node is routed to report
+:mod:`catanc.control.timers`, no slices, no re-planning.  Each node is routed to report
 every run with a ``done`` (``NOTIFY 1``), which its input-triggered successors wait for.  Each
 registering thread is handed to ``place`` (pin it, set its priority) before it is welcomed.
 One thread does everything, the caller's.
@@ -16,8 +16,8 @@ import time
 from collections.abc import Callable, Collection
 from pathlib import Path
 
+from catanc.control.timers import TIMER, Clock, TriggerRules, Triggers
 from catanc.errors import CatancError, ExitCode
-from catanc.realbench.triggers import TIMER, Clock, TriggerRules, Triggers
 from catanc.runtime import protocol
 from catanc.runtime.endpoints import Endpoint, EnforcerSocket, decode_or_none, open_endpoint
 from catanc.runtime.protocol import Address

@@ -25,6 +25,7 @@ from typing import Any
 
 import pytest
 
+from catanc.control.timers import TICK, TIMER, Clock, Triggers, fifo_levels, trigger_rules
 from catanc.core.build import build_problem
 from catanc.core.load import load_spec
 from catanc.errors import ExitCode, UsageError
@@ -32,7 +33,6 @@ from catanc.planning.planner import plan
 from catanc.realbench import bench as bench_run
 from catanc.realbench.driver import BenchError, Driver
 from catanc.realbench.replay import measured_result, replay, utilisation
-from catanc.realbench.triggers import TICK, TIMER, Clock, Triggers, fifo_levels, trigger_rules
 from catanc.runtime import protocol
 from catanc.runtime.protocol import Address
 from catanc.runtime.sched import read_policy
