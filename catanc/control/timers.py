@@ -1,7 +1,6 @@
 """The hand-tuned baselines' triggers, as pure state: who runs when, without sockets or clocks.
 
-The rules are :class:`catanc.sim.policies.TimerPolicy`'s, so that ``catanc bench``'s
-baselines are the simulator's:
+The rules:
 
 - every scheduled node listed in ``baseline.rates_hz`` runs on its own timer at that rate,
   from the run's start (time 0, then every period, never skipping one);
@@ -12,7 +11,10 @@ baselines are the simulator's:
   further triggers meanwhile coalesce into that one).
 
 :class:`Clock` says which timers and sensor ticks are due, :class:`Triggers` which nodes to
-start on a timer, an input or a completion; :mod:`catanc.realbench.driver` does the I/O.
+start on a timer, an input or a completion.  The simulator's timer policy
+(:class:`catanc.sim.policies.TimerPolicy`, and the compiled kernel through
+:mod:`catanc.sim.fast`) and ``catanc bench``'s driver (:mod:`catanc.realbench.driver`, the
+I/O) use both, so the bench's baselines are the simulator's by construction.
 """
 
 from __future__ import annotations
@@ -23,17 +25,12 @@ import math
 from dataclasses import dataclass
 from typing import Literal
 
-from catanc.core.problem import Problem
 from catanc.errors import UsageError
-from catanc.planning.planner import priorities
 from catanc.spec.language import Spec
 
 TIMER: Literal["timer"] = "timer"
 TICK: Literal["tick"] = "tick"
 Kind = Literal["timer", "tick"]
-
-MAX_APP_FIFO = 97
-"""The highest SCHED_FIFO level a node gets under fifo-static: the driver runs one above, the watchdog at 10+."""
 
 
 @dataclass(frozen=True)
@@ -45,11 +42,12 @@ class TriggerRules:
     fed: dict[str, tuple[str, ...]]  # node or sensor -> the input-triggered nodes its outputs trigger
 
 
-def trigger_rules(spec: Spec) -> TriggerRules:
-    """The baseline's rules; :class:`UsageError` without ``baseline.rates_hz`` or for a node nothing triggers."""
+def trigger_rules(spec: Spec, purpose: str = "run") -> TriggerRules:
+    """The baseline's rules; :class:`UsageError` without ``baseline.rates_hz`` (nothing to ``purpose``) or for a
+    node nothing triggers."""
     rates = spec.baseline.rates_hz
     if not rates:
-        raise UsageError(f"{spec.app}: the spec has no baseline (baseline.rates_hz) to run")
+        raise UsageError(f"{spec.app}: the spec has no baseline (baseline.rates_hz) to {purpose}")
     timers = {name: 1000.0 / rate for name, rate in sorted(rates.items()) if spec.nodes[name].scheduled}
     sensors = {
         name: 1000.0 / node.rate_hz
@@ -104,11 +102,15 @@ class Triggers:
     def done(self, node: str) -> list[str]:
         """``node`` finished a run: what its output triggers, then ``node`` again if a trigger waited."""
         started = self.output(node)
+        return started + self.free(node)
+
+    def free(self, node: str) -> list[str]:
+        """``node`` is idle again (its output was handled): ``[node]`` if a trigger waited for it, else ``[]``."""
         self.busy.discard(node)
         if node in self.pending:
             self.pending.discard(node)
-            started += self.fire(node)
-        return started
+            return self.fire(node)
+        return []
 
     def abandon(self, node: str) -> None:
         """``node`` will not report its run (its thread left): it is idle, nothing waits for it."""
@@ -143,17 +145,3 @@ class Clock:
             events.append((due_ms, kind, node))
             self._push(due_ms + period_ms, kind, node, period_ms)
         return events
-
-
-def fifo_levels(problem: Problem, spec: Spec) -> dict[str, int]:
-    """fifo-static: each scheduled node's SCHED_FIFO level, its subchain's priority by weight, as 1, 2, ...
-
-    :func:`catanc.planning.planner.priorities` ranks subchains (the spec's ``schedule.priorities``, else by
-    weight, the heaviest highest; the simulator's fifo-static uses the same); equal ranks share a
-    level, and the levels keep their order.
-    """
-    ranks = priorities(problem, spec.schedule, problem.importance())
-    levels = {rank: level for level, rank in enumerate(sorted(set(ranks.values())), start=1)}
-    if len(levels) > MAX_APP_FIFO:
-        raise UsageError(f"{spec.app}: {len(levels)} distinct subchain priorities; SCHED_FIFO has {MAX_APP_FIFO}")
-    return {node: levels[ranks[sub.name]] for sub in problem.subchains for node in sub.nodes}

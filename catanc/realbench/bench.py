@@ -12,7 +12,7 @@ of them, and records every run); then
   ``baseline.rates_hz`` says, every node thread under SCHED_OTHER (CFS) on the first ``K``
   CPUs this process may use;
 - ``fifo-static``: the same triggers, each node thread at a static SCHED_FIFO level by its
-  subchain's weight (:func:`~catanc.control.timers.fifo_levels`), the driver one level above
+  subchain's weight (:func:`fifo_levels`), the driver one level above
   them (it stands for the timers, which the simulator fires on time).
 - ``static-fullrun`` / ``static-20s`` (not run by default): the real enforcer with one plan made
   before the run from the workload model's p95 compute times over the whole run / its first 20 s,
@@ -38,10 +38,12 @@ from pathlib import Path
 from typing import Any
 
 from catanc.control.schedule import RuntimeSchedule
-from catanc.control.timers import fifo_levels, trigger_rules
+from catanc.control.timers import trigger_rules
 from catanc.core.build import build_problem
 from catanc.core.priorities import ENFORCER_FIFO
+from catanc.core.problem import Problem
 from catanc.errors import PrivilegeError, UsageError
+from catanc.planning.planner import priorities
 from catanc.realbench.driver import BenchError, Driver, DriverSocket
 from catanc.realbench.replay import measured_result, replay, utilisation
 from catanc.runtime import protocol
@@ -124,6 +126,24 @@ def check_setup(setup: BenchSetup, policies: Sequence[str]) -> None:
                 f"catanc bench: {chosen} run(s) the app under SCHED_FIFO: {exc}\n"
                 "The baseline alone (SCHED_OTHER) needs no privilege: catanc bench SPEC --policy baseline"
             ) from None
+
+
+MAX_APP_FIFO = 97
+"""The highest SCHED_FIFO level a node gets under fifo-static: the driver runs one above, the watchdog at 10+."""
+
+
+def fifo_levels(problem: Problem, spec: Spec) -> dict[str, int]:
+    """fifo-static: each scheduled node's SCHED_FIFO level, its subchain's priority by weight, as 1, 2, ...
+
+    :func:`catanc.planning.planner.priorities` ranks subchains (the spec's ``schedule.priorities``, else by
+    weight, the heaviest highest; the simulator's fifo-static uses the same); equal ranks share a
+    level, and the levels keep their order.
+    """
+    ranks = priorities(problem, spec.schedule, problem.importance())
+    levels = {rank: level for level, rank in enumerate(sorted(set(ranks.values())), start=1)}
+    if len(levels) > MAX_APP_FIFO:
+        raise UsageError(f"{spec.app}: {len(levels)} distinct subchain priorities; SCHED_FIFO has {MAX_APP_FIFO}")
+    return {node: levels[ranks[sub.name]] for sub in problem.subchains for node in sub.nodes}
 
 
 def driver_level(levels: Mapping[str, int]) -> int:

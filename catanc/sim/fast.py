@@ -20,9 +20,10 @@ import numpy as np
 import numpy.typing as npt
 
 from catanc.control.schedule import RuntimeSchedule
+from catanc.control.timers import trigger_rules
 from catanc.core.workload import ComputeSampler, NodeStream
 from catanc.sim import kernel as k
-from catanc.sim.policies import Reoptimiser, Replan, baseline_wiring
+from catanc.sim.policies import Reoptimiser, Replan
 from catanc.sim.records import Records
 from catanc.spec.language import Spec
 
@@ -95,11 +96,11 @@ def topology(
     timers: list[int] = []
     triggers: list[list[int]] = [[] for _ in names]
     if priorities is not None:
-        rates, wiring = baseline_wiring(spec)
-        for name, rate in sorted(rates.items()):
-            timer_period[index[name]] = 1000.0 / rate
+        rules = trigger_rules(spec, "simulate")
+        for name, period_ms in sorted(rules.timers.items()):
+            timer_period[index[name]] = period_ms
             timers.append(index[name])
-        for feeder, targets in wiring.items():
+        for feeder, targets in rules.fed.items():
             triggers[index[feeder]] = [index[t] for t in targets]
     priority = np.array([(priorities or {}).get(name, 0) for name in names], np.int64)
     pred_ptr, pred = _csr(preds)

@@ -3,6 +3,7 @@
 - :class:`CatanPolicy` does what ``catan run`` does (catan-model.md sections
 from catanc.control.flights import Flight, Flights, NodeQueues
 from catanc.control.policy import Cadence, SlotRule, boundary_ms, decide, slot_rules
+from catanc.control.timers import Triggers, trigger_rules
 from catanc.control.schedule import CoreSchedule, RuntimeSchedule, SubchainRun, is_late, runtime_schedule
 from catanc.errors import UsageError
 from catanc.planning.replan import Replanner
@@ -27,13 +28,14 @@ Unscheduled nodes with a rate tick on their own clock under every policy.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 
 from catanc.control.flights import Flight, Flights, NodeQueues
 from catanc.control.policy import Cadence, SlotRule, boundary_ms, decide, slot_rules
 from catanc.control.schedule import CoreSchedule, RuntimeSchedule, SubchainRun, is_late, runtime_schedule
-from catanc.errors import UsageError
+from catanc.control.timers import Triggers, trigger_rules
 from catanc.planning.replan import Replanner
 from catanc.runtime.measure import Measurements
 from catanc.sim.cpu import Discipline, Job, Pool
@@ -336,40 +338,6 @@ def _layout(schedule: RuntimeSchedule) -> tuple[tuple[str, tuple[int, ...], bool
     return tuple((name, run.cores, run.shared) for name, run in sorted(schedule.subchains.items()))
 
 
-def baseline_wiring(spec: Spec) -> tuple[dict[str, float], dict[str, list[str]]]:
-    """The hand-tuned baseline's triggers: timer rates (Hz) of the listed scheduled nodes, and per node
-    the input-triggered nodes its outputs trigger (a UsageError if a node would never run)."""
-    rates_hz = spec.baseline.rates_hz
-    if not rates_hz:
-        raise UsageError(f"{spec.app}: the spec has no baseline (baseline.rates_hz) to simulate")
-    rates = {name: rate for name, rate in rates_hz.items() if spec.nodes[name].scheduled}
-    predecessors: dict[str, list[str]] = {name: [] for name in spec.nodes}
-    for source, target in spec.edge_pairs:
-        predecessors[target].append(source)
-    fed_by: dict[str, set[str]] = {}  # input-triggered node -> the nodes whose outputs trigger it
-    gaps = []
-    for name, node in spec.nodes.items():
-        if not node.scheduled or name in rates:
-            continue
-        inputs = predecessors[name]
-        scheduled = {p for p in inputs if spec.nodes[p].scheduled}
-        clocked = {p for p in inputs if not spec.nodes[p].scheduled and spec.nodes[p].rate_hz is not None}
-        if scheduled or clocked:
-            fed_by[name] = scheduled or clocked
-        else:
-            gaps.append(name)
-    if gaps:
-        raise UsageError(
-            f"{spec.app}: the baseline gives {', '.join(sorted(gaps))} no rate in baseline.rates_hz "
-            "and no input with one"
-        )
-    triggers: dict[str, list[str]] = {}
-    for name, feeders in sorted(fed_by.items()):
-        for feeder in sorted(feeders):
-            triggers.setdefault(feeder, []).append(name)
-    return rates, triggers
-
-
 class TimerPolicy:
     """The hand-tuned baseline: listed nodes on their own timers, the rest on new input; CFS or static FIFO."""
 
@@ -388,15 +356,14 @@ class TimerPolicy:
         self.priorities = priorities
         self.pool = Pool("all", tuple(range(cores)), discipline)
         engine.pools = [self.pool]
-        self.rates, self.triggers = baseline_wiring(spec)
-        self.busy: dict[str, bool] = {}
-        self.pending: dict[str, bool] = {}
+        self.rules = trigger_rules(spec, "simulate")
+        self.triggers = Triggers(self.rules)
         self.gate = ExecutorGate(spec)
         flow.listeners.append(self._on_output)
 
     def start(self) -> None:
-        for name, rate in sorted(self.rates.items()):
-            self._timer(name, 1000.0 / rate, 0.0)
+        for name, period_ms in sorted(self.rules.timers.items()):
+            self._timer(name, period_ms, 0.0)
 
     def busy_by_core(self) -> dict[int, float]:
         share = self.pool.busy_core_ms / len(self.pool.cores)
@@ -404,21 +371,17 @@ class TimerPolicy:
 
     def _timer(self, node: str, period_ms: float, due_ms: float) -> None:
         def fire() -> None:
-            self._trigger(node)
+            self._begin(self.triggers.fire(node))
             self._timer(node, period_ms, due_ms + period_ms)
 
         self.engine.at(due_ms, fire)
 
     def _on_output(self, node: str, _now_ms: float) -> None:
-        for target in self.triggers.get(node, ()):
-            self._trigger(target)
+        self._begin(self.triggers.output(node))
 
-    def _trigger(self, node: str) -> None:
-        if self.busy.get(node):
-            self.pending[node] = True  # one callback waits; more coalesce (a depth-1 queue)
-            return
-        self.busy[node] = True
-        self.gate.enter(node, lambda: self._start(node))
+    def _begin(self, nodes: list[str]) -> None:
+        for node in nodes:  # a busy node's trigger waited (a depth-1 queue), the rest start now
+            self.gate.enter(node, functools.partial(self._start, node))
 
     def _start(self, node: str) -> None:
         now = self.engine.now
@@ -426,10 +389,8 @@ class TimerPolicy:
         compute = self.sample(node, now / 1000.0)
 
         def done(_job: Job) -> None:
-            self.flow.produce(node, origins, self.engine.now)
+            self.flow.produce(node, origins, self.engine.now)  # its output triggers its successors
             self.gate.leave(node)
-            self.busy[node] = False
-            if self.pending.pop(node, False):
-                self._trigger(node)
+            self._begin(self.triggers.free(node))
 
         self.engine.submit(self.pool, Job(node, compute, 1, self.priorities.get(node, 0), 0, done))

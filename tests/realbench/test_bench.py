@@ -25,12 +25,13 @@ from typing import Any
 
 import pytest
 
-from catanc.control.timers import TICK, TIMER, Clock, Triggers, fifo_levels, trigger_rules
+from catanc.control.timers import TICK, TIMER, Clock, Triggers, trigger_rules
 from catanc.core.build import build_problem
 from catanc.core.load import load_spec
 from catanc.errors import ExitCode, UsageError
 from catanc.planning.planner import plan
 from catanc.realbench import bench as bench_run
+from catanc.realbench.bench import fifo_levels
 from catanc.realbench.driver import BenchError, Driver
 from catanc.realbench.replay import measured_result, replay, utilisation
 from catanc.runtime import protocol
