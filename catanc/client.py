@@ -295,8 +295,9 @@ class Node:
             self._closed = True
             sock, self._sock = self._sock, None
             if sock is not None:
-                if self._registered and not self._ended and self.tid is not None:
-                    # If the enforcer is gone or busy, it notices the thread is gone anyway.
+                if not self._ended and self.tid is not None:
+                    # Registered or not (interrupted before the welcome was read, the enforcer may have
+                    # registered it).  If the enforcer is gone or busy, it notices the thread is gone anyway.
                     with contextlib.suppress(OSError):
                         bye = b"%s bye %s %d" % (PROTOCOL, self.name.encode(), self.tid)
                         sock.sendto(bye, socket.MSG_DONTWAIT, self.socket_path)

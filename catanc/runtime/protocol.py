@@ -75,7 +75,8 @@ A client, step by step
    ``NEXT_THREADS``), append the run to the ring, and send ``done`` if the route says
    ``NOTIFY 1``.  On ``stop``, leave the loop (its last run is still appended).
 4. A node no trigger starts (a subscription callback) appends a ring entry with SEQ 0 per run.
-5. Leaving on its own, send ``catanc/2 bye NODE TID``.  While waiting, check every second or so
+5. Leaving on its own, send ``catanc/2 bye NODE TID`` (also if no welcome was read yet: the
+   enforcer may have sent one; a bye of a thread it does not know is ignored).  While waiting, check every second or so
    that the path still names a socket that takes datagrams: if not, the enforcer is gone.
 
 Limits the enforcer applies
