@@ -36,23 +36,23 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Literal
 
 from catanc.artifacts.runtime_table import RuntimeTable
 from catanc.control.policy import next_clock_ms
 from catanc.control.schedule import RuntimeSchedule, SubchainRun
-from catanc.core.priorities import ENFORCER_FIFO
 from catanc.errors import CatancError, ExitCode, SchedError
 from catanc.runtime import protocol
 from catanc.runtime.cores import SharedCores
 from catanc.runtime.costs import Costs
 from catanc.runtime.endpoints import Endpoint, EnforcerSocket, Received, Registry, decode_or_none
 from catanc.runtime.levels import Levels
-from catanc.runtime.log import RunLog, Throttle
+from catanc.runtime.log import Notes, RunLog
 from catanc.runtime.measure import Measurements, OpenCpuClocks
 from catanc.runtime.nodes import NodeThreads, Wiring
+from catanc.runtime.own_threads import OwnThreads
 from catanc.runtime.planning import PlannerProcess
 from catanc.runtime.replanning import Replanning
 from catanc.runtime.ring import RingReader
@@ -100,23 +100,23 @@ class Enforcer:
         self.spec = table.spec
         self.rt = rt
         self.log_path = log_path
-        self.log: RunLog | None = None  # opened once the socket is ours: never truncate another run's log
         self.clock = clock
+        self.notes = Notes(clock, clock())  # log opened once the socket is ours: never truncate another run's log
         self.socket_path = socket_path
         self.restorer = restorer if restorer is not None else Restorer()
         self.measurements = Measurements.for_spec(self.spec)
         self.cpu_clocks = OpenCpuClocks()
-        self.events: list[str] = []  # short notes for the live status (node crashed, ...)
-        self.throttle = Throttle()
         cpus = allowed_cpus()
-        planned_cores = min(cores or table.cores, len(cpus))  # two plan cores never share one CPU
-        if planned_cores < (cores or table.cores):
-            self._note(f"planning for {planned_cores} core(s), not {cores or table.cores}: CPUs {sorted(cpus)} only")
+        wanted = cores or table.cores
+        planned_cores = min(wanted, len(cpus))  # two plan cores never share one CPU
+        if planned_cores < wanted:
+            self.notes.note(f"planning for {planned_cores} core(s), not {wanted}: CPUs {sorted(cpus)} only")
         bootstrap = self.spec.runtime.bootstrap_ms if start == "bootstrap" else None
         self.planner = PlannerProcess(
             table.spec.model_dump(mode="json", by_alias=True), planned_cores, bootstrap_ms=bootstrap
         )
-        self.replanning = Replanning(self.planner, self.spec.runtime, cpus, self._note)
+        self.replanning = Replanning(self.planner, self.spec.runtime, cpus, self.notes.note)
+        self.own = OwnThreads(self.restorer, rt=rt, cpu_ids=lambda: self.replanning.cpu_ids)
         self.schedule: RuntimeSchedule = self.replanning.answer.schedule
         self.registry = Registry(set(self.spec.nodes))
         self.levels = Levels(rt=rt)
@@ -129,9 +129,9 @@ class Enforcer:
             self.restorer,
             self.schedule,
             rt=rt,
-            cpus_of=self.cpus_of,
-            note=self._note_throttled,
-            log=self._log,
+            cpus_of=self.own.cpus_of,
+            note=self.notes.throttled,
+            log=self.notes.write,
         )
         self.costs = Costs()
         self.reader = Reader(
@@ -140,7 +140,7 @@ class Enforcer:
             record=self.measurements.record,
             measured=self.measurements.nodes,
             hop=self.costs.hop,
-            sample=self._sample,
+            sample=self.notes.sample,
         )
         self.cores = SharedCores(
             self.book,
@@ -154,12 +154,11 @@ class Enforcer:
         self.clocks: list[tuple[float, str]] = []
         self.stopping = False
         self.failure: CatancError | None = None
-        self.started_ms = clock()
+        self.started_ms = self.notes.started_ms
         self.deadline_ms: float | None = None  # the end of a run of a given duration (set once the app is up)
         self.next_housekeeping_ms = self.started_ms
         self.next_status_ms = self.started_ms + STATUS_EVERY_MS
         self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
-        self.loop_tid: int | None = None
         self._loop_done = threading.Event()
         self.attaching: list[tuple[str, int, list[int]]] = []  # from --attach, for the loop to place
         self.final: dict[str, Any] | None = None  # the status as the run ended
@@ -187,9 +186,9 @@ class Enforcer:
             with EnforcerSocket(self.socket_path) as sock, self.restorer:
                 self.sock = sock
                 if self.log_path is not None:
-                    self.log = RunLog(self.log_path)
-                self._raise_self(pin=None)
-                self._log("start", cores=self.schedule.cores, plan=self.replanning.answer.summary)
+                    self.notes.log = RunLog(self.log_path)
+                self.own.raise_self(pin=None)
+                self.notes.write("start", cores=self.schedule.cores, plan=self.replanning.answer.summary)
                 failure: list[BaseException] = []
                 loop = threading.Thread(
                     target=self._loop_thread, args=(on_tick, failure), name="catanc-loop", daemon=True
@@ -246,9 +245,8 @@ class Enforcer:
 
     def _loop_thread(self, on_tick: Callable[[Enforcer], None] | None, failure: list[BaseException]) -> None:
         try:
-            self.loop_tid = threading.get_native_id()
             name_thread("catanc-loop")
-            self._raise_self(pin=self._loop_core())
+            self.own.start_loop(self.schedule)
             self._install(self.clock())
             self._loop(on_tick)
         except BaseException as exc:  # re-raised by run(), in the main thread
@@ -266,12 +264,9 @@ class Enforcer:
         self.cpu_clocks.close()
         self.planner.close()
         self._flush_samples()
-        if self.log is not None:
-            self.log.flush()
-        self._log("stop", summary=self.final)
-        if self.log is not None:
-            log, self.log = self.log, None
-            log.close()
+        self.notes.flush()
+        self.notes.write("stop", summary=self.final)
+        self.notes.close()
 
     def _await_last_runs(self, grace_s: float) -> None:
         """At most ``grace_s``, until every run in flight has been reported (nothing new is triggered).
@@ -283,13 +278,7 @@ class Enforcer:
         quiet_until, progress = 0.0, -1
         while (now := time.monotonic()) < deadline:
             self._read_all(self.clock())
-            at = [
-                self.schedule.subchains[name].nodes[flight.index]
-                for name, state in self.book.states.items()
-                if name in self.schedule.subchains
-                for flight in state.in_flight.values()
-                if flight.index < len(self.schedule.subchains[name].nodes)
-            ]
+            at = self.book.nodes_in_flight(self.schedule.subchains)
             if not at:
                 return
             readers = self.wiring.readers if self.wiring is not None else {}
@@ -420,7 +409,7 @@ class Enforcer:
         for received in self.sock.receive():
             message, why = decode_or_none(received.data)
             if message is None:
-                self._note_throttled("datagram", f"dropped a datagram: {why}")
+                self.notes.throttled("datagram", f"dropped a datagram: {why}")
             elif isinstance(message, protocol.Hello):
                 self._hello(message, received)
             elif isinstance(message, protocol.Bye):
@@ -428,7 +417,7 @@ class Enforcer:
             elif isinstance(message, protocol.SetCores):
                 self._set_cores(message, received)
             elif not isinstance(message, protocol.Done):  # runs are read from the rings; a done is only a hint
-                self._note_throttled("datagram", f"dropped a {message.TYPE} message: not one a node sends")
+                self.notes.throttled("datagram", f"dropped a {message.TYPE} message: not one a node sends")
 
     def _hello(self, hello: protocol.Hello, received: Received) -> None:
         try:
@@ -443,7 +432,7 @@ class Enforcer:
         credentials = received.credentials
         if credentials is None or credentials.uid not in (0, os.geteuid()):
             uid = "unknown" if credentials is None else credentials.uid
-            self._note_throttled("set_cores", f"ignored set_cores from uid {uid}: only root or this user may")
+            self.notes.throttled("set_cores", f"ignored set_cores from uid {uid}: only root or this user may")
             return
         self.replanning.requested_cores = message.cores
 
@@ -454,7 +443,7 @@ class Enforcer:
         self.cores.install(self.schedule, now)
         self.clocks = [(now, run.name) for run in self.schedule.clocked]
         heapq.heapify(self.clocks)
-        self.costs.core = self._loop_core()
+        self.costs.core = self.own.loop_core(self.schedule)
 
     def _on_answer(self) -> None:
         try:
@@ -467,7 +456,7 @@ class Enforcer:
             return
         changed = False
         if answer.error is not None:  # keep the last good plan and its slots
-            self._note(f"re-plan failed, keeping the last plan: {answer.error}")
+            self.notes.note(f"re-plan failed, keeping the last plan: {answer.error}")
         else:
             before = self.schedule
             self.schedule = answer.schedule
@@ -476,12 +465,12 @@ class Enforcer:
             clocked = {run.name for run in before.clocked} != {run.name for run in answer.schedule.clocked}
             if changed or clocked:  # a new allocation: every thread re-pinned, every core and clock restarted
                 self.nodes.place_all()
-                self._pin_loop()
+                self.own.pin_loop(self.schedule)
                 self._install(self.clock())
             else:
                 self.cores.update(answer.schedule)
             self.nodes.routes()
-        self._log(
+        self.notes.write(
             "resolve",
             reason=request.reason,
             stage1=request.kind != "resolve",
@@ -500,19 +489,18 @@ class Enforcer:
         self.reader.flush()
         self.cores.rewake()  # runs that ended may leave a core idle
         for name, seq, node in self.book.lost(self.schedule.subchains, now):
-            self._note(f"{name}: run {seq} lost at {node} (no answer in time)")
-            self._log("lost", subchain=name, seq=seq, node=node)
+            self.notes.note(f"{name}: run {seq} lost at {node} (no answer in time)")
+            self.notes.write("lost", subchain=name, seq=seq, node=node)
         self._cores_and_cadence(now)
         if now < self.next_status_ms:
             return
         self.next_status_ms = now + STATUS_EVERY_MS
         self.nodes.adopt_spawned()
         self.book.expected = self.measurements.estimates()
-        if self.loop_tid is not None:
+        if self.own.loop_tid is not None:
             self.costs.cpu(time.monotonic_ns(), time.thread_time_ns())
-        self._log("status", **self.status())
-        if self.log is not None:
-            self.log.flush()
+        self.notes.write("status", **self.status())
+        self.notes.flush()
         if on_tick is not None:
             on_tick(self)
 
@@ -529,40 +517,10 @@ class Enforcer:
         if step.repin:  # as many CPUs, but others: the same plan, pinned to them
             self.nodes.place_all()
             self.cores.forget_raised()
-            self._pin_loop()
-            self._log("repin", cpus=self.cpu_ids)
+            self.own.pin_loop(self.schedule)
+            self.notes.write("repin", cpus=self.own.cpu_ids)
 
-    # ------------------------------------------------------------------ the enforcer's own threads
-
-    @property
-    def cpu_ids(self) -> list[int]:
-        return self.replanning.cpu_ids
-
-    def cpus_of(self, cores: Iterable[int]) -> frozenset[int]:
-        """The CPUs of plan cores: core ``i`` is the ``i``-th allowed CPU (a cpuset {2, 3} runs cores 0, 1 there)."""
-        ids = self.cpu_ids
-        return frozenset(ids[core % len(ids)] for core in cores)
-
-    def _loop_core(self) -> int:
-        """The plan core the loop runs on: the shared core with the most switches, else the last core."""
-        busiest = max(
-            self.schedule.shared, key=lambda core: ((len(core.slots) + 1) / core.period_ms, -core.core), default=None
-        )
-        return busiest.core if busiest is not None else self.schedule.cores - 1
-
-    def _pin_loop(self) -> None:
-        if self.loop_tid is not None and threading.get_native_id() == self.loop_tid:
-            os.sched_setaffinity(0, self.cpus_of([self._loop_core()]))
-
-    def _raise_self(self, pin: int | None) -> None:
-        """The calling thread: remembered (the watchdog restores it too), FIFO 4 with RT, pinned to plan core
-        ``pin`` if given."""
-        tid = threading.get_native_id()
-        self.restorer.remember(tid)
-        if pin is not None:
-            os.sched_setaffinity(tid, self.cpus_of([pin]))
-        if self.rt:  # processes it starts (--demo workers) must not inherit FIFO 4: reset on fork
-            os.sched_setscheduler(tid, os.SCHED_FIFO | os.SCHED_RESET_ON_FORK, os.sched_param(ENFORCER_FIFO))
+    # ------------------------------------------------------------------ the watchdog
 
     def _watchdog_fd(self) -> int | None:
         watchdog = self.restorer.watchdog
@@ -578,8 +536,8 @@ class Enforcer:
         """The watchdog is gone: put every thread back now and stop (a SIGKILL would leave them raised)."""
         report = self.restorer.restore_all()
         message = "the watchdog process died: every thread was put back and the run stopped"
-        self._note(message)
-        self._log("watchdog", restored=len(report.restored), why=why or "exited")
+        self.notes.note(message)
+        self.notes.write("watchdog", restored=len(report.restored), why=why or "exited")
         self.failure = WatchdogLostError(message + (f" ({why})" if why else ""))
         self.stop()
 
@@ -601,25 +559,10 @@ class Enforcer:
             "costs": costs,
         }
 
-    def _note(self, text: str) -> None:
-        self.events = [*self.events[-9:], text]
-
-    def _note_throttled(self, kind: str, text: str) -> None:
-        """A note (and a log line) at most once a second per kind, saying how many were left out."""
-        suppressed = self.throttle.due(kind, self.clock())
-        if suppressed is None:
-            return
-        more = f" (and {suppressed} more like it)" if suppressed else ""
-        self._note(text + more)
-        self._log("dropped", kind=kind, text=text, more=suppressed)
-
-    def _log(self, event: str, **fields: Any) -> None:
-        if self.log is not None:
-            self.log.write(event, (self.clock() - self.started_ms) / 1000.0, fields)
-
-    def _sample(self, event: str, at_ms: float, key: str, values: tuple[Any, ...]) -> None:
-        if self.log is not None:
-            self.log.sample(event, (at_ms - self.started_ms) / 1000.0, key, values)
+    @property
+    def events(self) -> list[str]:
+        """Short notes for the live status (node crashed, ...), the last ten."""
+        return self.notes.texts
 
     def attach(self, node: str, pid: int, tids: list[int]) -> None:
         """Pin and prioritise the threads of a process that does not speak the protocol, as ``node``'s (the loop

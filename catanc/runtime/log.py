@@ -23,6 +23,7 @@ import os
 import stat
 import threading
 from collections import deque
+from collections.abc import Callable
 from pathlib import Path
 from types import TracebackType
 from typing import IO, Any
@@ -119,6 +120,50 @@ class Throttle:
             return None
         self._last[kind] = now_ms
         return self._left_out.pop(kind, 0)
+
+
+class Notes:
+    """The run's notes for people: short texts for the live status (the last ten), log lines, samples.
+
+    Times in the log are seconds since ``started_ms`` on ``clock``; nothing is written before
+    :attr:`log` is set (it is opened once the socket is ours: never truncate another run's log).
+    """
+
+    def __init__(self, clock: Callable[[], float], started_ms: float) -> None:
+        self.clock = clock
+        self.started_ms = started_ms
+        self.log: RunLog | None = None
+        self.texts: list[str] = []
+        self.throttle = Throttle()
+
+    def note(self, text: str) -> None:
+        self.texts = [*self.texts[-9:], text]
+
+    def throttled(self, kind: str, text: str) -> None:
+        """A note (and a log line) at most once a second per kind, saying how many were left out."""
+        suppressed = self.throttle.due(kind, self.clock())
+        if suppressed is None:
+            return
+        more = f" (and {suppressed} more like it)" if suppressed else ""
+        self.note(text + more)
+        self.write("dropped", kind=kind, text=text, more=suppressed)
+
+    def write(self, event: str, **fields: Any) -> None:
+        if self.log is not None:
+            self.log.write(event, (self.clock() - self.started_ms) / 1000.0, fields)
+
+    def sample(self, event: str, at_ms: float, key: str, values: tuple[Any, ...]) -> None:
+        if self.log is not None:
+            self.log.sample(event, (at_ms - self.started_ms) / 1000.0, key, values)
+
+    def flush(self) -> None:
+        if self.log is not None:
+            self.log.flush()
+
+    def close(self) -> None:
+        if self.log is not None:
+            log, self.log = self.log, None
+            log.close()
 
 
 def _batch_lines(samples: deque[tuple[str, float, str, tuple[Any, ...]]]) -> list[str]:

@@ -265,6 +265,15 @@ class RunBook:
                     found.append((name, seq, node))
         return found
 
+    def nodes_in_flight(self, runs: dict[str, SubchainRun]) -> list[str]:
+        """The node each run in flight is at (a node once per run)."""
+        found = []
+        for name, state in self.states.items():
+            run = runs.get(name)
+            if run is not None:
+                found += [run.nodes[f.index] for f in state.in_flight.values() if f.index < len(run.nodes)]
+        return found
+
     def oldest_ms(self, name: str) -> float | None:
         state = self.states.get(name)
         return None if state is None else state.oldest_ms()
