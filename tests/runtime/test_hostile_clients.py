@@ -30,8 +30,8 @@ import pytest
 from catanc import client as client_module
 from catanc.errors import ExitCode
 from catanc.runtime.watchdog import WATCHDOG_PRIORITY
-from tests.enforcer_runs import ENFORCER_MAIN, EnforcerRun, Event, cmdline, compile_table, kill_groups, of_kind
-from tests.kernel import WAIT_S, Sched, alive, nobody_ids, poll, require_fifo, sched_of, threads_of
+from tests.support.enforcer_runs import ENFORCER_MAIN, EnforcerRun, Event, cmdline, compile_table, kill_groups, of_kind
+from tests.support.linux import WAIT_S, Sched, alive, poll, sched_of, threads_of
 
 # One core, two subchains: `front` (cam -> det, 4 + 4 ms, at most 50 Hz) and `map` (8 ms, at most 20 Hz);
 # imu is unscheduled and registers (FIFO 3).  Both planned rates are their caps: a run takes a fifth of
@@ -59,9 +59,8 @@ MINE = frozenset(os.sched_getaffinity(0))
 OTHER = Sched(os.SCHED_OTHER, 0, MINE)
 
 
-@pytest.fixture(scope="module", autouse=True)
-def real_kernel() -> None:
-    require_fifo(WATCHDOG_PRIORITY)
+REALTIME_PRIORITY = WATCHDOG_PRIORITY  # conftest's real_kernel: every test here needs SCHED_FIFO up to it
+pytestmark = pytest.mark.usefixtures("real_kernel")
 
 
 @dataclass
@@ -283,11 +282,6 @@ def test_the_watchdogs_death_puts_everything_back_and_stops_the_run(run: Run) ->
 
 
 # --------------------------------------------------------------------------- 5. who may do what
-
-
-@pytest.fixture(scope="module")
-def nobody() -> tuple[int, int]:
-    return nobody_ids()
 
 
 def as_nobody(uid: int, gid: int) -> list[str]:

@@ -22,8 +22,7 @@ from catanc.errors import ExitCode
 from catanc.runtime.log import read_log
 from catanc.runtime.watchdog import WATCHDOG_PRIORITY
 from catanc.spec.machine import read_machine
-from tests.enforcer_runs import ENFORCER_MAIN, compile_table, of_kind
-from tests.kernel import require_fifo
+from tests.support.enforcer_runs import ENFORCER_MAIN, compile_table, of_kind
 
 # One core, three subchains with short slices: many switches a second, and two hops per run of `a`.
 BUSY_CORE = """\
@@ -44,9 +43,8 @@ runtime: {first_solve_after_s: 1, stage2_every_s: 1, stage1_every_s: 100}
 """
 
 
-@pytest.fixture(scope="module", autouse=True)
-def real_kernel() -> None:
-    require_fifo(WATCHDOG_PRIORITY)
+REALTIME_PRIORITY = WATCHDOG_PRIORITY  # conftest's real_kernel: every test here needs SCHED_FIFO up to it
+pytestmark = pytest.mark.usefixtures("real_kernel")
 
 
 def test_a_run_measures_its_costs_reports_them_and_plans_with_them(tmp_path: Path) -> None:
