@@ -65,7 +65,7 @@ class RunFlight(Flight):
 class SubchainRuns(Flights[RunFlight]):
     """A subchain's runs in flight, and what was seen of them."""
 
-    triggers_ms: deque[float] = field(default_factory=lambda: deque(maxlen=512))
+    ends_ms: deque[float] = field(default_factory=lambda: deque(maxlen=512))  # when each of its last runs ended
     lost: int = 0
     steals: int = 0
     unmatched: int = 0
@@ -147,20 +147,22 @@ class RunBook:
         started = state.start(RunFlight(0, now_ms, until_ms=until_ms))
         if started is None:
             return None
-        state.triggers_ms.append(now_ms)
         if not started.deferred and head is not None and started.seq % KERNEL_CHECK_EVERY == 0:
             state.in_flight[started.seq].kernel_ns = self.kernel(head)
         return started
 
     def measured_hz(self, name: str, period_ms: float, now_ms: float) -> float | None:
-        """Triggers per second over the last :data:`RATE_WINDOW_S` (or 4 periods): 0 once a subchain stops."""
+        """Runs completed per second over the last :data:`RATE_WINDOW_S` (or 4 periods): 0 once a subchain stops.
+
+        Completions, not triggers: a subchain whose node hangs is still triggered (each run is then lost).
+        """
         state = self.states.get(name)
-        if state is None or not state.triggers_ms:
+        if state is None or not state.ends_ms:
             return None
         window = max(RATE_WINDOW_S * 1000.0, 4.0 * period_ms)
         since = now_ms - window
-        count = sum(1 for t in state.triggers_ms if t > since)
-        first = state.triggers_ms[0]
+        count = sum(1 for t in state.ends_ms if t > since)
+        first = state.ends_ms[0]
         return 1000.0 * count / min(window, max(now_ms - first, period_ms))
 
     def read(
@@ -236,6 +238,7 @@ class RunBook:
             return
         flight.last_end_ms = end_ms
         if handoff.next_index is None:
+            state.ends_ms.append(end_ms)
             seen.runs.append(RunSample(end_ms, run.name, seq, state.over(handoff.flight, end_ms, run.latency_ms)))
         if handoff.head_done:  # a trigger that came while the head ran is running since the head finished
             state.start_pending(RunFlight(0, end_ms, until_ms=flight.until_ms if not run.shared else None))

@@ -188,13 +188,21 @@ def test_a_trigger_while_the_head_runs_is_sent_and_starts_when_the_head_is_done(
     assert (deferred.index, deferred.triggered_ms) == (0, 3.0)  # in flight since the head was done
 
 
-def test_the_measured_rate_decays_to_zero_once_triggers_stop(two_nodes: TwoNodes) -> None:
-    book, run, _, _ = two_nodes
-    for i in range(50):
-        book.trigger(run, 20.0 * i, None)
-        book.state("s").in_flight.clear()
+def test_the_measured_rate_counts_completed_runs_and_decays_to_zero(two_nodes: TwoNodes) -> None:
+    book, run, (a, b), readers = two_nodes
+    assert book.measured_hz("s", 20.0, 0.0) is None  # nothing completed yet
+    for i in range(50):  # 50 runs, one every 20 ms, each 2 ms at a then 2 ms at b
+        started = book.trigger(run, 20.0 * i, None)
+        assert started is not None
+        at = int(20.0 * i * MS)
+        a.append(started.seq, at, at + 2 * MS, 2 * MS)
+        b.append(started.seq, at + 2 * MS, at + 4 * MS, 2 * MS)
+        read(book, run, readers, 20.0 * i + 5.0)
     assert book.measured_hz("s", 20.0, 1000.0) == pytest.approx(50.0, rel=0.05)
-    assert book.measured_hz("s", 20.0, 1000.0 + 5000.0) == 0.0
+    for i in range(50, 150):  # for 2 s still triggered, but b hangs: every run is lost, none completes
+        assert book.trigger(run, 20.0 * i, None) is not None
+        book.lost({"s": run}, 20.0 * i + 10_000.0)
+    assert book.measured_hz("s", 20.0, 3000.0) == 0.0
 
 
 def test_lost_runs_are_given_up_after_20_latencies_and_a_second(two_nodes: TwoNodes) -> None:
