@@ -154,7 +154,9 @@ class Enforcer:
         self.clocks: list[tuple[float, str]] = []
         self.stopping = False
         self.failure: CatancError | None = None
-        self.started_ms = self.notes.started_ms
+        # The run starts once its first plan is in (the planner's start-up is not the app's time): log times,
+        # the status's elapsed time and the first housekeeping count from here.
+        self.started_ms = self.notes.started_ms = clock()
         self.deadline_ms: float | None = None  # the end of a run of a given duration (set once the app is up)
         self.next_housekeeping_ms = self.started_ms
         self.next_status_ms = self.started_ms + STATUS_EVERY_MS
