@@ -13,6 +13,11 @@ nodes sit at FIFO 1 (``catanc run`` raises the running slice to 2), a
 dedicated subchain's at 2, unscheduled nodes at 3.  A process hosting
 several nodes gets the union of their CPUs and the highest of their levels:
 a process has one affinity and one policy; ``catanc run`` pins per thread.
+
+Without the enforcer (``launch.sh --static``) no one switches a shared core's
+slices, and equal SCHED_FIFO levels do not time-slice: a process with a node
+of a shared subchain runs under SCHED_OTHER at its planned rate instead
+(:attr:`Process.static_priority`), the others at their level.
 """
 
 from __future__ import annotations
@@ -46,6 +51,17 @@ class Process:
     cpus: tuple[int, ...]
     priority: int  # SCHED_FIFO priority at launch
     params: ParamTree  # ROS parameters (empty without ros_node)
+    shared: bool = False  # hosts a node of a shared core's subchain
+
+    @property
+    def static_priority(self) -> int:
+        """Its SCHED_FIFO priority without the enforcer; 0: SCHED_OTHER (it has a node on a shared core).
+
+        One thread of a shared core at SCHED_FIFO would keep the core's other subchains off it for as
+        long as it runs; under SCHED_OTHER the fair scheduler shares the core while each node runs at
+        the rate params.yaml plans.  A process has one policy, so one shared node puts all of it there.
+        """
+        return 0 if self.shared else self.priority
 
     @property
     def namespace(self) -> str:
@@ -92,6 +108,7 @@ def processes(spec: Spec, plan: Plan) -> tuple[Process, ...]:
             node_cpus, level = _placement(plan, node, membership)
             cpus.update(node_cpus)
             priority = max(priority, level)
+        shared = any(node in membership and plan.subchains[membership[node]].shared for node in nodes)
         command = _first(entry.command for entry in entries)
         ros_node = _first(entry.ros_node for entry in entries)
         process_cpus = tuple(sorted(cpus))
@@ -110,6 +127,7 @@ def processes(spec: Spec, plan: Plan) -> tuple[Process, ...]:
                     if ros_node is not None
                     else {}
                 ),
+                shared=shared,
             )
         )
     return tuple(found)

@@ -43,6 +43,10 @@ GENERATED = frozenset({*FILES, THREAD_CONFIGURATOR})
 
 EXECUTABLE = frozenset({"launch.sh"})
 
+STOP_GRACE_S = 2
+"""Seconds launch.sh gives its processes after forwarding a signal, before SIGKILL: a node shuts down in less,
+and its whole tree is gone within 3 s."""
+
 
 def emit(
     spec: Spec, problem: Problem, plan: Plan, provenance: Provenance, machine: MachineUse | None = None
@@ -65,8 +69,9 @@ def emit(
             "launch.sh.j2",
             context,
             started=started,
-            top_priority=max((process.priority for process in started), default=1),
+            top_static_priority=max((process.static_priority for process in started), default=0),
             exit_no_privilege=int(ExitCode.NO_PRIVILEGE),
+            grace_s=STOP_GRACE_S,
         ),
         "launch.py": _render(
             "launch.py.j2",

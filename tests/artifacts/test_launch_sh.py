@@ -2,13 +2,17 @@
 
 The processes come from a small spec planned for 2 cores: ``fast`` gets a
 dedicated core (SCHED_FIFO 2 on CPU 0), the Mapper-like ``/slow`` hosts two
-nodes that share CPU 1 (FIFO 1), and the unscheduled ``sensor`` may use both
-CPUs (FIFO 3).  Each test writes the emitted files to a folder, runs ``bash
-launch.sh`` and reads every child's policy, priority and CPUs from /proc,
-comparing them with :func:`catanc.artifacts.deploy.processes` (not with the script's
-text).  The stand-ins are small Python programs that say they are ready,
-note every signal they get and linger a moment after the first, so a signal
-forwarded twice would show.
+nodes that share CPU 1 (SCHED_OTHER with ``--static``: no enforcer switches
+its slices), and the unscheduled ``sensor`` may use both CPUs (FIFO 3).
+Most tests run ``bash launch.sh --static``; those of the default deployment
+run the real enforcer (``catanc run``) too.  Each test writes the emitted
+files to a folder, runs the script and reads every child's policy, priority
+and CPUs from /proc, comparing them with
+:func:`catanc.artifacts.deploy.processes` (not with the script's text).
+The stand-ins are small Python programs that say they are ready, note every
+signal they get and linger a moment after the first, so a signal forwarded
+twice would show.  The stopping tests give them children, some of which
+ignore every signal but SIGKILL, and time how long the whole tree takes to go.
 
 The tests that need the real kernel skip when SCHED_FIFO is not permitted or
 taskset/chrt are missing; the unprivileged ones also need ``setpriv`` and
@@ -47,6 +51,7 @@ from catanc.spec.language import Spec
 from tests.support.linux import as_user, cpu_set, missing_tools, poll
 
 SPECS = sorted((Path(__file__).parents[2] / "specs").glob("*.yaml"))
+CATANC = str(Path(sys.executable).with_name("catanc"))  # the enforcer launch.sh starts: this checkout's
 WAIT_S = 10.0  # the longest any single wait in here may take
 TOP_PRIORITY = UNSCHEDULED_FIFO  # the highest SCHED_FIFO priority a launch.sh here asks for
 
@@ -97,6 +102,10 @@ ready = {
 (folder / f"{name}.tmp").rename(folder / f"{name}.json")
 if mode.startswith("exit:"):
     sys.exit(int(mode[len("exit:"):]))
+if mode == "tree":  # a child in its process group, as a node's helper process would be
+    import subprocess
+    child = subprocess.Popen(["sleep", "60"])
+    (folder / f"{name}.child").write_text(str(child.pid))
 waiting = True
 try:
     if not received:
@@ -152,7 +161,9 @@ class Sched:
 
 
 def expected(process: Process, *, rt: bool = True) -> Sched:
-    if rt:
+    """What ``launch.sh --static`` runs a process at: a shared core's under SCHED_OTHER (worked out here)."""
+    shared = {"/slow"}  # slowa and slowb share CPU 1 (test_the_plan_mixes_shared_dedicated_and_unscheduled)
+    if rt and process.key not in shared:
         return Sched(os.SCHED_FIFO, process.priority, frozenset(process.cpus))
     return Sched(os.SCHED_OTHER, 0, frozenset(process.cpus))
 
@@ -190,6 +201,17 @@ def alive(pid: int) -> bool:
         return stat_fields(pid)[0] != "Z"
     except (FileNotFoundError, ProcessLookupError):
         return False
+
+
+def descendants_of(pid: int) -> set[int]:
+    """Every process below ``pid``: children, their children, and so on."""
+    found: set[int] = set()
+    todo = [pid]
+    while todo:
+        below = children_of(todo.pop()) - found
+        found |= below
+        todo.extend(below)
+    return found
 
 
 def children_of(pid: int) -> set[int]:
@@ -232,14 +254,14 @@ class Run:
                 found[key] = int(rest.split(",")[0])
         return found
 
-    def ready(self, keys: Sequence[str] = KEYS) -> dict[str, dict[str, Any]]:
-        """Waits until every stand-in has written its ``.json`` and the script has printed its pid."""
+    def ready(self, keys: Sequence[str] = KEYS, also: Sequence[str] = ()) -> dict[str, dict[str, Any]]:
+        """Waits until every stand-in has written its ``.json`` and the script has printed its pid (and ``also``'s)."""
 
         def check() -> dict[str, dict[str, Any]] | None:
             if self.proc.poll() is not None:
                 pytest.fail(f"launch.sh exited with {self.proc.returncode} early:\n{self.stdout}{self.stderr}")
             files = [self.folder / f"{name_of(key)}.json" for key in keys]
-            if not all(file.exists() for file in files) or set(self.started()) != set(keys):
+            if not all(file.exists() for file in files) or set(self.started()) != {*keys, *also}:
                 return None
             return {key: json.loads(file.read_text()) for key, file in zip(keys, files, strict=True)}
 
@@ -264,7 +286,14 @@ def launcher() -> Iterator[Launcher]:
     """``launch(folder, files, *args, prefix=())``: writes the files and runs ``prefix bash launch.sh args``."""
     runs: list[Run] = []
 
-    def launch(folder: Path, files: Mapping[str, str], *args: str, prefix: Sequence[str] = ()) -> Run:
+    def launch(
+        folder: Path,
+        files: Mapping[str, str],
+        *args: str,
+        prefix: Sequence[str] = (),
+        static: bool = True,
+        catanc: str = CATANC,
+    ) -> Run:
         for name, text in files.items():
             (folder / name).write_text(text)
         (folder / "standin.py").write_text(STANDIN)
@@ -275,12 +304,12 @@ def launcher() -> Iterator[Launcher]:
             sigint_not_ignored(),
         ):
             proc = subprocess.Popen(
-                [*prefix, "bash", "launch.sh", *args],
+                [*prefix, "bash", "launch.sh", *(["--static"] if static else []), *args],
                 cwd=folder,
                 stdin=subprocess.DEVNULL,
                 stdout=out,
                 stderr=err,
-                env={**os.environ, "CATANC_LAUNCH_TEST": str(folder)},
+                env={**os.environ, "CATANC_LAUNCH_TEST": str(folder), "CATANC": catanc},
                 start_new_session=True,
             )
         run = Run(proc, folder, token)
@@ -342,6 +371,8 @@ def test_the_plan_mixes_shared_dedicated_and_unscheduled(two_cores: Plan) -> Non
     assert found["fast"][1] == RUNNING_FIFO
     assert found["/slow"][1] == SHARED_FIFO
     assert len({cpus for cpus, _ in found.values()}) == 3
+    static = {p.key: p.static_priority for p in processes(make_spec(dict.fromkeys(KEYS, "true")), two_cores)}
+    assert static == {"/slow": 0, "fast": RUNNING_FIFO, "sensor": UNSCHEDULED_FIFO}
 
 
 @pytest.mark.usefixtures("real_kernel")
@@ -650,3 +681,139 @@ def test_every_example_script_passes_shellcheck(
             ["shellcheck", "--shell=bash", str(path)], capture_output=True, text=True, timeout=WAIT_S, check=False
         )
         assert result.returncode == 0, f"{path.name}:\n{result.stdout}"
+
+
+# --------------------------------------------------------------------------- the default: with the enforcer
+
+
+def socket_of(run: Run) -> str:
+    """The enforcer's socket, from ``launch.sh: started catanc run (pid N, socket PATH)``."""
+    line = next(line for line in run.stdout.splitlines() if line.startswith("launch.sh: started catanc run "))
+    return line.rpartition("socket ")[2].rstrip(")")
+
+
+def environment_of(pid: int) -> dict[str, str]:
+    pairs = Path(f"/proc/{pid}/environ").read_bytes().split(b"\0")
+    return dict(os.fsdecode(pair).partition("=")[::2] for pair in pairs if pair)
+
+
+@pytest.mark.usefixtures("real_kernel")
+def test_by_default_the_enforcer_starts_first_and_the_processes_reach_it(
+    tmp_path: Path, two_cores: Plan, launcher: Launcher
+) -> None:
+    """catanc run on the table beside launch.sh, then each process on its CPUs under SCHED_OTHER, with its socket."""
+    spec = make_spec({key: standin_command(tmp_path, key) for key in KEYS})
+    run = launcher(tmp_path, launch_files(spec, two_cores), static=False)
+    ready = run.ready(KEYS, also=["catanc run"])
+    started = run.started()
+    assert next(iter(started)) == "catanc run"
+    enforcer = started["catanc run"]
+    socket = socket_of(run)
+    table = str(tmp_path / "runtime.json")
+    assert cmdline(enforcer)[-7:] == ["run", table, "--socket", socket, "--start", "spec", "--quiet"]
+    assert Path(socket).is_socket()  # up before any process started
+    for process in processes(spec, two_cores):
+        pid = started[process.key]
+        assert ready[process.key]["pid"] == pid
+        assert sched_of(pid) == expected(process, rt=False), process.key  # the enforcer raises what registers
+        assert environment_of(pid)["CATANC_SOCKET"] == socket
+        assert os.getpgid(pid) == pid  # a group of its own
+    run.proc.send_signal(signal.SIGTERM)
+    assert run.wait() == 128 + signal.SIGTERM
+    assert not alive(enforcer)
+    assert not Path(socket).parent.exists()  # launch.sh's socket folder is gone with it
+
+
+FAKE_ENFORCER = """\
+import socket, sys, time
+path = sys.argv[sys.argv.index("--socket") + 1]
+sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+sock.bind(path)
+time.sleep(0.5)
+sys.exit(5)
+"""
+
+
+@pytest.mark.usefixtures("real_kernel")
+def test_when_the_enforcer_ends_the_processes_are_stopped(tmp_path: Path, two_cores: Plan, launcher: Launcher) -> None:
+    """An enforcer that binds its socket and exits with 5 half a second later: launch.sh stops the rest, exits 5."""
+    fake = tmp_path / "fake-catanc"
+    fake.write_text(f"#!{sys.executable}\n{FAKE_ENFORCER}")
+    fake.chmod(0o755)
+    spec = make_spec({key: standin_command(tmp_path, key) for key in KEYS})
+    run = launcher(tmp_path, launch_files(spec, two_cores), static=False, catanc=str(fake))
+    assert run.wait() == 5, run.stdout + run.stderr
+    started = run.started()
+    assert not [key for key, pid in started.items() if alive(pid)]
+    assert "the enforcer (pid " in run.stderr
+    assert "exited with status 5: stopping the processes" in run.stderr
+    # Each stand-in that had started when the enforcer ended got one SIGTERM.
+    assert [key for key in KEYS if key in started and run.signals(key) not in ([], ["SIGTERM"])] == []
+
+
+@pytest.mark.usefixtures("real_kernel")
+def test_without_catanc_it_starts_nothing_and_says_how_to_deploy(
+    tmp_path: Path, two_cores: Plan, launcher: Launcher
+) -> None:
+    spec = make_spec({key: standin_command(tmp_path, key) for key in KEYS})
+    run = launcher(tmp_path, launch_files(spec, two_cores), static=False, catanc=str(tmp_path / "no-such-catanc"))
+    assert run.wait() == 127
+    assert "cannot find the enforcer" in run.stderr
+    assert "--static" in run.stderr
+    assert run.stdout == ""
+
+
+# --------------------------------------------------------------------------- stopping the whole tree
+
+STOP_TARGET_S = 3.0  # issue 32: every process launch.sh started, children included, gone within 3 s
+
+
+def tree_commands(folder: Path) -> dict[str, str]:
+    """Processes with children, as nodes have them; ``*.child`` holds each child's pid.
+
+    ``/slow`` stops on the signal and its child (``sleep``) dies of it; ``fast`` and its child ignore
+    SIGINT, SIGTERM and SIGHUP (only SIGKILL ends them); ``sensor`` dies of the signal but leaves a
+    child that ignores it behind, in its process group.
+    """
+    ignoring = 'trap "" INT TERM HUP; sleep 60 & echo $! > "$0.child"; exec sleep 60'
+    orphaning = '(trap "" INT TERM HUP; exec sleep 60) & echo $! > "$0.child"; exec sleep 60'
+    return {
+        "/slow": standin_command(folder, "/slow", "tree"),
+        "fast": shlex.join(["sh", "-c", ignoring, str(folder / "fast")]),
+        "sensor": shlex.join(["sh", "-c", orphaning, str(folder / "sensor")]),
+    }
+
+
+@pytest.mark.usefixtures("real_kernel")
+@pytest.mark.parametrize("static", [True, False], ids=["static", "enforced"])
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP], ids=["SIGINT", "SIGTERM", "SIGHUP"])
+def test_a_signal_stops_every_process_and_child_within_3_s(
+    tmp_path: Path, two_cores: Plan, launcher: Launcher, static: bool, signum: signal.Signals
+) -> None:
+    spec = make_spec(tree_commands(tmp_path))
+    run = launcher(tmp_path, launch_files(spec, two_cores), static=static)
+    children = [tmp_path / f"{name_of(key)}.child" for key in KEYS]
+
+    def up() -> set[int] | None:
+        if run.proc.poll() is not None:
+            pytest.fail(f"launch.sh exited with {run.proc.returncode} early:\n{run.stdout}{run.stderr}")
+        if not all(file.exists() and file.read_text().strip() for file in children):
+            return None
+        if not set(KEYS) <= set(run.started()):
+            return None
+        tree = descendants_of(run.proc.pid)
+        return tree if {int(file.read_text()) for file in children} <= tree else None
+
+    tree = poll(up, "every process and its child")
+    assert len(tree) >= 2 * len(KEYS) + (0 if static else 1)
+    began = time.monotonic()
+    run.proc.send_signal(signum)
+    poll(lambda: not [pid for pid in tree if alive(pid)] or None, "the tree to end", timeout=WAIT_S, step=0.01)
+    elapsed = time.monotonic() - began
+    print(f"{'static' if static else 'enforced'} {signum.name}: {len(tree)} processes gone in {elapsed:.2f} s")
+    assert elapsed <= STOP_TARGET_S, run.stdout + run.stderr
+    assert run.wait() == 128 + signum, run.stdout + run.stderr
+    # Only the processes that ignored the signal needed SIGKILL.
+    assert "launch.sh: fast (pid " in run.stderr
+    assert "still ran: SIGKILL" in run.stderr
+    assert "/slow (pid" not in run.stderr

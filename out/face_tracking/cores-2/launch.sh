@@ -3,39 +3,57 @@
 # 6dd12a831ffadbc0916bd086180d1f517f12d17a0ec264c95463f7a1524e6994.
 # Do not edit: regenerate with `catanc compile specs/face_tracking.yaml --cores 2`.
 #
-# Starts the processes of face_tracking pinned and prioritised as planned for 2 cores:
-#   /face_detector: CPUs 0,1, SCHED_FIFO 2 (detection)
-#   /pan_motor: CPUs 0,1, SCHED_FIFO 3 (motor)
-#   /pan_planner: CPUs 0,1, SCHED_FIFO 2 (planning)
-#   /usb_cam: CPUs 0,1, SCHED_FIFO 2 (camera)
+# Deploys face_tracking as planned for 2 cores: the enforcer (catanc run runtime.json),
+# then these processes, each pinned to its CPUs:
+#   /face_detector: CPUs 0,1, --static: SCHED_FIFO 2 (detection)
+#   /pan_motor: CPUs 0,1, --static: SCHED_FIFO 3 (motor)
+#   /pan_planner: CPUs 0,1, --static: SCHED_FIFO 2 (planning)
+#   /usb_cam: CPUs 0,1, --static: SCHED_FIFO 2 (camera)
 #
-# Usage: ./launch.sh [--no-rt]
-#   --no-rt  run every process under SCHED_OTHER (no real-time priorities); affinities still apply.
-# Without --no-rt it first checks that it may use SCHED_FIFO and says how to fix it if not.
-# A process that exits with a non-zero status is reported at once; launch.sh's own status is
-# the first such one, or 130 or 143 when stopped by SIGINT or SIGTERM.
-# SIGINT and SIGTERM are forwarded to every process; it exits when all have exited.
+# Usage: ./launch.sh [--static] [--no-rt]
+#   By default the enforcer starts first; once its socket is up each process starts under
+#   SCHED_OTHER with CATANC_SOCKET set, and the enforcer triggers its nodes, raises the running
+#   ones to SCHED_FIFO and re-plans. The catanc command is $CATANC if set, else catanc on PATH.
+#   --static  no enforcer: a process with a node on a shared core runs under SCHED_OTHER at the
+#             rate params.yaml plans (equal SCHED_FIFO levels would not time-slice), the others at
+#             their SCHED_FIFO priority. SCHED_DEADLINE is not used: the kernel refuses it for
+#             pinned threads without a cpuset partition per core set.
+#   --no-rt   no real-time priorities: catanc run --no-rt, or with --static every process under
+#             SCHED_OTHER; affinities still apply.
+# SIGINT, SIGTERM and SIGHUP go to every process's group (each runs in its own, with its
+# children; the enforcer gets SIGTERM for SIGHUP); what is left 2 s later gets SIGKILL.
+# launch.sh then exits 130, 143 or 129. A process that exits with a non-zero status is reported
+# at once and launch.sh's status is the first such one; if the enforcer exits, launch.sh stops
+# the processes and exits with its status.
 set -euo pipefail
 
-readonly TOP_PRIORITY=3
+readonly GRACE_US=2000000
 readonly EXIT_NO_PRIVILEGE=4
+readonly EXIT_NO_CATANC=127
+readonly TOP_STATIC_PRIORITY=3
 rt=1
+static=0
 for arg in "$@"; do
   case "$arg" in
     --no-rt) rt=0 ;;
-    -h | --help) sed -n '/^# Usage:/,/^# SIGINT/s/^# \{0,1\}//p' "$0"; exit 0 ;;
-    *) echo "launch.sh: unknown option '$arg' (expected --no-rt)" >&2; exit 2 ;;
+    --static) static=1 ;;
+    -h | --help) sed -n '/^# Usage:/,/^# launch.sh then/s/^# \{0,1\}//p' "$0"; exit 0 ;;
+    *) echo "launch.sh: unknown option '$arg' (expected --static or --no-rt)" >&2; exit 2 ;;
   esac
 done
+here=$(cd -- "$(dirname -- "${BASH_SOURCE[0]}")" && pwd)
+catanc=${CATANC:-catanc}
 
-pids=()
+pids=()     # each started process, which leads its own process group
 names=()
 codes=()    # codes[i]: the exit status of process i, once it has exited
-signals=()  # every SIGINT/SIGTERM received, in order
-forwarded=0 # how many of them every process has been sent
+signals=()  # every SIGINT/SIGTERM/SIGHUP received, in order (and TERM when the enforcer ended)
+forwarded=0 # how many of them every process group has been sent
 forwarding=0
 waiting=0   # 1 while the main flow is about to wait or waits for a process to end
-# Trapped from the start: else a SIGINT sent to this script alone while a check
+enforcer=-1 # the enforcer's index in pids
+own_stop=0  # 1 when launch.sh stops the processes itself (the enforcer ended)
+# Trapped from the start: else a signal sent to this script alone while a check
 # runs a command would be dropped (bash takes it as handled by that command).
 # The traps forward at once only while the main flow waits.  Otherwise they only
 # take note and the main flow forwards, so a signal that arrives while a process
@@ -49,15 +67,19 @@ on_signal() {
 }
 trap 'on_signal INT' INT
 trap 'on_signal TERM' TERM
+trap 'on_signal HUP' HUP
 
+# Each signal goes to every process group that still has a process: a process's
+# children (same group) get it too, even after the process itself has ended.
 forward_signals() {
   (( ! forwarding )) || return 0  # a trap during a forward: the loop below sends its signal too
   forwarding=1
   local signal index
   while (( forwarded < ${#signals[@]} )); do
-    signal=${signals[forwarded]}
     for index in "${!pids[@]}"; do
-      [[ -n "${codes[index]-}" ]] || kill -s "$signal" "${pids[index]}" 2>/dev/null || true
+      signal=${signals[forwarded]}
+      (( index != enforcer )) || [[ $signal != HUP ]] || signal=TERM  # the enforcer restores on SIGTERM
+      kill -s "$signal" -- "-${pids[index]}" 2>/dev/null || true
     done
     forwarded=$((forwarded + 1))
   done
@@ -65,21 +87,52 @@ forward_signals() {
   (( forwarded == ${#signals[@]} )) || forward_signals  # one came in just after the loop
 }
 
+started() {
+  pids+=("$2")
+  names+=("$1")
+  echo "launch.sh: started $1 (pid $2, $3)"
+}
+
 start() {
   local name=$1 cpus=$2 priority=$3 policy
   shift 3
   forward_signals
   (( ${#signals[@]} == 0 )) || return 0  # stopping: start nothing more
-  if (( rt )); then
+  (( static && rt )) || priority=0
+  if (( priority > 0 )); then
     policy="SCHED_FIFO $priority"
     taskset -c "$cpus" chrt -f "$priority" "$@" 2>&"$stderr" {stderr}>&- &
   else
     policy=SCHED_OTHER
     taskset -c "$cpus" chrt -o 0 "$@" 2>&"$stderr" {stderr}>&- &
   fi
-  pids+=("$!")
-  names+=("$name")
-  echo "launch.sh: started $name (pid $!, CPUs $cpus, $policy)"
+  started "$name" "$!" "CPUs $cpus, $policy"
+}
+
+start_enforcer() {
+  forward_signals
+  (( ${#signals[@]} == 0 )) || return 0
+  local options=(--socket "$socket" --start spec --quiet)
+  (( rt )) || options+=(--no-rt)
+  "$catanc" run "$here/runtime.json" "${options[@]}" 2>&"$stderr" {stderr}>&- &
+  enforcer=${#pids[@]}
+  started "catanc run" "$!" "socket $socket"
+}
+
+# Until the enforcer's socket is up (the processes' clients connect to it at once), a
+# signal comes or the enforcer ends.  Polled: `wait -n` would take the enforcer's exit.
+wait_for_enforcer() {
+  while [[ ! -S $socket ]]; do
+    forward_signals
+    (( ${#signals[@]} == 0 )) || return 0
+    kill -0 "${pids[enforcer]}" 2>/dev/null || return 0
+    sleep 0.05
+  done
+  export CATANC_SOCKET=$socket
+}
+
+now_us() {
+  now=${EPOCHREALTIME//[!0-9]/}  # seconds and microseconds, whatever the locale's decimal point
 }
 
 fail() {
@@ -94,17 +147,24 @@ has_cap_sys_nice() {
 }
 
 check_rt() {
-  chrt -f "$TOP_PRIORITY" true 2>/dev/null && return 0
+  chrt -f "$TOP_STATIC_PRIORITY" true 2>/dev/null && return 0
   local why
   if (( EUID != 0 )) && ! has_cap_sys_nice; then
-    why="not root, no CAP_SYS_NICE, and RLIMIT_RTPRIO is $(ulimit -r) (needs $TOP_PRIORITY)"
+    why="not root, no CAP_SYS_NICE, and RLIMIT_RTPRIO is $(ulimit -r) (needs $TOP_STATIC_PRIORITY)"
   else
     why="the kernel refused it (see /proc/sys/kernel/sched_rt_runtime_us and the cgroup's real-time budget)"
   fi
-  fail "cannot run processes at SCHED_FIFO priority $TOP_PRIORITY: $why.
-Fix: run as root (sudo $0), or let your user use real-time priorities (a line
-'$(id -un) - rtprio $TOP_PRIORITY' in /etc/security/limits.conf, then log in again),
-or run without real-time priorities: $0 --no-rt"
+  fail "cannot run processes at SCHED_FIFO priority $TOP_STATIC_PRIORITY: $why.
+Fix: run as root (sudo $0 --static), or let your user use real-time priorities (a line
+'$(id -un) - rtprio $TOP_STATIC_PRIORITY' in /etc/security/limits.conf, then log in again),
+or run without real-time priorities: $0 --static --no-rt"
+}
+
+check_catanc() {
+  command -v "$catanc" >/dev/null && return 0
+  echo "launch.sh: cannot find the enforcer, '$catanc': install catanc (pip install catanc), or set CATANC
+to its path, or deploy without it: $0 --static" >&2
+  exit "$EXIT_NO_CATANC"
 }
 
 # One CPU at a time: taskset accepts a list as long as one of its CPUs exists and is allowed.
@@ -117,30 +177,50 @@ check_cpus() {
     || fail "may not run on CPU ${missing[*]} (allowed here: $(taskset -pc $$ | sed 's/.*: //')); the plan is for 2 cores: recompile with --cores $(nproc)"
 }
 
-if (( rt )); then check_rt; fi
+if (( static )); then
+  (( ! rt || TOP_STATIC_PRIORITY == 0 )) || check_rt
+else
+  check_catanc
+fi
 check_cpus 0 1
+if (( ! static )); then
+  socket_folder=$(mktemp -d "${TMPDIR:-/tmp}/catanc-launch.XXXXXX")
+  trap 'rm -rf -- "$socket_folder"' EXIT
+  socket=$socket_folder/face_tracking.sock
+fi
 
 # Job control gives each process its own process group, so it keeps SIGINT (a
-# script's background jobs would ignore it) and gets each signal once, from here.
-# While it is on, bash's own stderr goes to /dev/null (else a process that ends
-# at once adds a "[1]+ Exit 1  taskset ..." notice); the processes get the real one.
-exec {stderr}>&2 2>/dev/null
+# script's background jobs would ignore it) and gets each signal once, from here,
+# with its children.  While it is on, bash's own stderr goes to /dev/null (else a
+# process that ends at once adds a "[1]+ Exit 1  taskset ..." notice); the processes
+# get the real one.
+exec {stderr}>&2
+if (( ! static )); then
+  exec 2>/dev/null
+  set -m
+  start_enforcer
+  set +m
+  exec 2>&"$stderr"
+  wait_for_enforcer
+fi
 # shellcheck disable=SC2016,SC2088  # a $, ` or ~ in a command is its program's, not this shell's
-{
+if (( static )) || [[ -S ${socket-} ]]; then
+  exec 2>/dev/null
   set -m
   start /face_detector 0,1 2 ros2 run face_tracking_app face_detector
   start /pan_motor 0,1 3 ros2 run face_tracking_app pan_motor_driver
   start /pan_planner 0,1 2 ros2 run face_tracking_app pan_planner
   start /usb_cam 0,1 2 ros2 run usb_cam usb_cam_node_exe
   set +m
-}
-exec 2>&"$stderr" {stderr}>&-
+  exec 2>&"$stderr"
+fi
+exec {stderr}>&-
 
 # Reports a process's non-zero exit when it happens (not only once the processes
 # started before it have exited), unless it was stopping on a signal.
 status=0
 running=${#pids[@]}
-while (( running > 0 )); do
+while (( running > 0 )) && (( ${#signals[@]} == 0 )); do
   forward_signals
   exited=0
   for index in "${!pids[@]}"; do
@@ -151,7 +231,12 @@ while (( running > 0 )); do
     codes[index]=$code
     running=$((running - 1))
     exited=1
-    if (( code != 0 && ${#signals[@]} == 0 )); then
+    if (( index == enforcer && ${#signals[@]} == 0 )); then
+      echo "launch.sh: the enforcer (pid ${pids[index]}) exited with status $code: stopping the processes" >&2
+      status=$code
+      own_stop=1
+      signals+=(TERM)
+    elif (( code != 0 && ${#signals[@]} == 0 )); then
       echo "launch.sh: ${names[index]} (pid ${pids[index]}) exited with status $code" >&2
       (( status != 0 )) || status=$code
     fi
@@ -165,10 +250,48 @@ while (( running > 0 )); do
     waiting=0
   fi
 done
+
+# Stopping: every group has had the signal; SIGKILL what is left after the grace period.
 if (( ${#signals[@]} )); then
+  forward_signals
+  now_us
+  kill_at=$((now + GRACE_US))
+  killed=0
+  while :; do
+    forward_signals
+    left=()
+    for index in "${!pids[@]}"; do
+      if [[ -z "${codes[index]-}" ]] && ! kill -0 "${pids[index]}" 2>/dev/null; then
+        code=0
+        wait "${pids[index]}" || code=$?
+        codes[index]=$code
+      fi
+      kill -0 -- "-${pids[index]}" 2>/dev/null && left+=("$index")
+    done
+    (( ${#left[@]} )) || break
+    now_us
+    if (( killed )); then
+      if (( now >= kill_at )); then
+        for index in "${left[@]}"; do
+          echo "launch.sh: process group ${pids[index]} (${names[index]}) outlived SIGKILL" >&2
+        done
+        break
+      fi
+    elif (( now >= kill_at )); then
+      for index in "${left[@]}"; do
+        echo "launch.sh: ${names[index]} (pid ${pids[index]}) or its children still ran: SIGKILL" >&2
+        kill -s KILL -- "-${pids[index]}" 2>/dev/null || true
+      done
+      killed=1
+      kill_at=$((now + 1000000))
+    fi
+    sleep 0.05
+  done
+  (( own_stop )) && exit "$status"
   case "${signals[0]}" in
     INT) exit 130 ;;
     TERM) exit 143 ;;
+    HUP) exit 129 ;;
   esac
 fi
 exit "$status"

@@ -3,22 +3,33 @@
 # 4cc9873ca1b1f8fa2580a49ccee14f11da3dfee1570e87770f7a5727de0be249.
 # Do not edit: regenerate with `catanc compile specs/vr_illixr.yaml --cores 2`.
 #
-# Starts the processes of vr_illixr pinned and prioritised as planned for 2 cores:
+# Deploys vr_illixr as planned for 2 cores: the enforcer (catanc run runtime.json),
+# then these processes, each pinned to its CPUs:
 #   none: the spec's deploy section gives no command.
 #
-# Usage: ./launch.sh [--no-rt]
-#   --no-rt  run every process under SCHED_OTHER (no real-time priorities); affinities still apply.
-# Without --no-rt it first checks that it may use SCHED_FIFO and says how to fix it if not.
-# A process that exits with a non-zero status is reported at once; launch.sh's own status is
-# the first such one, or 130 or 143 when stopped by SIGINT or SIGTERM.
-# SIGINT and SIGTERM are forwarded to every process; it exits when all have exited.
+# Usage: ./launch.sh [--static] [--no-rt]
+#   By default the enforcer starts first; once its socket is up each process starts under
+#   SCHED_OTHER with CATANC_SOCKET set, and the enforcer triggers its nodes, raises the running
+#   ones to SCHED_FIFO and re-plans. The catanc command is $CATANC if set, else catanc on PATH.
+#   --static  no enforcer: a process with a node on a shared core runs under SCHED_OTHER at the
+#             rate params.yaml plans (equal SCHED_FIFO levels would not time-slice), the others at
+#             their SCHED_FIFO priority. SCHED_DEADLINE is not used: the kernel refuses it for
+#             pinned threads without a cpuset partition per core set.
+#   --no-rt   no real-time priorities: catanc run --no-rt, or with --static every process under
+#             SCHED_OTHER; affinities still apply.
+# SIGINT, SIGTERM and SIGHUP go to every process's group (each runs in its own, with its
+# children; the enforcer gets SIGTERM for SIGHUP); what is left 2 s later gets SIGKILL.
+# launch.sh then exits 130, 143 or 129. A process that exits with a non-zero status is reported
+# at once and launch.sh's status is the first such one; if the enforcer exits, launch.sh stops
+# the processes and exits with its status.
 set -euo pipefail
 
 for arg in "$@"; do
   case "$arg" in
     --no-rt) : ;;
-    -h | --help) sed -n '/^# Usage:/,/^# SIGINT/s/^# \{0,1\}//p' "$0"; exit 0 ;;
-    *) echo "launch.sh: unknown option '$arg' (expected --no-rt)" >&2; exit 2 ;;
+    --static) : ;;
+    -h | --help) sed -n '/^# Usage:/,/^# launch.sh then/s/^# \{0,1\}//p' "$0"; exit 0 ;;
+    *) echo "launch.sh: unknown option '$arg' (expected --static or --no-rt)" >&2; exit 2 ;;
   esac
 done
 
