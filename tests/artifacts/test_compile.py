@@ -8,7 +8,6 @@ hashlib for the header's digest, and fresh processes for determinism.
 
 from __future__ import annotations
 
-import ast
 import hashlib
 import json
 import math
@@ -309,55 +308,6 @@ def test_params_of_a_process_hosting_several_subchains() -> None:
     assert imu.priority == 3
     assert imu.argv == ("imu_driver", "--port", "/dev/tty USB0")
     assert imu.params["rate"] == 200.0
-
-
-# --------------------------------------------------------------------------- launch.py
-
-
-def launch_nodes(text: str) -> list[dict[str, Any]]:
-    """The keyword arguments of every ``Node(...)`` in a launch file, read from its syntax tree."""
-    tree = ast.parse(text)
-    compile(tree, "launch.py", "exec")
-    imports = {node.module for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)}
-    assert imports <= {"pathlib", "launch", "launch_ros.actions"}
-    functions = [node for node in tree.body if isinstance(node, ast.FunctionDef)]
-    assert [f.name for f in functions] == ["generate_launch_description"]
-    params = next(
-        node for node in tree.body if isinstance(node, ast.Assign) and ast.unparse(node.targets[0]) == "PARAMS"
-    )
-    assert ast.unparse(params.value) == "str(Path(__file__).with_name('params.yaml'))"
-    nodes = []
-    for call in ast.walk(functions[0]):
-        if isinstance(call, ast.Call) and isinstance(call.func, ast.Name) and call.func.id == "Node":
-            assert not call.args
-            nodes.append({str(kw.arg): kw.value for kw in call.keywords})
-    return nodes
-
-
-def test_launch_py_starts_every_ros_process_pinned(compiled: dict[tuple[str, int], Target]) -> None:
-    for (_, _), target in compiled.items():
-        table = json.loads(target.files["runtime.json"])
-        nodes = launch_nodes(target.files["launch.py"])
-        ros = [p for p in table["processes"] if p["package"] is not None]
-        assert len(nodes) == len(ros)
-        for node, process in zip(nodes, ros, strict=True):
-            literal = {key: ast.literal_eval(value) for key, value in node.items() if key != "parameters"}
-            namespace, name = process["ros_node"].rsplit("/", 1)
-            assert literal["package"] == process["package"]
-            assert literal["executable"] == process["executable"]
-            assert literal["name"] == name
-            assert literal.get("namespace", "/") == (namespace or "/")
-            cpus = ",".join(str(c) for c in process["cpus"])
-            assert shlex.split(literal["prefix"]) == ["taskset", "-c", cpus, "chrt", "-f", str(process["priority"])]
-            assert ast.unparse(node["parameters"]) == "[PARAMS]"
-
-
-def test_launch_py_for_a_namespaced_node(tmp_path: Path) -> None:
-    path = tmp_path / "robot.yaml"
-    path.write_text(DEPLOYED)
-    nodes = launch_nodes(compile_spec(path, 2).files["launch.py"])
-    names = {(ast.literal_eval(n["name"]), ast.literal_eval(n.get("namespace", ast.Constant("/")))) for n in nodes}
-    assert names == {("camera", "/sensors"), ("perception", "/")}
 
 
 # --------------------------------------------------------------------------- PLAN.md
