@@ -113,6 +113,7 @@ def needs_of(table: RuntimeTable) -> Needs:
     try:
         priorities = [int(process.get("priority", 0)) for process in table.processes]
         cpus = {int(cpu) for process in table.processes for cpu in process.get("cpus", [])}
+        cpus.update(table.cpus[: table.cores] if table.cpus is not None else ())  # compile --cpus: the enforcer's
         plan: Mapping[str, Any] = table.plan if table.plan is not None else {}
         subchains = plan.get("subchains", {})
         dedicated = tuple(sorted(name for name, sub in subchains.items() if not sub.get("shared", True)))
@@ -258,7 +259,8 @@ def _cpus(needs: Needs, machine: Machine) -> Finding:
             Verdict.FAIL,
             f"{'; '.join(problems)}: {here}",
             "run it where those CPUs are allowed (a container's cpuset: docker run --cpuset-cpus; the shell's "
-            "affinity: taskset), or compile the plan for the cores there are (catanc compile --cores N)",
+            "affinity: taskset), or compile the plan for the cores there are (catanc compile --cores N, "
+            "--cpus LIST)",
         )
     planned = f"the plan uses CPUs {format_cpus(needs.cpus)}; " if needs.cpus else ""
     return Finding(check, Verdict.OK, planned + here)

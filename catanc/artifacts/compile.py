@@ -18,13 +18,15 @@ from catanc import __version__
 from catanc.artifacts.emit import emit
 from catanc.artifacts.provenance import Provenance
 from catanc.core.load import SpecFile, read_spec
-from catanc.errors import Diagnostic
+from catanc.errors import Diagnostic, UsageError
 from catanc.planning.planner import plan_problem
 from catanc.spec.machine import apply_machine, read_machine
 
 DEFAULT_OUT = Path("out")
 DEFAULT_STAGE1 = "auto"
 DEFAULT_SOLVER = "highs"
+MAX_CPU = 8191
+"""The highest CPU number Linux can have (CONFIG_NR_CPUS is at most 8192)."""
 
 
 @dataclass(frozen=True)
@@ -35,6 +37,7 @@ class Options:
     solver: str = DEFAULT_SOLVER
     time_limit_s: float | None = None
     machine: Path | None = None  # a machine profile (catanc.spec.machine) whose measured costs the plan covers
+    cpus: tuple[int, ...] | None = None  # the CPUs plan cores 0, 1, ... run on, ascending (None: CPUs 0, 1, ...)
 
 
 @dataclass(frozen=True)
@@ -67,6 +70,8 @@ def compile_checked(
     problem stands for the profiled spec too.
     """
     spec, problem = loaded.spec, loaded.problem
+    if options.cpus is not None:
+        check_enough_cpus(options.cpus, cores)
     used = None
     if options.machine is not None:
         spec, used = apply_machine(spec, read_machine(options.machine))
@@ -89,7 +94,7 @@ def compile_checked(
         app=spec.app,
         cores=cores,
         folder=out if out is not None else default_folder(spec.app, cores),
-        files=emit(spec, problem, result, provenance, used),
+        files=emit(spec, problem, result, provenance, used, cpus=options.cpus),
         warnings=result.warnings,
         spec_warnings=tuple(problem.warnings),
     )
@@ -108,7 +113,44 @@ def normalised_command(spec_path: Path, cores: int, out: Path | None, options: O
         words += ["--time-limit", f"{options.time_limit_s:g}"]
     if options.machine is not None:
         words += ["--machine", display_path(options.machine)]
+    if options.cpus is not None:
+        words += ["--cpus", cpu_text(options.cpus)]
     return shlex.join(words)
+
+
+def parse_cpus(text: str) -> tuple[int, ...]:
+    """``--cpus 3,2`` -> ``(2, 3)``: the CPUs plan cores run on, core ``i`` on the ``i``-th lowest.
+
+    Only what no machine could have is refused here (negative, duplicate or non-integer numbers, or
+    above Linux's highest CPU number): the compiling machine need not be the robot, so whether these
+    CPUs exist and may be used is checked where the plan runs (launch.sh, catanc run, catanc doctor).
+    """
+    cpus: list[int] = []
+    for word in text.split(","):
+        item = word.strip()
+        if not item.isdigit() or not item.isascii():
+            what = "an empty entry" if not item else f"{item!r} is not a CPU number"
+            raise UsageError(f"--cpus {text}: {what} (expected CPU numbers separated by commas, e.g. 2,3)")
+        cpu = int(item)
+        if cpu > MAX_CPU:
+            raise UsageError(f"--cpus {text}: CPU {cpu} cannot exist (Linux numbers CPUs 0 to {MAX_CPU})")
+        if cpu in cpus:
+            raise UsageError(f"--cpus {text}: CPU {cpu} is given twice (each plan core needs a CPU of its own)")
+        cpus.append(cpu)
+    return tuple(sorted(cpus))
+
+
+def check_enough_cpus(cpus: tuple[int, ...], cores: int) -> None:
+    """:class:`UsageError` unless there is a CPU for each of ``cores`` plan cores."""
+    if len(cpus) < cores:
+        raise UsageError(
+            f"--cpus {cpu_text(cpus)}: {len(cpus)} CPU{'s' if len(cpus) > 1 else ''} for {cores} cores: "
+            f"give at least {cores}, or compile for fewer (--cores)"
+        )
+
+
+def cpu_text(cpus: tuple[int, ...]) -> str:
+    return ",".join(str(cpu) for cpu in cpus)
 
 
 def display_path(path: Path) -> str:

@@ -22,7 +22,7 @@ of a shared subchain runs under SCHED_OTHER at its planned rate instead
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -91,8 +91,17 @@ class Process:
 # --------------------------------------------------------------------------- applying a plan
 
 
-def processes(spec: Spec, plan: Plan) -> tuple[Process, ...]:
-    """The plan's processes, sorted by key; the spec must have passed :func:`deploy_problems`."""
+def machine_cpus(plan: Plan, cpus: Sequence[int] | None) -> tuple[int, ...]:
+    """The CPU each plan core runs on: ``cpus`` (``compile --cpus``, ascending), else CPU ``i`` for core ``i``."""
+    return tuple(cpus[: plan.cores]) if cpus is not None else tuple(range(plan.cores))
+
+
+def processes(spec: Spec, plan: Plan, cpus: Sequence[int] | None = None) -> tuple[Process, ...]:
+    """The plan's processes, sorted by key; the spec must have passed :func:`deploy_problems`.
+
+    ``cpus``: the CPUs plan cores run on (core ``i`` on ``cpus[i]``); default CPU ``i``.
+    """
+    on = machine_cpus(plan, cpus)
     grouped: dict[str, list[str]] = {}
     for name in spec.nodes:
         if name in spec.deploy:
@@ -102,16 +111,16 @@ def processes(spec: Spec, plan: Plan) -> tuple[Process, ...]:
     for key in sorted(grouped):
         nodes = tuple(grouped[key])
         entries = [spec.deploy[n] for n in nodes]
-        cpus: set[int] = set()
+        used: set[int] = set()
         priority = 0
         for node in nodes:
-            node_cpus, level = _placement(plan, node, membership)
-            cpus.update(node_cpus)
+            node_cpus, level = _placement(plan, node, membership, on)
+            used.update(node_cpus)
             priority = max(priority, level)
         shared = any(node in membership and plan.subchains[membership[node]].shared for node in nodes)
         command = _first(entry.command for entry in entries)
         ros_node = _first(entry.ros_node for entry in entries)
-        process_cpus = tuple(sorted(cpus))
+        process_cpus = tuple(sorted(used))
         found.append(
             Process(
                 key=key,
@@ -123,7 +132,7 @@ def processes(spec: Spec, plan: Plan) -> tuple[Process, ...]:
                 cpus=process_cpus,
                 priority=priority,
                 params=(
-                    _params(spec, plan, nodes, membership, cpus=process_cpus, priority=priority)
+                    _params(spec, plan, nodes, membership, on, cpus=process_cpus, priority=priority)
                     if ros_node is not None
                     else {}
                 ),
@@ -159,6 +168,7 @@ def _params(
     plan: Plan,
     nodes: tuple[str, ...],
     membership: dict[str, str],
+    on: tuple[int, ...],
     *,
     cpus: tuple[int, ...],
     priority: int,
@@ -179,28 +189,31 @@ def _params(
     groups = {membership.get(node, node) for node in nodes}
     catan: dict[str, ParamValue] = {"cpus": list(cpus), "priority": priority}
     if len(groups) == 1:
-        catan.update(_node_params(spec, plan, nodes[0], membership))
+        catan.update(_node_params(spec, plan, nodes[0], membership, on))
     else:
         for node in nodes:
-            for field, value in _node_params(spec, plan, node, membership).items():
+            for field, value in _node_params(spec, plan, node, membership, on).items():
                 catan[f"nodes.{node}.{field}"] = value
     flat.update({f"{RESERVED_PREFIX}.{field}": value for field, value in catan.items()})
     return nest(flat)
 
 
-def _placement(plan: Plan, node: str, membership: dict[str, str]) -> tuple[tuple[int, ...], int]:
-    """A node's CPUs and resting SCHED_FIFO priority: its subchain's cores, or every core when unscheduled."""
+def _placement(plan: Plan, node: str, membership: dict[str, str], on: tuple[int, ...]) -> tuple[tuple[int, ...], int]:
+    """A node's CPUs and resting SCHED_FIFO priority: its subchain's cores' CPUs (``on[core]``), or every core's
+    when unscheduled."""
     if node in membership:
         sub = plan.subchains[membership[node]]
-        return sub.cores, resting_fifo(sub.shared)
-    return tuple(range(plan.cores)), resting_fifo(None)
+        return tuple(sorted(on[core] for core in sub.cores)), resting_fifo(sub.shared)
+    return tuple(sorted(on)), resting_fifo(None)
 
 
-def _node_params(spec: Spec, plan: Plan, node: str, membership: dict[str, str]) -> dict[str, ParamValue]:
+def _node_params(
+    spec: Spec, plan: Plan, node: str, membership: dict[str, str], on: tuple[int, ...]
+) -> dict[str, ParamValue]:
     found: dict[str, ParamValue] = {}
     if node in membership:
         found["subchain"] = membership[node]
-    cpus, priority = _placement(plan, node, membership)
+    cpus, priority = _placement(plan, node, membership, on)
     found["cpus"] = list(cpus)
     found["priority"] = priority
     period = node_period_ms(spec, plan, node, membership)
@@ -243,12 +256,15 @@ class CallbackGroup:
     priority: int  # SCHED_FIFO priority; 0 under SCHED_OTHER
 
 
-def callback_groups(spec: Spec, plan: Plan) -> tuple[CallbackGroup, ...]:
+def callback_groups(spec: Spec, plan: Plan, cpus: Sequence[int] | None = None) -> tuple[CallbackGroup, ...]:
     """The callback groups the spec names, sorted by ID; the spec must have passed :func:`deploy_problems`.
+
+    ``cpus``: the CPUs plan cores run on, as for :func:`processes`.
 
     Nodes sharing one ID share one thread: it gets the union of their CPUs and the strongest of
     their policies (a node on its own clock over a dedicated subchain over a shared core).
     """
+    on = machine_cpus(plan, cpus)
     membership = {node: sub.name for sub in plan.subchains.values() for node in sub.nodes}
     grouped: dict[str, list[str]] = {}
     for name in spec.nodes:
@@ -264,15 +280,15 @@ def callback_groups(spec: Spec, plan: Plan) -> tuple[CallbackGroup, ...]:
     found = []
     for group_id in sorted(grouped):
         nodes = tuple(grouped[group_id])
-        cpus: set[int] = set()
+        used: set[int] = set()
         policies = []
         for node in nodes:
-            node_cpus, _ = _placement(plan, node, membership)
-            cpus.update(node_cpus)
+            node_cpus, _ = _placement(plan, node, membership, on)
+            used.update(node_cpus)
             shared = plan.subchains[membership[node]].shared if node in membership else None
             policies.append(static_policy(shared))
         policy, priority = max(policies, key=lambda pair: (pair[0] == "SCHED_FIFO", pair[1]))
-        found.append(CallbackGroup(group_id, nodes, tuple(sorted(cpus)), policy, priority))
+        found.append(CallbackGroup(group_id, nodes, tuple(sorted(used)), policy, priority))
     return tuple(found)
 
 

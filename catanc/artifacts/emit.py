@@ -49,20 +49,35 @@ and its whole tree is gone within 3 s."""
 
 
 def emit(
-    spec: Spec, problem: Problem, plan: Plan, provenance: Provenance, machine: MachineUse | None = None
+    spec: Spec,
+    problem: Problem,
+    plan: Plan,
+    provenance: Provenance,
+    machine: MachineUse | None = None,
+    *,
+    cpus: tuple[int, ...] | None = None,
 ) -> dict[str, str]:
     """The output folder's files for ``plan``: ``{relative path: text}``.
 
     ``machine``: the profile ``spec``'s schedule costs were raised with (``compile --machine``); the
-    table records it under ``machine`` and its spec holds the costs used.
+    table records it under ``machine`` and its spec holds the costs used.  ``cpus``: the CPUs plan
+    cores run on (``compile --cpus``; core ``i`` on ``cpus[i]``): every CPU list is theirs, and the
+    table lists them under ``cpus`` for the enforcer.
     """
-    deployed = processes(spec, plan)
+    deployed = processes(spec, plan, cpus)
     report = explain_plan(spec, problem, plan, machine)
     started = [process for process in deployed if process.argv]
-    context: dict[str, Any] = {"app": spec.app, "cores": plan.cores, "header": provenance.header}
+    on = cpus[: plan.cores] if cpus is not None else None
+    context: dict[str, Any] = {"app": spec.app, "cores": plan.cores, "header": provenance.header, "cpus": on}
     files = {
         "runtime.json": runtime_json(
-            spec, problem, plan, provenance, [process.table_entry() for process in deployed], machine=machine
+            spec,
+            problem,
+            plan,
+            provenance,
+            [process.table_entry() for process in deployed],
+            machine=machine,
+            cpus=cpus,
         ),
         "params.yaml": _render("params.yaml.j2", context, params=ros_parameters(deployed)),
         "launch.sh": _render(
@@ -81,7 +96,7 @@ def emit(
         ),
         "PLAN.md": _render("PLAN.md.j2", context, report=render_markdown(report).rstrip()),
     }
-    groups = callback_groups(spec, plan)
+    groups = callback_groups(spec, plan, cpus)
     if groups:
         files[THREAD_CONFIGURATOR] = _render(f"{THREAD_CONFIGURATOR}.j2", context, groups=groups)
     return dict(sorted(files.items()))

@@ -215,8 +215,14 @@ def runtime_json(
     processes: Iterable[ProcessEntry],
     *,
     machine: MachineUse | None = None,
+    cpus: tuple[int, ...] | None = None,
 ) -> str:
-    """The runtime table: interfaces.md's fields, the processes, where it came from, the machine profile used."""
+    """The runtime table: interfaces.md's fields, the processes, where it came from, the machine profile used.
+
+    ``cpus`` (``compile --cpus``): the CPUs plan core 0, 1, ... run on, listed under ``cpus``; the plan's
+    ``cores`` stay plan cores, the processes' ``cpus`` are these CPUs.  Without it there is no ``cpus``
+    and plan core ``i`` is the ``i``-th CPU the enforcer may use.
+    """
     generated_by: GeneratedBy = {
         "catanc": provenance.version,
         "command": provenance.command,
@@ -233,6 +239,8 @@ def runtime_json(
     }
     if machine is not None:
         table["machine"] = machine.record()
+    if cpus is not None:
+        table["cpus"] = list(cpus)
     # Keys sorted, except inside the spec: its order of nodes and subchains breaks ties between plans.
     ordered = {**sorted_keys(table), "spec": normalised_spec(spec)}
     return json.dumps(dict(sorted(ordered.items())), indent=2, allow_nan=False, ensure_ascii=False) + "\n"
@@ -274,6 +282,7 @@ class RuntimeTable:
     spec: Spec
     plan: PlanPayload | None  # interfaces.md's ``plan`` (None: a table made in memory, with no plan written)
     processes: tuple[ProcessEntry, ...]
+    cpus: tuple[int, ...] | None = None  # ``compile --cpus``: the CPUs plan cores run on, ascending
 
 
 def load_table(path: str | Path) -> RuntimeTable:
@@ -314,6 +323,15 @@ def load_table(path: str | Path) -> RuntimeTable:
         raise fail(("app",), f"the table is for app {data['app']!r} but its spec is for {spec.app!r}")
     if data["cores"] < 1:
         raise fail(("cores",), "at least one core")
+    cpus = data.get("cpus")
+    if cpus is not None:
+        numbers = cpus if isinstance(cpus, list) else []
+        if not numbers or not all(isinstance(cpu, int) and not isinstance(cpu, bool) and cpu >= 0 for cpu in numbers):
+            raise fail(("cpus",), "a list of CPU numbers (written by `catanc compile --cpus`)")
+        if numbers != sorted(set(numbers)):
+            raise fail(("cpus",), "CPU numbers in ascending order, each once")
+        if len(numbers) < data["cores"]:
+            raise fail(("cpus",), f"{len(numbers)} CPUs for {data['cores']} cores")
     return RuntimeTable(
         path=Path(path),
         app=data["app"],
@@ -321,6 +339,7 @@ def load_table(path: str | Path) -> RuntimeTable:
         spec=spec,
         plan=cast("PlanPayload", data["plan"]),
         processes=tuple(cast("list[ProcessEntry]", data["processes"])),
+        cpus=tuple(cpus) if cpus is not None else None,
     )
 
 

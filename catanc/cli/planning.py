@@ -111,10 +111,18 @@ def compile_(
     solver: SolverOpt = "highs",
     time_limit: TimeLimitOpt = None,
     machine: MachineOpt = None,
+    cpus: Annotated[
+        str | None,
+        typer.Option(
+            "--cpus",
+            metavar="LIST",
+            help="CPUs the plan's cores run on, e.g. 2,3 (isolated CPUs, a container's cpuset); default 0,1,...",
+        ),
+    ] = None,
     quiet: QuietOpt = False,
 ) -> None:
     """Plan each spec and write its deployment folder: runtime.json, params.yaml, launch.sh, launch.py, PLAN.md."""
-    from catanc.artifacts.compile import Options, compile_checked
+    from catanc.artifacts.compile import Options, check_enough_cpus, compile_checked, parse_cpus
     from catanc.artifacts.output import compare, ensure_comparable, write
     from catanc.cli.progress import tracked
     from catanc.core.load import read_spec
@@ -125,7 +133,15 @@ def compile_(
     pairs = list(dict.fromkeys((path, k) for path in specs for k in cores))
     if out is not None and len(pairs) > 1:
         raise UsageError("--out names one folder: give one spec and one --cores with it")
-    options = Options(stage1=stage1, solver=solver, time_limit_s=time_limit, machine=machine)
+    options = Options(
+        stage1=stage1,
+        solver=solver,
+        time_limit_s=time_limit,
+        machine=machine,
+        cpus=parse_cpus(cpus) if cpus is not None else None,
+    )
+    if options.cpus is not None:
+        check_enough_cpus(options.cpus, max(cores))  # before any spec is read or planned
     loaded = {path: read_spec(path) for path in dict.fromkeys(specs)}  # each spec and its problem built once
     targets = []
     planning = tracked(pairs, "planning", label=lambda pair: f"{pair[0]} on {plural(pair[1], 'core')}", quiet=quiet)

@@ -43,7 +43,7 @@ from typing import Any, Literal
 from catanc.artifacts.runtime_table import RuntimeTable
 from catanc.control.policy import next_clock_ms
 from catanc.control.schedule import RuntimeSchedule, SubchainRun
-from catanc.errors import CatancError, ExitCode, SchedError
+from catanc.errors import CatancError, ExitCode, PrivilegeError, SchedError
 from catanc.runtime import protocol
 from catanc.runtime.cores import SharedCores
 from catanc.runtime.costs import Costs
@@ -106,7 +106,14 @@ class Enforcer:
         self.restorer = restorer if restorer is not None else Restorer()
         self.measurements = Measurements.for_spec(self.spec)
         self.cpu_clocks = OpenCpuClocks()
-        cpus = allowed_cpus()
+        cpus = self._usable_cpus()
+        if not cpus:
+            raise PrivilegeError(
+                f"may not run on any of the table's CPUs {sorted(table.cpus or ())} (allowed here: "
+                f"{sorted(allowed_cpus())}): recompile with `catanc compile --cpus` naming allowed ones"
+            )
+        if table.cpus is not None and len(cpus) < len(table.cpus):
+            self.notes.note(f"the table's CPUs {list(table.cpus)}: only {sorted(cpus)} allowed here")
         wanted = cores or table.cores
         planned_cores = min(wanted, len(cpus))  # two plan cores never share one CPU
         if planned_cores < wanted:
@@ -506,12 +513,18 @@ class Enforcer:
         if on_tick is not None:
             on_tick(self)
 
+    def _usable_cpus(self) -> frozenset[int]:
+        """The CPUs plan cores run on: those of the table's (``compile --cpus``) this process may use, else all
+        it may use."""
+        allowed = allowed_cpus()
+        return allowed & frozenset(self.table.cpus) if self.table.cpus is not None else allowed
+
     def _cores_and_cadence(self, now: float) -> None:
         if self.replanning.asked is not None:
             return  # one request at a time
         step = self.replanning.step(
             now - self.started_ms,
-            allowed_cpus(),
+            self._usable_cpus(),
             self.schedule.cores,
             lambda: self.measurements.estimates(measured_only=True),
             lambda: self.replanning.measured_costs(self.costs.summary(self.schedule.cores), self.spec.schedule),

@@ -875,6 +875,19 @@ def test_plan_cores_are_the_cpus_the_enforcer_may_use(harness: Harness, tmp_path
     assert harness.wait(3.0 + WAIT_S) == 0
 
 
+def test_a_table_compiled_for_other_cpus_runs_its_cores_there(harness: Harness, tmp_path: Path) -> None:
+    """``compile --cpus 1``: a one-core plan's core 0 is CPU 1 though CPUs 0 and 1 are both allowed."""
+    table = compile_table(MIXED_SPEC, tmp_path, 1, cpus=(1,))
+    harness.start(table, "--start", "spec", duration=3.0)
+    scheduled = [node for node in MIXED_COMPUTE if node != "imu"]
+    for node in scheduled:
+        harness.worker({node: MIXED_COMPUTE[node]})
+    threads = harness.registered(scheduled)
+
+    wait_all_pinned_to(threads, 1)
+    assert harness.wait(3.0 + WAIT_S) == 0
+
+
 def test_losing_a_cpu_re_plans_for_the_cores_left(harness: Harness, tmp_path: Path) -> None:
     """The enforcer's CPU set shrinks mid-run (`taskset -a -p -c 0`, as a cpuset change would): Stage I for one core."""
     if missing_tools("taskset"):

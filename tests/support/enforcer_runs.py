@@ -18,7 +18,7 @@ from typing import Any
 
 import pytest
 
-from catanc.artifacts.compile import compile_spec
+from catanc.artifacts.compile import Options, compile_spec
 from catanc.artifacts.output import write
 from catanc.runtime.log import read_log
 from tests.support.linux import WAIT_S, poll
@@ -45,12 +45,12 @@ def cmdline(pid: int) -> str:
         return ""
 
 
-def compile_table(spec_text: str, folder: Path, cores: int) -> Path:
-    """``catanc compile`` the spec into ``folder``; the runtime table's path."""
+def compile_table(spec_text: str, folder: Path, cores: int, cpus: tuple[int, ...] | None = None) -> Path:
+    """``catanc compile`` the spec into ``folder`` (on ``cpus``: ``--cpus``); the runtime table's path."""
     folder.mkdir(parents=True, exist_ok=True)
     spec = folder / "spec.yaml"
     spec.write_text(spec_text)
-    target = compile_spec(spec, cores, out=folder / f"cores-{cores}")
+    target = compile_spec(spec, cores, out=folder / f"cores-{cores}", options=Options(cpus=cpus))
     write(target.folder, target.files)
     return target.folder / "runtime.json"
 
