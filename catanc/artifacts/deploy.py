@@ -22,12 +22,14 @@ of a shared subchain runs under SCHED_OTHER at its planned rate instead
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from catanc.artifacts.runtime_table import RATE_DIGITS, ProcessEntry, ms
 from catanc.core.priorities import resting_fifo, static_policy
+from catanc.errors import Diagnostic, SpecError
 from catanc.spec.deploy_checks import PERIOD_NS, RESERVED_PREFIX, process_key, qualified, split_command
 from catanc.spec.language import Spec
 
@@ -52,6 +54,13 @@ class Process:
     priority: int  # SCHED_FIFO priority at launch
     params: ParamTree  # ROS parameters (empty without ros_node)
     shared: bool = False  # hosts a node of a shared core's subchain
+    any_namespace: bool = False  # params.yaml keys it /**/<ros_node>: under any namespace the launch adds
+
+    @property
+    def params_key(self) -> str:
+        """Its key in params.yaml: ``/ns/name``, or ``/**/ns/name`` (rcl's wildcard for any namespace before it)."""
+        assert self.ros_node is not None
+        return "/**" + self.ros_node if self.any_namespace else self.ros_node
 
     @property
     def static_priority(self) -> int:
@@ -137,6 +146,7 @@ def processes(spec: Spec, plan: Plan, cpus: Sequence[int] | None = None) -> tupl
                     else {}
                 ),
                 shared=shared,
+                any_namespace=any(entry.any_namespace for entry in entries),
             )
         )
     return tuple(found)
@@ -154,13 +164,28 @@ def node_period_ms(spec: Spec, plan: Plan, node: str, membership: dict[str, str]
     return ms(1000.0 / rate) if rate is not None else None
 
 
-def rate_value(period_ms: float, unit: str) -> float:
-    """A node's rate parameter: in hertz, or its period in seconds or milliseconds."""
+def rate_value(period_ms: float, unit: str, kind: str = "float") -> float:
+    """A node's rate parameter: in hertz, or its period in seconds or milliseconds.
+
+    ``kind`` ``int``: a whole number, rounded towards the slower rate (a rate down, a period up) from
+    the value as written with ``float`` (so 45.0000001 Hz, float noise, is 45), so the node never runs
+    faster than planned and never takes more of its core than the plan gives it.  Rounding may at most
+    halve the rate: a rate below 1 Hz, or a period below half a unit, is a :class:`ValueError`.
+    """
     if unit == "hz":
-        return round(1000.0 / period_ms, RATE_DIGITS)
-    if unit == "s":
-        return round(period_ms / 1000.0, RATE_DIGITS + 3)
-    return ms(period_ms)
+        value = round(1000.0 / period_ms, RATE_DIGITS)
+    elif unit == "s":
+        value = round(period_ms / 1000.0, RATE_DIGITS + 3)
+    else:
+        value = ms(period_ms)
+    if kind != "int":
+        return value
+    whole = math.floor(value) if unit == "hz" else math.ceil(value)
+    if unit == "hz" and whole < 1:
+        raise ValueError(f"{value:g} hz rounds down to 0")
+    if unit != "hz" and whole > 2 * value:
+        raise ValueError(f"a period of {value:g} {unit} rounds up to {whole}, less than half the rate")
+    return whole
 
 
 def _params(
@@ -185,7 +210,7 @@ def _params(
         entry = spec.deploy[node]
         period = node_period_ms(spec, plan, node, membership)
         if entry.rate_param is not None and period is not None:
-            flat[entry.rate_param] = rate_value(period, entry.rate_unit)
+            flat[entry.rate_param] = _rate_parameter(spec, node, period)
     groups = {membership.get(node, node) for node in nodes}
     catan: dict[str, ParamValue] = {"cpus": list(cpus), "priority": priority}
     if len(groups) == 1:
@@ -196,6 +221,21 @@ def _params(
                 catan[f"nodes.{node}.{field}"] = value
     flat.update({f"{RESERVED_PREFIX}.{field}": value for field, value in catan.items()})
     return nest(flat)
+
+
+def _rate_parameter(spec: Spec, node: str, period_ms: float) -> float:
+    """``node``'s rate_param value; a :class:`SpecError` at its ``rate_type`` if no integer can say it."""
+    entry = spec.deploy[node]
+    try:
+        return rate_value(period_ms, entry.rate_unit, entry.rate_type)
+    except ValueError as exc:
+        path = ("deploy", node, "rate_type")
+        where = spec.source.locate(path) if spec.source is not None else None
+        message = (
+            f"the plan runs {node} at {1000.0 / period_ms:.6g} Hz, and as an integer {exc}: give another "
+            "rate_unit (hz, s, ms), or rate_type float"
+        )
+        raise SpecError([Diagnostic(where, ".".join(path), message)]) from None
 
 
 def _placement(plan: Plan, node: str, membership: dict[str, str], on: tuple[int, ...]) -> tuple[tuple[int, ...], int]:
@@ -302,7 +342,7 @@ def timer_period_ns(spec: Spec, plan: Plan, node: str, membership: dict[str, str
     entry = spec.deploy[node]
     period = node_period_ms(spec, plan, node, membership)
     if entry.rate_param is not None and period is not None:
-        return timer_ns(rate_value(period, entry.rate_unit), entry.rate_unit)
+        return timer_ns(_rate_parameter(spec, node, period), entry.rate_unit)
     rate = spec.nodes[node].rate_hz
     return timer_ns(rate, "hz") if rate is not None else None
 

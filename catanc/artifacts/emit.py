@@ -103,9 +103,10 @@ def emit(
 
 
 def ros_parameters(deployed: Iterable[Process]) -> dict[str, Any]:
-    """``{"/Operator": {"ros__parameters": {...}}}`` for every process that is a ROS node."""
+    """``{"/Operator": {"ros__parameters": {...}}}`` for every process that is a ROS node (``/**/Operator`` with
+    ``any_namespace``)."""
     return {
-        process.ros_node: {"ros__parameters": process.params} for process in deployed if process.ros_node is not None
+        process.params_key: {"ros__parameters": process.params} for process in deployed if process.ros_node is not None
     }
 
 

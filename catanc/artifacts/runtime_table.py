@@ -260,7 +260,15 @@ def normalised_spec(spec: Spec) -> dict[str, Any]:
     data: dict[str, Any] = spec.model_dump(mode="json", by_alias=True)
     if not data["executors"]:
         del data["executors"]  # a later field: tables of specs without executors stay as they were
+    for entry in data["deploy"].values():  # later fields too: written only where not the default
+        for field, default in LATER_DEPLOY_DEFAULTS.items():
+            if entry.get(field) == default:
+                del entry[field]
     return data
+
+
+LATER_DEPLOY_DEFAULTS = {"rate_type": "float", "any_namespace": False}
+"""Fields ``deploy.<node>`` gained after tables were first written, with their defaults."""
 
 
 # --------------------------------------------------------------------------- reading

@@ -73,12 +73,17 @@ def deploy_problems(spec: Spec) -> Iterator[tuple[FieldPath, str]]:
             yield where, f"a ROS process needs both package and executable: {missing} is missing"
         if entry.ros_node is None and (entry.package is not None or entry.rate_param is not None):
             yield where, "package/executable and rate_param need ros_node (the ROS node they belong to)"
+        if entry.ros_node is None and entry.any_namespace:
+            yield (*where, "any_namespace"), "any_namespace needs ros_node (the ROS node whose parameters it keys)"
+        if entry.rate_type != "float" and entry.rate_param is None:
+            yield (*where, "rate_type"), "rate_type is the type of rate_param's value, and there is no rate_param"
         key = process_key(name, entry)
         firsts = first_of.setdefault(key, {})
-        for field in ("command", "package", "executable"):
+        for field in ("command", "package", "executable", "any_namespace"):
             value = getattr(entry, field)
-            if value is None:
+            if value is None or value is False:
                 continue
+            value = str(value)
             if field in firsts and firsts[field][1] != value:
                 other = firsts[field][0]
                 yield (
@@ -101,6 +106,23 @@ def deploy_problems(spec: Spec) -> Iterator[tuple[FieldPath, str]]:
             elif node is not None and not node.scheduled and node.rate_hz is None:
                 yield path, f"node {name!r} is unscheduled and has no rate_hz: there is no rate to set"
             taken[param] = name
+    yield from _wildcard_problems(spec)
+
+
+def _wildcard_problems(spec: Spec) -> Iterator[tuple[FieldPath, str]]:
+    """A ``/**/a/b`` key (any_namespace) that would also match another process's node, ``/x/a/b``."""
+    ros_nodes = {qualified(entry.ros_node): name for name, entry in spec.deploy.items() if entry.ros_node is not None}
+    for name, entry in spec.deploy.items():
+        if entry.ros_node is None or not entry.any_namespace:
+            continue
+        own = qualified(entry.ros_node)
+        other = next((node for node in sorted(ros_nodes) if node != own and node.endswith(own)), None)
+        if other is not None:
+            yield (
+                ("deploy", name, "any_namespace"),
+                f"/**{own} would also match {other} (node {ros_nodes[other]}): params.yaml would set both "
+                "nodes' parameters from either's",
+            )
 
 
 def _callback_group_problems(spec: Spec, name: str, entry: Deploy) -> Iterator[tuple[FieldPath, str]]:

@@ -562,6 +562,16 @@ class Deploy(_Model):
     rate_unit: RateUnit = Field(
         default="hz", description="Unit of rate_param: a rate in hz, or a period in s or ms (any case: Hz, S, MS)."
     )
+    rate_type: Literal["float", "int"] = Field(
+        default="float",
+        description="Type of rate_param's value: float, or int for a node that reads an integer (rounded towards "
+        "the slower rate: a rate in hz down, a period in s or ms up; a rate below 1 hz is an error).",
+    )
+    any_namespace: bool = Field(
+        default=False,
+        description="params.yaml keys the node /**/<ros_node>, so its parameters reach it under any namespace "
+        "the launch adds (PushRosNamespace, a launch file's namespace).",
+    )
     package: str | None = Field(default=None, description="ROS 2 package (for launch.py).")
     executable: str | None = Field(default=None, description="ROS 2 executable (for launch.py).")
     command: str | None = Field(default=None, description="Shell-free command line that starts the process.")
