@@ -12,8 +12,6 @@ import math
 from collections.abc import Iterable, Mapping
 from dataclasses import replace
 
-import networkx as nx
-
 from catanc.core import graph
 from catanc.core.problem import Chain, Executor, PeriodTerm, Problem, ResponseBound, ResponseTerm, Stage, Subchain
 from catanc.errors import Diagnostic, FieldPath, SpecError, close_matches, did_you_mean, format_path
@@ -38,7 +36,7 @@ def build_problem(spec: Spec) -> Problem:
     return _Builder(spec).build()
 
 
-def spec_dag(spec: Spec) -> nx.DiGraph:
+def spec_dag(spec: Spec) -> graph.Dag:
     """The spec's DAG (edges to unknown nodes are left out)."""
     return graph.build_dag(
         list(spec.nodes), [(a, b) for a, b in spec.edge_pairs if a in spec.nodes and b in spec.nodes]
@@ -72,7 +70,7 @@ class _Builder:
         self.errors: list[Diagnostic] = []
         self.warnings: list[Diagnostic] = []
         self.node_names = list(spec.nodes)
-        self.dag: nx.DiGraph | None = None
+        self.dag: graph.Dag | None = None
         self.membership: dict[str, str] = {}
         self.chains: list[Chain] = []
         self.chain_index: dict[tuple[str, ...], int] = {}

@@ -39,8 +39,6 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-import networkx as nx
-
 from catanc.core.build import spec_dag
 from catanc.core.metrics import ChainMetrics, Timing, chain_metrics, fixed_timing
 from catanc.core.problem import Chain, PeriodTerm, Problem
@@ -183,21 +181,20 @@ def _trigger_periods(spec: Spec) -> tuple[dict[str, float | None], dict[str, str
     dag = spec_dag(spec)
     periods: dict[str, float | None] = {}
     triggers: dict[str, str] = {}
-    order = {name: index for index, name in enumerate(spec.nodes)}
-    for name in nx.lexicographical_topological_sort(dag, key=lambda n: order[n]):
+    for name in dag.topological_order():
         node = spec.nodes[name]
         own = node.rate_hz if not node.scheduled else spec.baseline.rates_hz.get(name)
         if own is not None:
             periods[name] = 1000.0 / own
             continue
-        inputs = sorted(dag.predecessors(name), key=lambda n: order[n])
+        inputs = dag.predecessors(name)  # in declaration order
         rated = [(p, n) for n in inputs if (p := periods.get(n)) is not None]
         pipeline = [(p, n) for p, n in rated if spec.nodes[n].scheduled]
         candidates = pipeline or rated
         if not candidates:
             periods[name] = None
             continue
-        period, source = min(candidates, key=lambda item: (item[0], order[item[1]]))
+        period, source = min(candidates, key=lambda item: (item[0], dag.order[item[1]]))
         periods[name] = period
         triggers[name] = source
     return periods, triggers

@@ -1,4 +1,4 @@
-"""DAG paths, selectors and cycles against brute force on small random graphs."""
+"""DAG paths, selectors and cycles against brute force and networkx on small random graphs."""
 
 from __future__ import annotations
 
@@ -79,15 +79,58 @@ def test_cycles_found_exactly_when_not_acyclic(count: int, edges: list[tuple[int
     names = [f"n{i}" for i in range(count)]
     pairs = [(names[a], names[b]) for a, b in edges if a < count and b < count]
     g = graph.build_dag(names, pairs)
+    oracle = nx.DiGraph(pairs)
+    oracle.add_nodes_from(names)
     cycles = graph.find_cycles(g)
-    assert (not cycles) == nx.is_directed_acyclic_graph(g)
+    assert (not cycles) == nx.is_directed_acyclic_graph(oracle)
     for cycle in cycles:
         assert cycle[0] == cycle[-1]
         assert all(g.has_edge(a, b) for a, b in itertools.pairwise(cycle))
         assert len(set(cycle[:-1])) == len(cycle) - 1  # a simple cycle
     # One cycle per cyclic strongly connected component, none shared.
-    components = [c for c in nx.strongly_connected_components(g) if len(c) > 1 or any(g.has_edge(n, n) for n in c)]
+    components = [
+        c for c in nx.strongly_connected_components(oracle) if len(c) > 1 or any(oracle.has_edge(n, n) for n in c)
+    ]
     assert len(cycles) == len(components)
+    for cycle in cycles:  # each is a shortest cycle through its first node, the earliest declared of its component
+        start = cycle[0]
+        component = next(c for c in components if start in c)
+        assert start == min(component, key=names.index)
+        sub = oracle.subgraph(component)
+        shortest = min(
+            (nx.shortest_path_length(sub, start, p) + 1 for p in sub.predecessors(start) if p != start), default=1
+        )
+        assert len(cycle) - 1 == (1 if oracle.has_edge(start, start) else shortest)
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    count=st.integers(1, 7),
+    edges=st.lists(st.tuples(st.integers(0, 6), st.integers(0, 6)), max_size=14),
+)
+def test_orders_and_reachability_match_networkx(count: int, edges: list[tuple[int, int]]) -> None:
+    names = [f"n{i}" for i in reversed(range(count))]  # declaration order differs from the names' order
+    pairs = [(names[a], names[b]) for a, b in edges if a < count and b < count]
+    g = graph.build_dag(names, pairs)
+    oracle = nx.DiGraph(pairs)
+    oracle.add_nodes_from(names)
+    assert list(g) == names
+    for node in names:
+        assert set(g.successors(node)) == set(oracle.successors(node))
+        assert list(g.successors(node)) == sorted(g.successors(node), key=names.index)
+        assert set(g.predecessors(node)) == set(oracle.predecessors(node))
+        assert g.ancestors(node) == nx.ancestors(oracle, node) | ({node} if _on_cycle(oracle, node) else set())
+        for other in names:
+            assert g.has_path(node, other) == nx.has_path(oracle, node, other)
+    if nx.is_directed_acyclic_graph(oracle):
+        expected = list(nx.lexicographical_topological_sort(oracle, key=names.index))
+        assert g.topological_order() == expected
+    else:
+        assert len(g.topological_order()) < count
+
+
+def _on_cycle(g: nx.DiGraph, node: str) -> bool:
+    return any(nx.has_path(g, child, node) for child in g.successors(node))
 
 
 def test_dense_dag_is_counted_not_enumerated() -> None:
