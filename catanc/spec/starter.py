@@ -11,12 +11,15 @@ from __future__ import annotations
 import re
 import shlex
 from functools import cache
+from typing import TYPE_CHECKING
 
-import jinja2
 import yaml
 
 from catanc.errors import UsageError
 from catanc.spec.language import APP_NAME_PATTERN
+
+if TYPE_CHECKING:
+    import jinja2
 
 STARTER_TEMPLATE = "starter.yaml.j2"
 DEFAULT_APP = "my_app"
@@ -39,6 +42,8 @@ def starter_spec(app: str = DEFAULT_APP, file: str | None = None) -> str:
 
 @cache
 def _template() -> jinja2.Template:
+    import jinja2  # noqa: PLC0415 - only `catanc init` renders it; every other command imports this module
+
     environment = jinja2.Environment(
         loader=jinja2.PackageLoader("catanc.templates", ""),
         undefined=jinja2.StrictUndefined,
