@@ -31,9 +31,17 @@ Multi-threaded nodes: ``trigger.threads`` is how many threads the plan gives thi
 Spread the work over that many and report the run's time with ``node.done(compute_ms=...)``
 (its wall time): the enforcer turns it back into one-thread time with the spec's speedup.
 
-This file uses only the standard library and runs on Python 3.8 and newer: copy it next to a
-node if catanc is not installed there.  :mod:`catanc.runtime.protocol` documents the protocol
-(``catanc/2``) for clients in other languages.
+Without an enforcer: ``Node("LM", fallback_period_ms=20.0)`` runs the same loop on its own
+timer, every 20 ms, when ``$CATANC_SOCKET`` is unset (after one warning), so one node works
+with and without ``catanc run``.  Without a fallback that is an error.  If the enforcer goes
+away without stopping the node (it was killed), :meth:`Node.wait` returns None after a warning
+and :attr:`Node.lost` says why: the loop ends cleanly.
+
+This file uses only the standard library, imports nothing else of catanc, and runs on Python
+3.8 and newer: copy it next to a node if catanc is not installed there (``catanc client
+--python`` prints its path).  :mod:`catanc.runtime.protocol` documents the protocol
+(``catanc/2``) for clients in other languages; ``catanc client --cflags`` gives the C++
+client's include folder.
 """
 
 from __future__ import annotations
@@ -48,6 +56,7 @@ import os
 import select
 import socket
 import struct
+import sys
 import threading
 import time
 from pathlib import Path
@@ -99,23 +108,41 @@ class Node:
 
     ``socket_path`` defaults to ``$CATANC_SOCKET``.  ``timeout_s`` bounds registration.  While
     waiting for a trigger the node checks every :attr:`PROBE_S` seconds that the enforcer's
-    socket is still there, and raises :class:`ClientError` if it went away without a stop.
+    socket is still there; if it went away without a stop, :meth:`wait` returns None and
+    :attr:`lost` says why.  ``fallback_period_ms``: where neither ``socket_path`` nor
+    ``$CATANC_SOCKET`` names an enforcer, trigger this node every that many ms on its own.
     """
 
     PROBE_S = 1.0
 
-    def __init__(self, name: str, *, socket_path: str | os.PathLike[str] | None = None, timeout_s: float = 5.0):
+    def __init__(
+        self,
+        name: str,
+        *,
+        socket_path: str | os.PathLike[str] | None = None,
+        timeout_s: float = 5.0,
+        fallback_period_ms: float | None = None,
+    ):
         _check_name(name)
+        period_ok = isinstance(fallback_period_ms, (int, float)) and 0 < fallback_period_ms < math.inf
+        if fallback_period_ms is not None and (isinstance(fallback_period_ms, bool) or not period_ok):
+            raise ClientError(f"node {name!r}: fallback_period_ms is a number of ms > 0, not {fallback_period_ms!r}")
+        self.fallback_period_ms: float | None = None
+        """The period of the node's own timer when no enforcer runs (None: with an enforcer)."""
         if socket_path is None:
             socket_path = os.environ.get(SOCKET_ENV)
             if not socket_path:
-                raise ClientError(
-                    f"no catanc enforcer socket: {SOCKET_ENV} is not set (`catanc run` sets it for the nodes it "
-                    "starts) and no socket_path was given"
-                )
+                if fallback_period_ms is None:
+                    raise ClientError(
+                        f"no catanc enforcer socket: {SOCKET_ENV} is not set (`catanc run` sets it for the nodes it "
+                        "starts) and no socket_path was given (or give a fallback_period_ms to run on a timer)"
+                    )
+                self.fallback_period_ms = float(fallback_period_ms)
         self.name = name
-        self.socket_path = os.fspath(socket_path)
+        self.socket_path = os.fspath(socket_path or "")
         self.timeout_s = timeout_s
+        self.lost: str | None = None
+        """Why the node lost its enforcer (it went away without a stop), or None."""
         self.tid: int | None = None
         """The registered thread's native id (set by :meth:`register`)."""
         self.trigger: Trigger | None = None
@@ -134,6 +161,8 @@ class Node:
         self._notify = False
         self._queued: collections.deque[Trigger] = collections.deque(maxlen=64)  # bounded: a node that never waits
         self._registered = False
+        self._next_tick_ns = 0  # the fallback timer's next trigger (CLOCK_MONOTONIC)
+        self._ticks = 0
         self._ended = False  # the enforcer stopped or rejected us, or went away
         self._interrupted = False
         self._closed = False
@@ -157,10 +186,17 @@ class Node:
 
     def register(self) -> None:
         """Register the calling thread as this node; wait up to ``timeout_s`` for the enforcer's welcome."""
-        if self._sock is not None or self._closed:
+        if self._sock is not None or self._thread is not None or self._closed:
             raise ClientError(f"node {self.name!r} is already registered (or closed): use a new Node")
         self.tid = threading.get_native_id()
         self._thread = threading.get_ident()
+        if self.fallback_period_ms is not None:
+            sys.stderr.write(
+                f"catanc: {SOCKET_ENV} is not set: node {self.name!r} runs on its own timer every "
+                f"{self.fallback_period_ms:g} ms (no enforcer)\n"
+            )
+            self._next_tick_ns = time.monotonic_ns()
+            return
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         try:
             sock.bind("")  # Linux autobind: a unique abstract address the enforcer and the previous node send to
@@ -176,6 +212,8 @@ class Node:
             deadline = time.monotonic() + self.timeout_s
             while not self.stopped and not self._registered:
                 if not self._receive(deadline):
+                    if self.lost is not None:
+                        raise ClientError(self.lost)
                     if self.stopped:
                         break  # interrupted while registering
                     raise ClientError(self._absent(f"no answer in {self.timeout_s:g} s"))
@@ -211,6 +249,8 @@ class Node:
         if self.trigger is not None:
             self.done()
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        if self.fallback_period_ms is not None:
+            return self._tick(deadline)
         while not self.stopped:
             if self._queued:
                 self.trigger = self._queued.popleft()
@@ -219,6 +259,33 @@ class Node:
                 return self.trigger
             if not self._receive(deadline):
                 return None
+        return None
+
+    def _tick(self, deadline: float | None) -> Trigger | None:
+        """The fallback timer's next trigger, at ``period * k`` after registering (a late run skips
+        the ticks it overran, as a timer does)."""
+        period_ns = max(int((self.fallback_period_ms or 0.0) * 1e6), 1)
+        now = time.monotonic_ns()
+        if now - self._next_tick_ns > period_ns:
+            self._next_tick_ns += (now - self._next_tick_ns) // period_ns * period_ns
+        while not self._interrupted:
+            now = time.monotonic_ns()
+            if now >= self._next_tick_ns:
+                self._next_tick_ns += period_ns
+                self._ticks += 1
+                self.trigger = Trigger(self.name, self._ticks, 1)
+                self._start_ns = now
+                self._cpu_start = time.thread_time()
+                return self.trigger
+            wait_s = (self._next_tick_ns - now) / 1e9
+            if deadline is not None:
+                wait_s = min(wait_s, deadline - time.monotonic())
+                if wait_s <= 0:
+                    return None
+            if select.select([self._wake_r], [], [], wait_s)[0]:
+                with contextlib.suppress(BlockingIOError):
+                    while os.read(self._wake_r, 64):
+                        pass
         return None
 
     def begin(self) -> int:
@@ -331,7 +398,8 @@ class Node:
         return f"no catanc enforcer at {self.socket_path} ({reason}): is `catanc run` running?"
 
     def _check_thread(self, what: str) -> None:
-        if self._sock is None or not (self._registered or self.stopped):
+        on_timer = self.fallback_period_ms is not None and self._thread is not None and not self._closed
+        if not on_timer and (self._sock is None or not (self._registered or self.stopped)):
             raise ClientError(f"node {self.name!r}: register before {what}() (use `with Node(...) as node:`)")
         if threading.get_ident() != self._thread:
             raise ClientError(
@@ -377,9 +445,8 @@ class Node:
                 except BlockingIOError:
                     continue
                 except OSError as exc:
-                    self._ended = True
-                    reason = exc.strerror or str(exc)
-                    raise ClientError(f"lost the catanc enforcer at {self.socket_path}: {reason}") from None
+                    self._lose(exc.strerror or str(exc))
+                    return False
                 before = (len(self._queued), self._registered, self._ended)
                 self._handle(data, ancillary, sender)
                 if (len(self._queued), self._registered, self._ended) != before:
@@ -388,10 +455,14 @@ class Node:
             if deadline is not None and time.monotonic() >= deadline:
                 return False
             if not ready and not self._enforcer_alive():
-                self._ended = True
-                raise ClientError(
-                    f"lost the catanc enforcer at {self.socket_path}: it went away without stopping node {self.name!r}"
-                )
+                self._lose(f"it went away without stopping node {self.name!r}")
+                return False
+
+    def _lose(self, reason: str) -> None:
+        """The enforcer is gone: end the loop (wait() returns None), and say so once."""
+        self._ended = True
+        self.lost = f"lost the catanc enforcer at {self.socket_path}: {reason}"
+        sys.stderr.write(f"catanc: {self.lost}\n")
 
     def _handle(self, data: bytes, ancillary: list[tuple[int, int, bytes]], sender: object) -> None:
         fds: list[int] = []

@@ -392,23 +392,89 @@ def test_bad_node_names(tmp_path: Path, name: str) -> None:
         Node(name, socket_path=tmp_path / "catanc.sock")
 
 
-def test_a_vanished_enforcer_ends_the_wait_with_an_error(
-    enforcer: FakeEnforcer, monkeypatch: pytest.MonkeyPatch
+def test_a_vanished_enforcer_ends_the_loop_and_says_why(
+    enforcer: FakeEnforcer, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
     monkeypatch.setattr(Node, "PROBE_S", 0.02)
     registered = threading.Event()
 
-    def client() -> None:
+    def client() -> tuple[list[Trigger], str | None]:
         with Node("LM", socket_path=enforcer.path) as node:
             registered.set()
-            list(node)
+            return list(node), node.lost
 
     background = Background(client)
     enforcer.welcome({"LM"})
     assert registered.wait(TIMEOUT_S)
     enforcer.close()  # no stop: a crash, as the node sees it
-    with pytest.raises(ClientError, match="went away without stopping node 'LM'"):
-        background.join()
+    triggers, lost = background.join()
+    assert triggers == []
+    assert lost is not None
+    assert "went away without stopping node 'LM'" in lost
+    assert capsys.readouterr().err == f"catanc: {lost}\n"  # one warning
+
+
+# -- without an enforcer: the node's own timer -------------------------------------------------
+
+
+def test_without_a_socket_a_fallback_period_runs_the_loop_on_a_timer(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.delenv(SOCKET_ENV, raising=False)
+    starts = []
+    with Node("LM", fallback_period_ms=20.0) as node:
+        for trigger in node:
+            starts.append(time.monotonic())
+            assert trigger == Trigger("LM", len(starts), 1)
+            burn_ms(2.0)
+            node.done()
+            if len(starts) == 11:
+                node.interrupt()
+    assert node.fallback_period_ms == 20.0
+    assert not node.registered
+    # Ten periods between the first trigger and the last: 200 ms, not more (the timer keeps its phase).
+    assert starts[-1] - starts[0] == pytest.approx(0.2, abs=0.03)
+    assert capsys.readouterr().err == (
+        "catanc: CATANC_SOCKET is not set: node 'LM' runs on its own timer every 20 ms (no enforcer)\n"
+    )
+
+
+def test_the_fallback_timer_skips_the_ticks_a_long_run_overran(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv(SOCKET_ENV, raising=False)
+    with Node("LM", fallback_period_ms=10.0) as node:
+        first = node.wait()
+        time.sleep(0.055)  # five ticks and a half
+        second = node.wait()
+        began = time.monotonic()
+        third = node.wait()
+        waited = time.monotonic() - began
+    assert (first, second, third) == (Trigger("LM", 1), Trigger("LM", 2), Trigger("LM", 3))
+    assert waited == pytest.approx(0.005, abs=0.004)  # the next tick on the timer's phase, not 10 ms later
+
+
+def test_the_fallback_timer_waits_with_a_timeout_and_stops_on_interrupt(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv(SOCKET_ENV, raising=False)
+    node = Node("LM", fallback_period_ms=1000.0)
+    with node:
+        assert node.wait() == Trigger("LM", 1)
+        assert node.wait(timeout_s=0.01) is None  # the next tick is a second away
+        Background(node.interrupt).join()
+        assert node.wait() is None
+        assert node.stopped
+
+
+@pytest.mark.parametrize("period", [0.0, -5.0, float("nan"), float("inf"), True, "20"])
+def test_a_fallback_period_is_a_positive_number_of_ms(period: Any) -> None:
+    with pytest.raises(ClientError, match="fallback_period_ms is a number of ms > 0"):
+        Node("LM", fallback_period_ms=period)
+
+
+def test_a_socket_wins_over_the_fallback(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv(SOCKET_ENV, str(tmp_path / "missing.sock"))
+    node = Node("LM", fallback_period_ms=20.0)
+    assert node.fallback_period_ms is None
+    with pytest.raises(ClientError, match="no catanc enforcer at"):
+        node.register()
 
 
 # -- the synthetic worker ----------------------------------------------------------------------

@@ -531,6 +531,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         for _ in nodes:
             node, error = finished.get()
             if error is None:
+                if node.lost is not None:  # the enforcer went away: the client said so
+                    status = max(status, 1)
                 continue
             if isinstance(error, ClientError):
                 print(f"catanc worker: {error}", file=sys.stderr)
