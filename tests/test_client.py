@@ -8,8 +8,10 @@ threads, workers in processes.  Every wait has a generous timeout; nothing here 
 
 from __future__ import annotations
 
+import ast
 import json
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -22,9 +24,11 @@ from typing import Any
 
 import pytest
 
+import catanc.client as client_module
 from catanc.client import ClientError, Node, Trigger
 from catanc.core.load import load_spec
 from catanc.core.workload import ComputeSampler
+from catanc.runtime import protocol, ring
 from catanc.runtime.protocol import (
     MAX_NAME,
     SOCKET_ENV,
@@ -50,6 +54,7 @@ from catanc.runtime.worker import (
     write_records,
 )
 from tests.support.fake_enforcer import TIMEOUT_S, FakeEnforcer
+from tests.support.pythons import find_python
 
 # -- helpers -----------------------------------------------------------------------------------
 
@@ -879,3 +884,59 @@ def test_worker_speedup_option() -> None:
         worker_command({"A": 5.0}, speedups={"A": (2.0, 3.0)})
     with pytest.raises(SystemExit):
         parse_args(["--node", "A", "--compute-ms", "1", "--speedup", "Z=1,2"])
+
+
+# -- the standalone file: any Python from 3.8, nothing else installed --------------------------
+
+CLIENT_FILE = Path(client_module.__file__)
+PYTHON_38 = find_python((3, 8))
+NO_PYTHON_38 = "no Python 3.8 interpreter on this machine (PATH, pyenv)"
+
+
+def test_the_clients_constants_are_the_protocols_and_the_rings() -> None:
+    assert client_module.PROTOCOL == protocol.PROTOCOL
+    assert client_module.SOCKET_ENV == protocol.SOCKET_ENV
+    assert client_module.MAX_DATAGRAM == protocol.MAX_DATAGRAM
+    assert client_module._RING_MAGIC == ring.MAGIC
+    assert client_module._RING_VERSION == ring.LAYOUT_VERSION
+    assert client_module._HEADER_SIZE == ring.HEADER_SIZE
+    assert client_module._ENTRY_SIZE == ring.ENTRY_SIZE == client_module._ENTRY.size
+    assert client_module._HEADER.format == ring.HEADER.format
+    assert client_module._ENTRY.format.startswith(ring.ENTRY.format)  # then the reserved word, zero
+    assert client_module._UNKNOWN == ring.UNKNOWN
+    assert client_module._trigger_bytes("LM", 7, 2) == trigger_datagram("LM", 7, 2)
+
+
+def test_the_client_parses_as_python_3_8() -> None:
+    ast.parse(CLIENT_FILE.read_text(), filename=str(CLIENT_FILE), feature_version=(3, 8))
+
+
+def standalone_imports(python: str, tmp_path: Path) -> set[str]:
+    """The modules that importing a copy of the client loads, isolated (-I: no environment, no user
+    site; -S: no site-packages) from a folder that holds nothing else."""
+    shutil.copy(CLIENT_FILE, tmp_path / "catanc_client.py")
+    code = (
+        "import sys; sys.path.insert(0, '.'); before = set(sys.modules)\n"
+        "import catanc_client\n"
+        "print(' '.join(sorted(set(sys.modules) - before)))"
+    )
+    done = subprocess.run(
+        [python, "-I", "-S", "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=TIMEOUT_S, check=False
+    )
+    assert done.returncode == 0, done.stderr
+    return set(done.stdout.split())
+
+
+@pytest.mark.parametrize(
+    "python",
+    [
+        pytest.param(sys.executable, id="this-python"),
+        pytest.param(str(PYTHON_38), id="python3.8", marks=pytest.mark.skipif(PYTHON_38 is None, reason=NO_PYTHON_38)),
+    ],
+)
+def test_a_copy_of_the_client_imports_the_standard_library_only(python: str, tmp_path: Path) -> None:
+    loaded = standalone_imports(python, tmp_path)
+    assert "catanc_client" in loaded
+    stdlib = set(sys.stdlib_module_names)
+    foreign = sorted(name for name in loaded if name.split(".")[0] not in stdlib | {"catanc_client"})
+    assert not foreign, f"the client imports {foreign}"
