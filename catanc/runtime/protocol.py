@@ -1,7 +1,8 @@
 """The trigger protocol between ``catanc run`` (the enforcer) and app nodes, version ``catanc/2``.
 
 This docstring is the protocol's reference: a client in any language that follows it is a
-catanc node.  :mod:`catanc.client` is the Python client (standard library only).
+catanc node.  :mod:`catanc.client` is the Python client (standard library only) and
+``catanc/include/catanc/client.hpp`` the C++ one (``catanc client --cflags``).
 
 Sockets
 =======
