@@ -36,7 +36,8 @@ def simulate(
     policy: Annotated[
         list[str] | None,
         typer.Option(
-            help="catan, baseline, fifo-static, static-fullrun or static-20s (repeat for several; default: all)."
+            help="catan, catan-nosteal, baseline, fifo-static, static-fullrun or static-20s "
+            "(repeat for several; default: all)."
         ),
     ] = None,
     duration: Annotated[float, typer.Option(min=0.1, help="Simulated seconds.")] = 60.0,
@@ -88,7 +89,7 @@ def bench(
     policy: Annotated[
         list[str] | None,
         typer.Option(
-            help="catan, baseline, fifo-static, static-fullrun or static-20s (repeat for several; "
+            help="catan, catan-nosteal, baseline, fifo-static, static-fullrun or static-20s (repeat for several; "
             "default: catan, baseline and fifo-static)."
         ),
     ] = None,

@@ -11,8 +11,9 @@ their hand-offs are :mod:`catanc.control.flights`'s; the schedule they run is
   effect at the next period's start; a core that fell a whole period behind resumes from now.
 - **Slot ownership and stealing** (:func:`switch_at`): at a slot's switch its subchain is
   raised, unless a subchain of higher priority on the core is late (triggered, not done, past
-  its planned latency), which then takes the slot; slot-aligned heads are triggered at their
-  slot every ``runs`` periods; at the end of the last slice everything is lowered.
+  its planned latency), which then takes the slot (on a core with stealing, the default);
+  slot-aligned heads are triggered at their slot every ``runs`` periods; at the end of the last
+  slice everything is lowered.
 - **Which boundaries need the enforcer awake** (:func:`needs_wake`): one that triggers a head,
   or where a subchain of the core is running or raised; across an idle stretch nothing can
   change, and the owner it would raise is raised when its head is next triggered.
@@ -119,11 +120,16 @@ def slot_rules(core: CoreSchedule, runs: Mapping[str, SubchainRun]) -> tuple[Slo
 
     A slot's thieves are the other subchains of the core that outrank its own, highest priority
     (then name) first: the late one of highest priority above the slot's owner takes the slot.
+    A core without stealing (``schedule.stealing: false``) has none: each slot is its owner's.
     """
     rules = []
     for slot in core.slots:
         owner = runs[slot.subchain]
-        above = [runs[other.subchain] for other in core.slots if runs[other.subchain].priority > owner.priority]
+        above = [
+            runs[other.subchain]
+            for other in core.slots
+            if core.stealing and runs[other.subchain].priority > owner.priority
+        ]
         above.sort(key=lambda run: (run.priority, run.name), reverse=True)
         rules.append(SlotRule(slot.subchain, owner.runs, tuple(run.name for run in above)))
     rules.append(SlotRule(None))

@@ -16,7 +16,8 @@ sections 5 and 6):
   ``f * c(S)``, in order, after a switch; the rest of ``T`` is slack;
 - priority stealing: a slot goes to the highest-priority subchain on the
   core whose output is late (triggered, not done, past its planned
-  latency), when that one outranks the slot's owner.
+  latency), when that one outranks the slot's owner (unless the spec turns
+  stealing off: ``schedule.stealing: false``, the paper's ablation).
 """
 
 from __future__ import annotations
@@ -74,6 +75,7 @@ class CoreSchedule:
     period_ms: float  # T
     switch_ms: float
     slots: tuple[Slot, ...]
+    stealing: bool = True  # a late subchain may take the slot of one of lower priority (spec: schedule.stealing)
 
     @property
     def busy_ms(self) -> float:
@@ -125,7 +127,7 @@ def runtime_schedule(plan: Plan, problem: Problem, schedule: Schedule) -> Runtim
         slices = {name: plan.subchains[name].fraction * compute[name] for name in core.order}
         starts = slot_starts(core.order, slices, schedule.switch_ms)
         slots = tuple(Slot(name, starts[name], slices[name]) for name in core.order)
-        shared.append(CoreSchedule(core.core, core.period_ms, schedule.switch_ms, slots))
+        shared.append(CoreSchedule(core.core, core.period_ms, schedule.switch_ms, slots, schedule.stealing))
     return RuntimeSchedule(plan.cores, subchains, tuple(shared))
 
 
@@ -145,6 +147,8 @@ def is_late(triggered_ms: float | None, now_ms: float, run: SubchainRun) -> bool
 def slot_owner(slot: Slot, core: CoreSchedule, runs: Mapping[str, SubchainRun], late: Set[str]) -> str:
     """Whose threads are raised in ``slot``: its subchain's, or the late one of highest priority above it."""
     owner = runs[slot.subchain]
+    if not core.stealing:
+        return owner.name
     thieves = [runs[s.subchain] for s in core.slots if s.subchain in late and s.subchain != slot.subchain]
     best = max(thieves, key=lambda run: (run.priority, run.name), default=None)
     if best is not None and best.priority > owner.priority:

@@ -194,7 +194,9 @@ def _shared_blocks(view: SharedCoreView, explanation: Explanation) -> list[Block
         TableBlock(columns, tuple(rows), title=title),
         Preformatted(f"{timeline_bar(view)}\n{marks}; | switch, . idle"),
     ]
-    if len(view.order) > 1:
+    if len(view.order) > 1 and not explanation.schedule.stealing:
+        blocks.append(Paragraph("No stealing (schedule.stealing: false): each slice is its subchain's."))
+    elif len(view.order) > 1:
         ranked = sorted(view.order, key=lambda name: (-subs[name].priority, name))
         blocks.append(
             Paragraph(

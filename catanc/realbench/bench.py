@@ -8,6 +8,8 @@ of them, and records every run); then
 - ``catan``: the real enforcer, as ``catanc run`` runs it (:class:`~catanc.runtime.enforcer.Enforcer`
   with SCHED_FIFO, its watchdog, and re-solving), starting from the spec's plan as the
   simulator's ``catan`` does;
+- ``catan-nosteal`` (not run by default): the same with the spec's ``schedule.stealing`` off, so the
+  enforcer never gives a slot to a late subchain of higher priority (the paper's ablation, Figure 9);
 - ``baseline``: :class:`~catanc.realbench.driver.Driver` triggers the nodes as
   ``baseline.rates_hz`` says, every node thread under SCHED_OTHER (CFS) on the first ``K``
   CPUs this process may use;
@@ -59,12 +61,12 @@ from catanc.runtime.sched import (
 )
 from catanc.runtime.worker import RunRecord, read_records, worker_groups, workload_worker_command
 from catanc.sim.metrics import PolicyResult
-from catanc.sim.simulate import Setup, reported_chains, static_profile
+from catanc.sim.simulate import CATAN_POLICIES, Setup, policy_spec, reported_chains, static_profile
 from catanc.spec.language import Spec
 
-POLICIES = ("catan", "baseline", "fifo-static", "static-fullrun", "static-20s")
+POLICIES = ("catan", "catan-nosteal", "baseline", "fifo-static", "static-fullrun", "static-20s")
 DEFAULT_POLICIES = ("catan", "baseline", "fifo-static")
-ENFORCED_POLICIES = frozenset({"catan", "static-fullrun", "static-20s"})  # run under the real enforcer
+ENFORCED_POLICIES = frozenset({"catan", "catan-nosteal", "static-fullrun", "static-20s"})  # under the real enforcer
 FIFO_POLICIES = frozenset({*ENFORCED_POLICIES, "fifo-static"})
 REGISTER_TIMEOUT_S = 30.0
 """How long the workers may take to start and register (they import catanc's spec loader: ~0.6 s each)."""
@@ -255,10 +257,11 @@ class Workers:
 def planned_spec(setup: BenchSetup, policy: str) -> Spec:
     """The spec the enforcer plans with: the app's for ``catan``; for a static policy, the app with
     the profiled tail compute times (:func:`~catanc.sim.simulate.static_profile`) and no re-solve
-    before the run ends. The workers still burn what the app's own workload model draws."""
+    before the run ends; for ``catan-nosteal``, the app without priority stealing
+    (:func:`~catanc.sim.simulate.policy_spec`). The workers still burn what the app's own workload model draws."""
     spec = setup.spec
-    if policy == "catan":
-        return spec
+    if policy in CATAN_POLICIES:
+        return policy_spec(spec, policy)
     tails = static_profile(Setup(spec, setup.cores, setup.duration_s, setup.seed), policy)
     nodes = {name: node.model_copy(update={"compute_ms": tails[name]}) if name in tails else node
              for name, node in spec.nodes.items()}  # fmt: skip

@@ -163,6 +163,7 @@ class ScheduleTable:
             "core_id": np.zeros((v, cores), np.int64),
             "core_period": np.zeros((v, cores)),
             "core_switch": np.zeros((v, cores)),
+            "core_stealing": np.ones((v, cores), np.bool_),
             "core_nslots": np.zeros((v, cores), np.int64),
             "slot_sub": np.zeros((v, cores, max(subs, 1)), np.int64),
             "slot_start": np.zeros((v, cores, max(subs, 1))),
@@ -201,6 +202,7 @@ class ScheduleTable:
             a.core_id[v, c] = core.core
             a.core_period[v, c] = core.period_ms
             a.core_switch[v, c] = core.switch_ms
+            a.core_stealing[v, c] = core.stealing
             a.core_nslots[v, c] = len(core.slots)
             for i, slot in enumerate(core.slots):
                 a.slot_sub[v, c, i] = sub_id[slot.subchain]
@@ -492,6 +494,7 @@ def no_schedules() -> Fields:
         "core_id": ints2,
         "core_period": floats2,
         "core_switch": floats2,
+        "core_stealing": bools2,
         "core_nslots": ints2,
         "slot_sub": np.zeros((1, 1, 1), np.int64),
         "slot_start": np.zeros((1, 1, 1)),

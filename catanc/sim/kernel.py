@@ -114,7 +114,7 @@ class SimProxy(structref.StructRefProxy):  # type: ignore[misc]
     ``sub_period``, ``sub_latency``, ``sub_runs`` (-1: own clock),
     ``sub_priority``, ``node_threads``, ``node_speedup``, ``clocked`` (in the
     schedule's order, then -1), ``n_shared``, ``core_id``, ``core_period``,
-    ``core_switch``, ``core_nslots``, ``slot_sub``, ``slot_start``, ``slot_length``.
+    ``core_switch``, ``core_stealing``, ``core_nslots``, ``slot_sub``, ``slot_start``, ``slot_length``.
 
     The draws (:class:`catanc.core.workload.NodeStream` values, drawn ahead):
     ``mode``/``factor`` ``[N, width]`` (rings: run ``j`` of a node at ``j % width``), ``used``, ``filled`` (runs
@@ -146,8 +146,8 @@ FIELDS = (
     "cores", "executor_of",
     # the schedules
     "sub_ncores", "sub_cores", "sub_shared", "sub_period", "sub_latency", "sub_runs", "sub_priority",
-    "node_threads", "node_speedup", "clocked", "n_shared", "core_id", "core_period", "core_switch", "core_nslots",
-    "slot_sub", "slot_start", "slot_length",
+    "node_threads", "node_speedup", "clocked", "n_shared", "core_id", "core_period", "core_switch", "core_stealing",
+    "core_nslots", "slot_sub", "slot_start", "slot_length",
     # the draws
     "mode", "factor", "used", "filled", "spike_at", "spike_next", "spike_ms", "has_growth", "growth",
     # the run
@@ -776,7 +776,8 @@ def switch(sim: Sim, old_version: int, c: int, s: int, generation: int, index: i
     """:meth:`CatanPolicy._switcher`: the core's slots as they were scheduled, the subchains as they are now.
 
     Only a late subchain of higher priority than the slot's owner takes the slot, so only those that
-    could be the best such thief are checked for lateness (the same owner as checking them all).
+    could be the best such thief are checked for lateness (the same owner as checking them all); on a
+    core without stealing none is (:func:`catanc.control.policy.slot_rules` gives it no thieves).
     """
     if generation != sim.generation:
         return
@@ -785,7 +786,8 @@ def switch(sim: Sim, old_version: int, c: int, s: int, generation: int, index: i
     slot_sub, priority = sim.slot_sub, sim.sub_priority
     owner = slot_sub[old_version, c, s]
     best = -1
-    for i in range(sim.core_nslots[old_version, c]):
+    candidates = sim.core_nslots[old_version, c] if sim.core_stealing[old_version, c] else 0
+    for i in range(candidates):
         other = slot_sub[old_version, c, i]
         rank = priority[version, other]
         if rank <= priority[version, owner] or other == owner:

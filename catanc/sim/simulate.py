@@ -5,6 +5,9 @@ Policies (issue 7; the paper's section 7 baselines):
 - ``catan``: catanc's plan for the spec's compute times, enforced as ``catanc
   run`` does, re-solved from measured p95s (Stage II every
   ``stage2_every_s``, Stage I every ``stage1_every_s``);
+- ``catan-nosteal``: the same without priority stealing (the spec's
+  ``schedule.stealing`` off: each slot is its owner's), the paper's
+  ablation "Catan w/o priority stealing" (its Figure 9);
 - ``static-fullrun`` / ``static-20s``: one plan, made before the run from
   the p95 compute times of the whole run / of its first 20 s (drawn from the
   workload model), never re-solved (the paper's Static-FullRun, Static-20s);
@@ -17,7 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
@@ -43,7 +46,9 @@ from catanc.sim.policies import CatanPolicy, Reoptimiser, Sampler, TimerPolicy, 
 from catanc.sim.records import Records
 from catanc.spec.language import Spec
 
-POLICIES = ("catan", "baseline", "fifo-static", "static-fullrun", "static-20s")
+POLICIES = ("catan", "catan-nosteal", "baseline", "fifo-static", "static-fullrun", "static-20s")
+CATAN_POLICIES = frozenset({"catan", "catan-nosteal"})
+"""Policies that run catanc's plan and re-solve it."""
 DEFAULT_POLICIES = ("catan", "baseline", "fifo-static")
 MAX_OTHER_CHAINS = 50
 """Source-to-sink paths reported besides the named chains (an app with thousands lists the first 50)."""
@@ -133,6 +138,13 @@ def check_policies(names: Sequence[str]) -> tuple[str, ...]:
     return tuple(dict.fromkeys(names))
 
 
+def policy_spec(spec: Spec, policy: str) -> Spec:
+    """The spec ``policy`` plans and enforces: ``catan-nosteal`` turns ``schedule.stealing`` off."""
+    if policy != "catan-nosteal":
+        return spec
+    return spec.model_copy(update={"schedule": spec.schedule.model_copy(update={"stealing": False})})
+
+
 def workload_sampler(spec: Spec, seed: int) -> Sampler:
     """The spec's workload model (:mod:`catanc.core.workload`), seeded."""
     return ComputeSampler(spec, seed).compute_ms
@@ -170,7 +182,7 @@ def prepare(setup: Setup, policy: str, sampler_for: SamplerFactory) -> Prepared:
     """Plan what ``policy`` needs (nothing for the baselines, one plan for a static policy)."""
     check_policies([policy])
     spec, cores = setup.spec, setup.cores
-    if policy == "catan":
+    if policy in CATAN_POLICIES:
         replanner = Replanner(spec, cores)
         schedule = runtime_schedule(replanner.plan, replanner.problem, spec.schedule)
         return Prepared(reported_chains(spec, replanner.spec_problem), schedule, replanner, None, None, "fifo")
@@ -195,6 +207,7 @@ def simulate(
     (the readable engine, any sampler), or ``auto``: compiled for the spec's workload.  A compiled
     run makes the process keep the memory it frees (:mod:`catanc.sim.memory`).
     """
+    setup = replace(setup, spec=policy_spec(setup.spec, policy))
     prepared = prepare(setup, policy, sampler_for)
     compiled = engine == "compiled" or (engine == "auto" and sampler_for is workload_sampler)
     if compiled and sampler_for is not workload_sampler:

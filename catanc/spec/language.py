@@ -527,6 +527,13 @@ class Schedule(_Model):
     slack: float = Field(default=0.05, ge=0, lt=1, description="Idle share of each period (Linux caps FIFO at 95%).")
     switch_ms: float = Field(default=0.12, ge=0, description="Cost of one switch between subchains.")
     min_slice_ms: float = Field(default=1.0, ge=0, description="Smallest slice a subchain gets per period.")
+    stealing: bool = Field(
+        default=True,
+        # Written out only when off: runtime tables of specs that keep the default stay as they were.
+        exclude_if=bool,
+        description="Priority stealing: a late subchain takes the slot of one of lower priority "
+        "(false: the paper's ablation 'Catan w/o priority stealing', its Figure 9).",
+    )
 
 
 class Runtime(_Model):

@@ -71,6 +71,13 @@ def test_a_late_subchain_of_higher_priority_steals_the_slot_but_not_the_other_wa
     assert switch_at(CORE, 0, 1, RUNS, {"b"}) == Switch("a", "a")  # b ranks below a
 
 
+def test_without_stealing_every_slot_is_its_owners_and_heads_are_still_triggered() -> None:
+    without = CoreSchedule(0, 10.0, 0.5, CORE.slots, stealing=False)
+    assert [rule.thieves for rule in slot_rules(without, RUNS)] == [(), (), ()]
+    assert switch_at(without, 1, 0, RUNS, {"a"}) == Switch("b", "b")  # a is late: with stealing it took b's slot
+    assert switch_at(without, 1, 1, RUNS, {"a"}) == Switch("b", None)
+
+
 def test_late_is_past_the_planned_latency_since_the_oldest_trigger() -> None:
     oldest = {"a": 0.0, "b": None}
     assert late_on(CORE, RUNS, oldest.get, 10.0) == set()  # exactly the latency: not yet

@@ -103,6 +103,8 @@ def test_stealing_goes_to_the_highest_late_subchain_above_the_owner() -> None:
     assert slot_owner(c_slot, core, runs, {"a", "b"}) == "a"
     assert slot_owner(b_slot, core, runs, {"c"}) == "b"  # a lower one never steals
     assert slot_owner(a_slot, core, runs, {"a", "b"}) == "a"
+    without = CoreSchedule(0, 20.0, 0.1, core.slots, stealing=False)  # the paper's ablation
+    assert [slot_owner(slot, without, runs, {"a", "b", "c"}) for slot in core.slots] == ["a", "b", "c"]
 
 
 def test_lateness() -> None:

@@ -23,7 +23,17 @@ from catanc.core.load import load_spec, parse_spec
 from catanc.core.problem import Problem
 from catanc.errors import ExitCode, InfeasibleError
 from catanc.explain.analysis import Explanation, SharedCoreView, explain_plan
-from catanc.explain.blocks import Block, Bullets, Column, Heading, Paragraph, Preformatted, TableBlock, timeline_bar
+from catanc.explain.blocks import (
+    Block,
+    Bullets,
+    Column,
+    Heading,
+    Paragraph,
+    Preformatted,
+    TableBlock,
+    report_blocks,
+    timeline_bar,
+)
 from catanc.explain.markdown import blocks_markdown, render_markdown
 from catanc.explain.terminal import render
 from catanc.planning.planner import plan
@@ -516,3 +526,13 @@ def test_markdown_escapes_what_would_become_markup() -> None:
     )
     with pytest.raises(ValueError, match="a row of 1 cells in a table of 2 columns"):
         TableBlock((Column("a"), Column("b")), (("x",),))
+
+
+def test_explain_says_where_a_spec_turns_stealing_off() -> None:
+    text = (SPECS / "vr_illixr.yaml").read_text()
+    on = blocks_markdown(report_blocks(explained(text, 1)))
+    off_text = text.replace("  priorities: {timewarp: 1", "  stealing: false\n  priorities: {timewarp: 1")
+    off = blocks_markdown(report_blocks(explained(off_text, 1)))
+    assert "Stealing order: timewarp > " in on
+    assert "Stealing order" not in off
+    assert "No stealing (schedule.stealing: false)" in off

@@ -619,7 +619,7 @@ def test_usage_errors_come_before_anything_starts(tmp_path: Path) -> None:
     tiny.write_text(TINY)
     result = runner.invoke(app, ["bench", str(tiny), "-k", "1", "--policy", "static-30s"])
     assert result.exit_code == ExitCode.BAD_INPUT
-    expected = "catan, baseline, fifo-static, static-fullrun, static-20s"
+    expected = "catan, catan-nosteal, baseline, fifo-static, static-fullrun, static-20s"
     assert f"unknown policy 'static-30s' (expected one of: {expected})" in result.output
     cpus = len(os.sched_getaffinity(0))
     result = runner.invoke(app, ["bench", str(tiny), "-k", str(cpus + 1), "--policy", "baseline"])
