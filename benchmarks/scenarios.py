@@ -1,16 +1,23 @@
-"""Issue 7's results: the paper's section 7 scenarios, simulated and on this machine's kernel.
+"""Issues 7 and 30: the paper's section 7 scenarios, simulated over 20 seeds and on this machine's kernel.
 
     python -m benchmarks.scenarios               # the simulator (deterministic): docs/results/sim.json and sim-*.png
-    python -m benchmarks.scenarios --real        # the real kernel too (root, ~20 min): real.json and real-*.png
-    python -m benchmarks.scenarios --only vr     # one scenario (face, nav2d, yolo, vr)
+    python -m benchmarks.scenarios --real        # the real kernel instead (root, ~30 min): real.json, real-*.png
+    python -m benchmarks.scenarios --only vr     # one scenario (face, nav2d, yolo, yolo-fast, vr, vr-illixr)
+    python -m benchmarks.scenarios --tables      # the saved numbers as docs/results.md's tables
 
 Each scenario runs catanc's policies and the paper's baselines through
 :func:`catanc.sim.simulate.simulate` or :func:`catanc.realbench.bench.bench_policies`
 (same policies, same result shape), on 1 and 2 cores, and keeps the numbers
 docs/results.md quotes (a JSON file per source) and one figure per scenario.
-Variants of an example spec (another hand-tuned rate, a faster growth) are
-the spec's own YAML with one value changed, written to a temporary folder for
-the real run's workers.
+Every simulated point is run with seeds 0-19 (the workload's draws): each
+number is the mean over the seeds of a per-seed figure (a run's mean, p95 or
+rate) with the half-width of its 95% Student-t interval, and the per-seed
+values are kept so that policies can be compared seed by seed (paired).
+The real kernel runs one seed per point (a run takes real time).
+Variants of an example spec (another hand-tuned rate, a faster growth, a
+static plan's rates, ILLIXR's vsync display and dataset) are the spec's own
+YAML with one thing changed, written to a temporary folder for the real
+run's workers.
 """
 
 from __future__ import annotations
@@ -29,23 +36,30 @@ from typing import Any
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
+from catanc.core.build import build_problem
 from catanc.core.load import load_spec
+from catanc.planning.planner import plan_problem
 from catanc.sim.metrics import ChainResult, PolicyResult
 from catanc.sim.plots import panel_figure, png_bytes, write_files
-from catanc.sim.simulate import Setup, simulate
+from catanc.sim.simulate import Setup, simulate, static_profile
 from tests.support.scenario_specs import (
     BUCKET_S,
+    DATASET,
     bucket_medians,
     bucket_periods,
     spec_file,
     spec_yaml,
+    t_interval,
+    with_baseline_rates,
     with_growth_over,
     with_rates,
+    with_vsync_display_and_dataset,
 )
 
 OUT = Path(__file__).resolve().parent.parent / "docs" / "results"
-SEED = 0
 CORES = (1, 2)
+SIM_SEEDS = tuple(range(20))
+REAL_SEEDS = (0,)
 
 FACE_CHAIN = ("camera", "detection", "planning", "motor")
 LOCAL_CHAIN = ("scan", "LM", "LP", "base")
@@ -56,40 +70,101 @@ VR_CHAINS = {
     "B": ("IMU", "Int", "Render", "Timewarp", "Display"),
     "C": ("Camera", "VIO", "Int", "Timewarp", "Display"),
 }
+VSYNC_HZ, DATASET_HZ = 120.0, 20.0  # ILLIXR's display and EuRoC's camera (the paper's section 7.3)
+ILLIXR_CHAINS = {**VR_CHAINS, "C": (DATASET, *VR_CHAINS["C"])}  # C from the dataset's frame, as ILLIXR sees it
+
+SpecFor = Mapping[str, Any] | Callable[[int, int], Mapping[str, Any]]
+"""A scenario's spec: YAML data, or data made per (seed, cores) (a static plan's rates depend on both)."""
+Measure = Callable[[PolicyResult], dict[str, Any]]
 
 
 @dataclass(frozen=True)
 class Source:
-    """Where runs come from: the simulator or the real kernel, with each scenario's durations."""
+    """Where runs come from: the simulator or the real kernel, with each scenario's durations and seeds."""
 
     name: str  # "sim" or "real"
     durations_s: Mapping[str, float]
     face_rates_hz: tuple[float, ...]
+    seeds: tuple[int, ...]
 
-    def run(self, spec_yaml: Mapping[str, Any], cores: int, policy: str, duration_s: float) -> PolicyResult:
-        with spec_file(spec_yaml) as path:
-            spec = load_spec(path)
-            began = time.monotonic()
-            if self.name == "sim":
-                result = simulate(Setup(spec, cores, duration_s, SEED), policy)
-            else:
-                from catanc.realbench.bench import BenchSetup, bench_policies  # noqa: PLC0415 - root only
+    def run(self, spec: SpecFor, cores: int, policy: str, duration_s: float, measure: Measure) -> dict[str, Any]:
+        """``measure`` of one run per seed, summarised over the seeds (:func:`over_seeds`)."""
+        began = time.monotonic()
+        measured = []
+        app = ""
+        for seed in self.seeds:
+            data = spec(seed, cores) if callable(spec) else spec
+            app = str(data["app"])
+            with spec_file(data) as path:
+                loaded = load_spec(path)
+                if self.name == "sim":
+                    result = simulate(Setup(loaded, cores, duration_s, seed), policy)
+                else:
+                    from catanc.realbench.bench import BenchSetup, bench_policies  # noqa: PLC0415 - root only
 
-                result = bench_policies(BenchSetup(path, spec, cores, duration_s, SEED), [policy])[0]
+                    result = bench_policies(BenchSetup(path, loaded, cores, duration_s, seed), [policy])[0]
+            measured.append(measure(result))
         print(
-            f"  {self.name} {spec.app} {cores} core(s) {policy}: {duration_s:g} s in {time.monotonic() - began:.1f} s",
+            f"  {self.name} {app} {cores} core(s) {policy}: {len(self.seeds)} x {duration_s:g} s "
+            f"in {time.monotonic() - began:.1f} s",
             file=sys.stderr,
             flush=True,
         )
-        return result
+        summary: dict[str, Any] = over_seeds(measured)
+        return summary
 
 
 SIM = Source(
     "sim",
-    {"face": 60.0, "nav2d": 250.0, "yolo": 250.0, "yolo-fast": 60.0, "vr": 60.0},
+    {"face": 60.0, "nav2d": 250.0, "yolo": 250.0, "yolo-fast": 60.0, "vr": 60.0, "vr-illixr": 60.0},
     (2, 4, 6, 8, 10, 11, 12, 13, 14, 15, 17, 20, 25, 30),
+    SIM_SEEDS,
 )
-REAL = Source("real", {"face": 10.0, "nav2d": 20.0, "yolo-fast": 60.0, "vr": 20.0}, (4, 8, 11, 14, 17, 20, 30))
+REAL = Source(
+    "real",
+    {"face": 10.0, "nav2d": 20.0, "yolo-fast": 60.0, "vr": 20.0, "vr-illixr": 20.0},
+    (4, 8, 11, 14, 17, 20, 30),
+    REAL_SEEDS,
+)
+
+
+# --------------------------------------------------------------------------- statistics over seeds
+
+
+def over_seeds(measured: Sequence[Any]) -> Any:
+    """Per-seed measurements (equal nested dicts and lists of numbers) as one: each number becomes
+    ``{"mean", "ci95", "n", "values"}`` (:func:`stat`); a list is summarised item by item."""
+    first = measured[0]
+    if isinstance(first, dict):
+        return {key: over_seeds([m[key] for m in measured]) for key in first}
+    if isinstance(first, list):
+        width = max(len(m) for m in measured)
+        return [over_seeds([m[i] if i < len(m) else None for m in measured]) for i in range(width)]
+    return stat([m for m in measured if m is not None])
+
+
+def stat(values: Sequence[float]) -> dict[str, Any] | None:
+    """The mean over seeds and the half-width of its 95% t-interval (None: no seed had a value)."""
+    if not values:
+        return None
+    mean, half = t_interval([float(v) for v in values])
+    return {
+        "mean": round(mean, 4),
+        "ci95": None if math.isnan(half) else round(half, 4),
+        "n": len(values),
+        "values": [round(float(v), 4) for v in values],
+    }
+
+
+def mean_of(value: Mapping[str, Any] | None) -> float:
+    return math.nan if value is None else float(value["mean"])
+
+
+def paired_ratio(mine: Mapping[str, Any] | None, theirs: Mapping[str, Any] | None) -> dict[str, Any] | None:
+    """``mine / theirs - 1`` seed by seed (the same workload draws), as a :func:`stat`."""
+    if mine is None or theirs is None or len(mine["values"]) != len(theirs["values"]):
+        return None
+    return stat([a / b - 1.0 for a, b in zip(mine["values"], theirs["values"], strict=True) if b])
 
 
 # --------------------------------------------------------------------------- specs and numbers
@@ -104,35 +179,47 @@ def response(result: PolicyResult, nodes: Sequence[str]) -> dict[str, float | No
     chain = chain_of(result, nodes)
     summary = chain.response
     return {
-        "mean_ms": None if summary is None else round(summary.mean, 2),
-        "p95_ms": None if summary is None else round(summary.p95, 2),
-        "max_ms": None if summary is None else round(summary.max, 2),
+        "mean_ms": None if summary is None else summary.mean,
+        "p95_ms": None if summary is None else summary.p95,
+        "max_ms": None if summary is None else summary.max,
         "outputs": 0 if summary is None else summary.count,
-        "model_ms": None if chain.model_ms is None else round(chain.model_ms, 2),
+        "model_ms": chain.model_ms,
     }
 
 
 def rate(result: PolicyResult, node: str) -> float:
-    return round(result.nodes[node].rate_hz, 3)
+    return result.nodes[node].rate_hz
 
 
 def staleness(result: PolicyResult, node: str) -> float | None:
-    value = result.nodes[node].staleness_ms_p95
-    return None if value is None else round(value, 2)
+    return result.nodes[node].staleness_ms_p95
+
+
+Variants = Mapping[str, tuple[str, SpecFor]]
+"""label -> (policy, spec) of one scenario."""
 
 
 def per_core_and_variant(
     source: Source,
     duration_s: float,
-    variants: Mapping[str, tuple[str, Mapping[str, Any]]],
-    measure: Callable[[PolicyResult], dict[str, Any]],
+    variants: Variants | Callable[[int], Variants],
+    measure: Measure,
 ) -> dict[str, Any]:
-    """``{cores: {label: measure(result)}}`` for each ``label -> (policy, spec)`` on each of :data:`CORES`."""
+    """``{cores: {label: measure over the seeds}}`` for each ``label -> (policy, spec)`` on each of :data:`CORES`
+    (``variants`` may depend on the cores)."""
     numbers: dict[str, Any] = {}
     for cores in CORES:
-        for label, (policy, data) in variants.items():
-            numbers.setdefault(f"{cores}", {})[label] = measure(source.run(data, cores, policy, duration_s))
+        chosen = variants(cores) if callable(variants) else variants
+        for label, (policy, data) in chosen.items():
+            numbers.setdefault(f"{cores}", {})[label] = source.run(data, cores, policy, duration_s, measure)
     return numbers
+
+
+def errorbars(ax: Axes, xs: Sequence[float], values: Sequence[Mapping[str, Any] | None], style: str, **kw: Any) -> None:
+    """Means with their 95% intervals (none for one seed)."""
+    ys = [mean_of(v) for v in values]
+    errors = [0.0 if v is None or v["ci95"] is None else v["ci95"] for v in values]
+    ax.errorbar(xs, ys, yerr=errors, fmt=style, capsize=2, **kw)
 
 
 # --------------------------------------------------------------------------- scenarios
@@ -141,26 +228,29 @@ def per_core_and_variant(
 def face(source: Source) -> tuple[dict[str, Any], Figure]:
     """Figure 6: the chain's response time against the camera rate (CFS), and catanc's choice."""
     data, duration = spec_yaml("face_tracking"), source.durations_s["face"]
+
+    def measure(result: PolicyResult) -> dict[str, Any]:
+        return {"camera_hz": rate(result, "camera"), "achieved_hz": rate(result, "planning"),
+                **response(result, FACE_CHAIN)}  # fmt: skip
+
     numbers: dict[str, Any] = {}
     for cores in CORES:
         sweep = []
         for hz in source.face_rates_hz:
-            result = source.run(with_rates(data, {"camera": hz}), cores, "baseline", duration)
-            sweep.append({"camera_hz": hz, "achieved_hz": rate(result, "planning"), **response(result, FACE_CHAIN)})
-        catan = source.run(data, cores, "catan", duration)
-        numbers[f"{cores}"] = {
-            "baseline": sweep,
-            "catan": {"camera_hz": rate(catan, "camera"), **response(catan, FACE_CHAIN)},
-        }
+            row = source.run(with_rates(data, {"camera": hz}), cores, "baseline", duration, measure)
+            sweep.append({**row, "camera_hz": hz})
+        numbers[f"{cores}"] = {"baseline": sweep, "catan": source.run(data, cores, "catan", duration, measure)}
     figure, axes = new_figure(len(CORES), "Face tracking: response time against the camera rate")
     for ax, cores in zip(axes, CORES, strict=True):
         body = numbers[f"{cores}"]
         xs = [row["camera_hz"] for row in body["baseline"]]
         for key, style in (("mean_ms", "-o"), ("p95_ms", "--s")):
-            ax.plot(xs, [row[key] for row in body["baseline"]], style, color="tab:gray", label=f"CFS, {key[:-3]}")
+            errorbars(ax, xs, [row[key] for row in body["baseline"]], style, color="tab:gray",
+                      label=f"CFS, {key[:-3]}")  # fmt: skip
         chosen = body["catan"]
-        ax.plot([chosen["camera_hz"]], [chosen["mean_ms"]], "*", color="tab:red", markersize=14, label="catanc, mean")
-        ax.plot([chosen["camera_hz"]], [chosen["p95_ms"]], "*", color="tab:orange", markersize=10, label="catanc, p95")
+        at = [mean_of(chosen["camera_hz"])]
+        errorbars(ax, at, [chosen["mean_ms"]], "*", color="tab:red", markersize=14, label="catanc, mean")
+        errorbars(ax, at, [chosen["p95_ms"]], "*", color="tab:orange", markersize=10, label="catanc, p95")
         ax.set_yscale("log")
         ax.set_xlabel("camera rate (Hz)")
         ax.set_ylabel("response time (ms)")
@@ -171,6 +261,7 @@ def face(source: Source) -> tuple[dict[str, Any], Figure]:
 
 NAV_POLICIES = {  # label -> (policy, baseline rates changed)
     "catan": ("catan", {}),
+    "catan-nosteal": ("catan-nosteal", {}),
     "default": ("baseline", {}),
     "default, LM/LP 50 Hz": ("baseline", {"LM": 50.0, "LP": 50.0}),
     "fifo-static": ("fifo-static", {}),
@@ -178,7 +269,8 @@ NAV_POLICIES = {  # label -> (policy, baseline rates changed)
 
 
 def nav2d(source: Source) -> tuple[dict[str, Any], Figure]:
-    """Section 7.2: the local chain and GL's staleness, catanc against the hand-tuned defaults."""
+    """Section 7.2 and Figure 9: the local chain and GL's staleness, catanc (with and without priority
+    stealing) against the hand-tuned defaults."""
     data = spec_yaml("nav2d")
     variants = {label: (policy, with_rates(data, rates)) for label, (policy, rates) in NAV_POLICIES.items()}
 
@@ -188,6 +280,7 @@ def nav2d(source: Source) -> tuple[dict[str, Any], Figure]:
             "local_hz": rate(result, "LP"),
             "GL_hz": rate(result, "GL"),
             "GL_staleness_p95_ms": staleness(result, "GL"),
+            "NC_staleness_p95_ms": staleness(result, "NC"),
             "pose_at_base": response(result, POSE_CHAIN),
             "GM_hz": rate(result, "GM"),
             "GP_hz": rate(result, "GP"),
@@ -205,8 +298,7 @@ def nav2d(source: Source) -> tuple[dict[str, Any], Figure]:
             values = [body[label]["local"]["p95_ms"] if key == "local" else body[label]["GL_staleness_p95_ms"]
                       for label in labels]  # fmt: skip
             xs = [j + (i - (len(CORES) - 1) / 2) * width for j in range(len(labels))]
-            ax.plot(xs, [math.nan if v is None else v for v in values], "o", markersize=8,
-                    label=f"{cores} core{'s' if cores > 1 else ''}")  # fmt: skip
+            errorbars(ax, xs, values, "o", markersize=6, label=f"{cores} core{'s' if cores > 1 else ''}")
         ax.set_xticks(range(len(labels)), labels, rotation=15, fontsize="small")
         ax.set_yscale("log")
         ax.set_ylabel(title)
@@ -215,13 +307,32 @@ def nav2d(source: Source) -> tuple[dict[str, Any], Figure]:
 
 
 YOLO_POLICIES = ("catan", "static-fullrun", "static-20s")
+ONE_CORE_RATES = {"static-fullrun": "static-fullrun, 1-core rates, CFS", "static-20s": "static-20s, 1-core rates, CFS"}
+"""Figure 12's baselines on 2 cores: the static plans made for 1 core, their rates run as timers under CFS."""
+
+
+def one_core_rates(data: Mapping[str, Any], policy: str, duration_s: float) -> Callable[[int, int], dict[str, Any]]:
+    """Per seed: the spec with its baseline timers set to the head rates of ``policy``'s 1-core static plan
+    (made from that seed's profiled tail compute times, as ``static-*`` make it)."""
+
+    def spec_for(seed: int, _cores: int) -> dict[str, Any]:
+        with spec_file(data) as path:
+            spec = load_spec(path)
+        setup = Setup(spec, 1, duration_s, seed)
+        profiled = build_problem(spec).with_compute(static_profile(setup, policy))
+        planned = plan_problem(profiled, spec.schedule, 1, backend="conic")
+        heads = {sub.nodes[0]: 1000.0 / sub.period_ms for sub in planned.subchains.values()}
+        return with_baseline_rates(data, heads)
+
+    return spec_for
 
 
 def yolo(source: Source, variant: str) -> tuple[dict[str, Any], Figure]:
     """Figures 10-12: YOLO's output period over time and the pose's age at the base, with growing GM/GP.
 
     ``variant`` ``yolo``: the spec as it is (growth over 250 s); ``yolo-fast``: growth compressed
-    into the run's duration, so that a 60 s real run sees all of it.
+    into the run's duration, so that a 60 s real run sees all of it.  On 2 cores the paper's
+    baselines also run their 1-core plans' rates under CFS (Figure 12).
     """
     duration = source.durations_s[variant]
     data = spec_yaml("nav2d_yolo")
@@ -241,7 +352,13 @@ def yolo(source: Source, variant: str) -> tuple[dict[str, Any], Figure]:
             "replans": result.replans,
         }
 
-    variants = {policy: (policy, data) for policy in YOLO_POLICIES}
+    def variants(cores: int) -> Variants:
+        chosen: dict[str, tuple[str, SpecFor]] = {policy: (policy, data) for policy in YOLO_POLICIES}
+        if cores > 1:
+            for policy, label in ONE_CORE_RATES.items():
+                chosen[label] = ("baseline", one_core_rates(data, policy, duration))
+        return chosen
+
     numbers: dict[str, Any] = {"growth_over_s": 250.0 if variant == "yolo" else duration}
     numbers |= per_core_and_variant(source, duration, variants, measure)
     figure, axes = new_figure(
@@ -250,13 +367,14 @@ def yolo(source: Source, variant: str) -> tuple[dict[str, Any], Figure]:
     for row, cores in enumerate(CORES):
         body = numbers[f"{cores}"]
         period_ax, pose_ax = axes[2 * row], axes[2 * row + 1]
-        for policy in YOLO_POLICIES:
-            times = [BUCKET_S * (i + 0.5) for i in range(len(body[policy]["yolo_period_s"]))]
-            period_ax.plot(times, body[policy]["yolo_period_s"], "-o", markersize=3, label=policy)
-            pose_ax.plot(times, body[policy]["pose_at_base_median_ms"], "-o", markersize=3, label=policy)
+        for label, measured in body.items():
+            times = [BUCKET_S * (i + 0.5) for i in range(len(measured["yolo_period_s"]))]
+            period_ax.plot(times, [mean_of(v) for v in measured["yolo_period_s"]], "-o", markersize=3, label=label)
+            pose_ax.plot(times, [mean_of(v) for v in measured["pose_at_base_median_ms"]], "-o", markersize=3,
+                         label=label)  # fmt: skip
         suffix = f", {cores} core{'s' if cores > 1 else ''}"
-        period_ax.set_title("YOLO output period (s), 10 s buckets" + suffix, fontsize="medium")
-        pose_ax.set_title("odom -> GL -> NC -> base, median (ms)" + suffix, fontsize="medium")
+        period_ax.set_title("YOLO output period (s), 10 s buckets, mean over seeds" + suffix, fontsize="medium")
+        pose_ax.set_title("odom -> GL -> NC -> base, median (ms), mean over seeds" + suffix, fontsize="medium")
         for ax in (period_ax, pose_ax):
             ax.set_xlabel("time (s)")
             ax.legend(fontsize="small")
@@ -264,10 +382,11 @@ def yolo(source: Source, variant: str) -> tuple[dict[str, Any], Figure]:
 
 
 VR_SLACK = 0.25
-"""On this VM the enforcer's own CPU (~20% of a core for VR's 4.6 ms schedule period) exceeds the
-default 5% slack on 1 core: a variant plans with 25% idle so that its plan fits beside it."""
+"""On this VM the enforcer's own CPU (~20% of a core for VR's short schedule period) exceeded the
+default 5% slack on 1 core (2026-11-21): a variant plans with 25% idle so that its plan fits beside it."""
 VR_POLICIES = {  # label -> (policy, schedule changes)
     "catan": ("catan", {}),
+    "catan-nosteal": ("catan-nosteal", {}),
     f"catan, slack {VR_SLACK:.0%}": ("catan", {"slack": VR_SLACK}),
     "fifo-static": ("fifo-static", {}),
     "baseline": ("baseline", {}),
@@ -281,28 +400,43 @@ def with_schedule(data: Mapping[str, Any], changes: Mapping[str, Any]) -> dict[s
     return changed
 
 
-def vr(source: Source) -> tuple[dict[str, Any], Figure]:
-    """Section 7.3: chains A, B and C, catanc against FIFO static priorities."""
+def vr(source: Source, variant: str) -> tuple[dict[str, Any], Figure]:
+    """Section 7.3: chains A, B and C, catanc against FIFO static priorities.
+
+    ``variant`` ``vr``: the spec as it is (Display a pure sink, Camera the source); ``vr-illixr``:
+    as ILLIXR runs it, Display at vsync (120 Hz) and Camera reading a 20 Hz dataset.
+    """
     data = spec_yaml("vr_illixr")
+    chains = VR_CHAINS
+    if variant == "vr-illixr":
+        data, chains = with_vsync_display_and_dataset(data, VSYNC_HZ, DATASET_HZ), ILLIXR_CHAINS
     variants = {label: (policy, with_schedule(data, changes)) for label, (policy, changes) in VR_POLICIES.items()}
 
     def measure(result: PolicyResult) -> dict[str, Any]:
         rates = {f"{node}_hz": rate(result, node) for node in ("Render", "VIO", "Timewarp")}
-        return {name: response(result, nodes) for name, nodes in VR_CHAINS.items()} | rates
+        return {name: response(result, nodes) for name, nodes in chains.items()} | rates
 
-    numbers = per_core_and_variant(source, source.durations_s["vr"], variants, measure)
-    figure, axes = new_figure(len(CORES), "VR (ILLIXR): mean response time of chains A, B, C against fifo-static")
+    numbers = per_core_and_variant(source, source.durations_s[variant], variants, measure)
+    for cores in CORES:  # seed by seed against fifo-static (the same draws): the issue's targets
+        body = numbers[f"{cores}"]
+        for label in VR_POLICIES:
+            body[label]["vs_fifo_static"] = {
+                name: paired_ratio(body[label][name]["mean_ms"], body["fifo-static"][name]["mean_ms"])
+                for name in chains
+            }
+    where = "Display at vsync, Camera from a 20 Hz dataset" if variant == "vr-illixr" else "the spec as it is"
+    figure, axes = new_figure(len(CORES), f"VR (ILLIXR, {where}): mean response of chains A, B, C / fifo-static's")
     for ax, cores in zip(axes, CORES, strict=True):
         body = numbers[f"{cores}"]
         width = 0.8 / len(VR_POLICIES)
         for i, policy in enumerate(VR_POLICIES):
-            xs = [j + (i - (len(VR_POLICIES) - 1) / 2) * width for j in range(len(VR_CHAINS))]
-            ratios = [
-                (body[policy][name]["mean_ms"] or math.nan) / body["fifo-static"][name]["mean_ms"] for name in VR_CHAINS
-            ]
-            ax.bar(xs, ratios, width, label=policy)
+            xs = [j + (i - (len(VR_POLICIES) - 1) / 2) * width for j in range(len(chains))]
+            ratios = [body[policy]["vs_fifo_static"][name] for name in chains]
+            heights = [1.0 + mean_of(r) for r in ratios]
+            errors = [0.0 if r is None or r["ci95"] is None else r["ci95"] for r in ratios]
+            ax.bar(xs, heights, width, yerr=errors, capsize=2, label=policy)
         ax.axhline(1.0, color="black", linewidth=0.8)
-        ax.set_xticks(range(len(VR_CHAINS)), [f"chain {name}" for name in VR_CHAINS])
+        ax.set_xticks(range(len(chains)), [f"chain {name}" for name in chains])
         ax.set_ylabel("mean response / fifo-static's")
         ax.set_title(f"{cores} core{'s' if cores > 1 else ''}")
         ax.legend(fontsize="small")
@@ -323,28 +457,47 @@ SCENARIOS: dict[str, Callable[[Source], tuple[dict[str, Any], Figure]]] = {
     "nav2d": nav2d,
     "yolo": lambda source: yolo(source, "yolo"),
     "yolo-fast": lambda source: yolo(source, "yolo-fast"),
-    "vr": vr,
+    "vr": lambda source: vr(source, "vr"),
+    "vr-illixr": lambda source: vr(source, "vr-illixr"),
 }
 
 
 # --------------------------------------------------------------------------- tables for docs/results.md
 
 
-def _ms(value: float | None) -> str:
-    return "-" if value is None else f"{value:.1f}"
+def _with_ci(value: Mapping[str, Any] | None, digits: str) -> str:
+    if value is None:
+        return "-"
+    text = format(value["mean"], digits)
+    return text if value["ci95"] is None else f"{text} ± {format(value['ci95'], digits)}"
 
 
-def _hz(value: float | None) -> str:
-    return "-" if value is None else f"{value:.3g}"
+def _ms(value: Mapping[str, Any] | None) -> str:
+    return _with_ci(value, ".1f")
+
+
+def _hz(value: Mapping[str, Any] | None) -> str:
+    return _with_ci(value, ".3g")
+
+
+def _pct(value: Mapping[str, Any] | None) -> str:
+    if value is None:
+        return "-"
+    text = f"{100 * value['mean']:+.1f}%"
+    return text if value["ci95"] is None else f"{text} ± {100 * value['ci95']:.1f}"
+
+
+def _plain(value: Mapping[str, Any] | None, digits: str = ".3g") -> str:
+    return "-" if value is None else format(value["mean"], digits)
 
 
 def tables(numbers: Mapping[str, Any]) -> Iterator[str]:
-    """Markdown tables of one source's numbers (docs/results.md quotes them)."""
+    """Markdown tables of one source's numbers (docs/results.md quotes them): mean ± 95% half-width."""
     if "face" in numbers:
         yield "| cores | camera Hz (CFS) | achieved Hz | mean ms | p95 ms |\n|---|---|---|---|---|"
         for cores, body in numbers["face"].items():
             for row in body["baseline"]:
-                rates = f"{_hz(row['camera_hz'])} | {_hz(row['achieved_hz'])}"
+                rates = f"{row['camera_hz']:g} | {_hz(row['achieved_hz'])}"
                 yield f"| {cores} | {rates} | {_ms(row['mean_ms'])} | {_ms(row['p95_ms'])} |"
             chosen = body["catan"]
             yield (f"| {cores} | **catanc: {_hz(chosen['camera_hz'])}** | | **{_ms(chosen['mean_ms'])}** | "
@@ -352,15 +505,15 @@ def tables(numbers: Mapping[str, Any]) -> Iterator[str]:
         yield ""
     if "nav2d" in numbers:
         yield ("| cores | policy | local chain Hz | local mean ms | local p95 ms | local max ms | GL Hz "
-               "| GL staleness p95 ms | odom->GL->NC->base mean / p95 ms | GM Hz |")  # fmt: skip
-        yield "|---|---|---|---|---|---|---|---|---|---|"
+               "| GL staleness p95 ms | NC staleness p95 ms | odom->GL->NC->base mean ms | GM Hz |")  # fmt: skip
+        yield "|---|---|---|---|---|---|---|---|---|---|---|"
         for cores, body in numbers["nav2d"].items():
             for label, row in body.items():
                 local, pose = row["local"], row["pose_at_base"]
                 yield (f"| {cores} | {label} | {_hz(row['local_hz'])} | {_ms(local['mean_ms'])} "
                        f"| {_ms(local['p95_ms'])} | {_ms(local['max_ms'])} | {_hz(row['GL_hz'])} "
-                       f"| {_ms(row['GL_staleness_p95_ms'])} "
-                       f"| {_ms(pose['mean_ms'])} / {_ms(pose['p95_ms'])} | {_hz(row['GM_hz'])} |")  # fmt: skip
+                       f"| {_ms(row['GL_staleness_p95_ms'])} | {_ms(row['NC_staleness_p95_ms'])} "
+                       f"| {_ms(pose['mean_ms'])} | {_hz(row['GM_hz'])} |")  # fmt: skip
         yield ""
     for variant in ("yolo", "yolo-fast"):
         if variant not in numbers:
@@ -373,26 +526,36 @@ def tables(numbers: Mapping[str, Any]) -> Iterator[str]:
         for cores, body in ((k, v) for k, v in numbers[variant].items() if k != "growth_over_s"):
             for policy, row in body.items():
                 period, pose = row["yolo_period_s"], row["pose_at_base_median_ms"]
-                yield (f"| {cores} | {policy} | {_hz(row['yolo_hz'])} | {period[0]} / {period[-1]} "
-                       f"| {_ms(row['local']['p95_ms'])} | {pose[0]} / {pose[-1]} | {_hz(row['GL_hz'])} "
-                       f"| {_hz(row['GM_hz'])} | {row['replans']} |")  # fmt: skip
+                yield (f"| {cores} | {policy} | {_hz(row['yolo_hz'])} "
+                       f"| {_with_ci(period[0], '.2f')} / {_with_ci(period[-1], '.2f')} "
+                       f"| {_ms(row['local']['p95_ms'])} | {_ms(pose[0])} / {_ms(pose[-1])} | {_hz(row['GL_hz'])} "
+                       f"| {_hz(row['GM_hz'])} | {_plain(row['replans'], '.0f')} |")  # fmt: skip
         yield ""
-    if "vr" in numbers:
-        yield (
-            "| cores | policy | A mean / p95 ms | B mean / p95 ms | C mean / p95 ms | B outputs | Render Hz | VIO Hz |"
-        )
+    for variant in ("vr", "vr-illixr"):
+        if variant not in numbers:
+            continue
+        yield f"VR, {variant}:\n"
+        yield "| cores | policy | A mean ms | B mean ms | C mean ms | A, B, C p95 ms | Render Hz | VIO Hz |"
         yield "|---|---|---|---|---|---|---|---|"
-        for cores, body in numbers["vr"].items():
+        for cores, body in numbers[variant].items():
             for policy, row in body.items():
-                chains = " | ".join(f"{_ms(row[n]['mean_ms'])} / {_ms(row[n]['p95_ms'])}" for n in VR_CHAINS)
-                rates = f"{row['B']['outputs']} | {_hz(row['Render_hz'])} | {_hz(row['VIO_hz'])}"
-                yield f"| {cores} | {policy} | {chains} | {rates} |"
+                means = " | ".join(_ms(row[n]["mean_ms"]) for n in "ABC")
+                p95s = " / ".join(_plain(row[n]["p95_ms"], ".1f") for n in "ABC")
+                yield f"| {cores} | {policy} | {means} | {p95s} | {_hz(row['Render_hz'])} | {_hz(row['VIO_hz'])} |"
+        yield ""
+        yield "Mean response against fifo-static's, seed by seed (paired):\n"
+        yield "| cores | policy | A | B | C |\n|---|---|---|---|---|"
+        for cores, body in numbers[variant].items():
+            for policy, row in body.items():
+                if policy != "fifo-static":
+                    ratios = " | ".join(_pct(row["vs_fifo_static"][n]) for n in "ABC")
+                    yield f"| {cores} | {policy} | {ratios} |"
         yield ""
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--real", action="store_true", help="Also run on this machine's kernel (needs root).")
+    parser.add_argument("--real", action="store_true", help="Run on this machine's kernel (needs root), not simulated.")
     parser.add_argument("--only", action="append", choices=sorted(SCENARIOS), help="Scenarios to run (repeat).")
     parser.add_argument("--out", type=Path, default=OUT)
     parser.add_argument(
@@ -406,19 +569,19 @@ def main() -> None:
                 print(f"## {source.name}\n")
                 print("\n".join(tables(json.loads(path.read_text()))))
         return
-    for source in (SIM, REAL) if args.real else (SIM,):
-        chosen = [name for name in args.only or SCENARIOS if name in source.durations_s]
-        numbers_path = args.out / f"{source.name}.json"
-        numbers = json.loads(numbers_path.read_text()) if numbers_path.exists() else {}
-        files: dict[str, bytes] = {}
-        for name in chosen:
-            print(f"{source.name}: {name}", file=sys.stderr, flush=True)
-            numbers[name], figure = SCENARIOS[name](source)
-            files[f"{source.name}-{name}.png"] = png_bytes(figure)
-            # Written after each scenario: a long real run keeps what it measured if it is stopped.
-            write_files(
-                args.out, {**files, numbers_path.name: (json.dumps(numbers, indent=1, sort_keys=True) + "\n").encode()}
-            )
+    source = REAL if args.real else SIM
+    chosen = [name for name in args.only or SCENARIOS if name in source.durations_s]
+    numbers_path = args.out / f"{source.name}.json"
+    numbers = json.loads(numbers_path.read_text()) if numbers_path.exists() else {}
+    files: dict[str, bytes] = {}
+    for name in chosen:
+        print(f"{source.name}: {name}", file=sys.stderr, flush=True)
+        numbers[name], figure = SCENARIOS[name](source)
+        files[f"{source.name}-{name}.png"] = png_bytes(figure)
+        # Written after each scenario: a long real run keeps what it measured if it is stopped.
+        write_files(
+            args.out, {**files, numbers_path.name: (json.dumps(numbers, indent=1, sort_keys=True) + "\n").encode()}
+        )
 
 
 if __name__ == "__main__":

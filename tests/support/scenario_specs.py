@@ -1,8 +1,9 @@
-"""The results scenarios' spec variants and time buckets (benchmarks/scenarios.py writes docs/results with them).
+"""The results scenarios' spec variants, time buckets and statistics (benchmarks/scenarios.py writes docs/results).
 
 Pure helpers that the benchmark and the tests share: an example spec as
-YAML data, variants of it with one thing changed, and the paper's 10 s
-buckets of output periods and responses.
+YAML data, variants of it with one thing changed, the paper's 10 s
+buckets of output periods and responses, and the mean with its 95%
+interval over seeds.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+from scipy import stats
 
 SPECS = Path(__file__).resolve().parents[2] / "specs"
 BUCKET_S = 10.0  # the paper's Figures 10-12 average the YOLO period over 10 s buckets
@@ -40,6 +42,28 @@ def with_rates(data: Mapping[str, Any], rates: Mapping[str, float]) -> dict[str,
     """The spec with some hand-tuned baseline rates changed."""
     changed = copy.deepcopy(dict(data))
     changed["baseline"]["rates_hz"].update(rates)
+    return changed
+
+
+def with_baseline_rates(data: Mapping[str, Any], rates: Mapping[str, float]) -> dict[str, Any]:
+    """The spec with its hand-tuned timers replaced by ``rates`` alone (the paper's Figure 12 runs a static
+    plan's rates as timers under CFS: every other scheduled node then runs on new input)."""
+    changed = copy.deepcopy(dict(data))
+    changed["baseline"] = {"rates_hz": dict(rates)}
+    return changed
+
+
+DATASET = "Dataset"
+"""The ILLIXR variant's offline sensor dataset: an unscheduled node that hands the camera a frame at its rate."""
+
+
+def with_vsync_display_and_dataset(data: Mapping[str, Any], vsync_hz: float, dataset_hz: float) -> dict[str, Any]:
+    """VR as ILLIXR runs it (the paper's section 7.3): Display shows a frame at every vsync, and Camera reads
+    the newest frame of an offline dataset that produces ``dataset_hz`` frames a second (EuRoC: 20 Hz)."""
+    changed = copy.deepcopy(dict(data))
+    changed["nodes"]["Display"] = {**changed["nodes"]["Display"], "rate_hz": vsync_hz}
+    changed["nodes"] = {DATASET: {"scheduled": False, "rate_hz": dataset_hz}, **changed["nodes"]}
+    changed["edges"] = [f"{DATASET} -> Camera", *changed["edges"]]
     return changed
 
 
@@ -68,3 +92,14 @@ def bucket_medians(samples: Sequence[tuple[float, float]], duration_s: float) ->
     for done, value in samples:
         buckets[min(int(done / 1000.0 // BUCKET_S), len(buckets) - 1)].append(value)
     return [round(sorted(b)[len(b) // 2], 2) if b else None for b in buckets]
+
+
+def t_interval(values: Sequence[float], confidence: float = 0.95) -> tuple[float, float]:
+    """The mean of ``values`` and the half-width of its two-sided Student-t interval (n - 1 degrees of
+    freedom, the sample standard deviation); NaN half-width for fewer than two values."""
+    n = len(values)
+    mean = math.fsum(values) / n
+    if n < 2:
+        return mean, math.nan
+    deviation = math.sqrt(math.fsum((value - mean) ** 2 for value in values) / (n - 1))
+    return mean, float(stats.t.ppf(0.5 + confidence / 2, n - 1)) * deviation / math.sqrt(n)

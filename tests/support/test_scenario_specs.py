@@ -2,16 +2,23 @@
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
 import pytest
 
 from catanc.core.load import load_spec
 from tests.support.scenario_specs import (
+    DATASET,
     bucket_medians,
     bucket_periods,
     spec_file,
     spec_yaml,
+    t_interval,
+    with_baseline_rates,
     with_growth_over,
     with_rates,
+    with_vsync_display_and_dataset,
 )
 
 
@@ -52,3 +59,49 @@ def test_a_growth_variant_compresses_every_growth_and_nothing_else() -> None:
             assert node.workload.growth.over_s == pytest.approx(60.0)
         else:
             assert node.model_dump() == same.nodes[name].model_dump()
+
+
+def test_the_t_interval_of_three_values_by_hand() -> None:
+    # mean 2, sample deviation 1, t(0.975, 2 dof) = 4.3027 from the table: 4.3027 / sqrt(3) = 2.4841
+    mean, half = t_interval([1.0, 2.0, 3.0])
+    assert mean == 2.0
+    assert half == pytest.approx(4.3027 / math.sqrt(3), abs=1e-4)
+    assert math.isnan(t_interval([7.0])[1])
+    assert t_interval([4.0] * 20) == (4.0, 0.0)
+
+
+def test_the_t_interval_covers_the_true_mean_95_percent_of_the_time() -> None:
+    """Simulated: 4000 samples of 20 normal draws; the coverage's own 3-sigma band is +-1.0%."""
+    rng = np.random.default_rng(7)
+    samples = rng.normal(5.0, 2.0, size=(4000, 20))
+    covered = 0
+    for sample in samples:
+        mean, half = t_interval(sample.tolist())
+        covered += abs(mean - 5.0) <= half
+    assert 0.94 <= covered / len(samples) <= 0.96
+
+
+def test_baseline_rates_replace_every_timer() -> None:
+    original = spec_yaml("nav2d_yolo")
+    with spec_file(with_baseline_rates(original, {"LM": 120.0, "GL": 40.0})) as path:
+        changed = load_spec(path)
+    assert changed.baseline.rates_hz == {"LM": 120.0, "GL": 40.0}
+    assert spec_yaml("nav2d_yolo") == original
+
+
+def test_the_illixr_variant_adds_vsync_and_a_dataset_and_nothing_else() -> None:
+    original = spec_yaml("vr_illixr")
+    with spec_file(with_vsync_display_and_dataset(original, 120.0, 20.0)) as path:
+        changed = load_spec(path)
+    with spec_file(original) as path:
+        same = load_spec(path)
+    assert changed.nodes["Display"].rate_hz == 120.0
+    assert same.nodes["Display"].rate_hz is None
+    assert not changed.nodes[DATASET].scheduled
+    assert changed.nodes[DATASET].rate_hz == 20.0
+    assert set(changed.edge_pairs) - set(same.edge_pairs) == {(DATASET, "Camera")}
+    assert set(changed.nodes) - set(same.nodes) == {DATASET}
+    for name, node in same.nodes.items():
+        if name != "Display":
+            assert changed.nodes[name] == node
+    assert changed.model_dump(exclude={"nodes", "edges"}) == same.model_dump(exclude={"nodes", "edges"})
