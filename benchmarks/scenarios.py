@@ -47,9 +47,10 @@ from tests.support.scenario_specs import (
     DATASET,
     bucket_medians,
     bucket_periods,
+    over_seeds,
+    paired_ratio,
     spec_file,
     spec_yaml,
-    t_interval,
     with_baseline_rates,
     with_growth_over,
     with_rates,
@@ -128,43 +129,8 @@ REAL = Source(
 )
 
 
-# --------------------------------------------------------------------------- statistics over seeds
-
-
-def over_seeds(measured: Sequence[Any]) -> Any:
-    """Per-seed measurements (equal nested dicts and lists of numbers) as one: each number becomes
-    ``{"mean", "ci95", "n", "values"}`` (:func:`stat`); a list is summarised item by item."""
-    first = measured[0]
-    if isinstance(first, dict):
-        return {key: over_seeds([m[key] for m in measured]) for key in first}
-    if isinstance(first, list):
-        width = max(len(m) for m in measured)
-        return [over_seeds([m[i] if i < len(m) else None for m in measured]) for i in range(width)]
-    return stat([m for m in measured if m is not None])
-
-
-def stat(values: Sequence[float]) -> dict[str, Any] | None:
-    """The mean over seeds and the half-width of its 95% t-interval (None: no seed had a value)."""
-    if not values:
-        return None
-    mean, half = t_interval([float(v) for v in values])
-    return {
-        "mean": round(mean, 4),
-        "ci95": None if math.isnan(half) else round(half, 4),
-        "n": len(values),
-        "values": [round(float(v), 4) for v in values],
-    }
-
-
 def mean_of(value: Mapping[str, Any] | None) -> float:
     return math.nan if value is None else float(value["mean"])
-
-
-def paired_ratio(mine: Mapping[str, Any] | None, theirs: Mapping[str, Any] | None) -> dict[str, Any] | None:
-    """``mine / theirs - 1`` seed by seed (the same workload draws), as a :func:`stat`."""
-    if mine is None or theirs is None or len(mine["values"]) != len(theirs["values"]):
-        return None
-    return stat([a / b - 1.0 for a, b in zip(mine["values"], theirs["values"], strict=True) if b])
 
 
 # --------------------------------------------------------------------------- specs and numbers
@@ -491,6 +457,13 @@ def _plain(value: Mapping[str, Any] | None, digits: str = ".3g") -> str:
     return "-" if value is None else format(value["mean"], digits)
 
 
+def in_order(body: Mapping[str, Any], order: Sequence[str]) -> list[tuple[str, Any]]:
+    """``body``'s rows in the scenario's order (the JSON's keys are sorted), any others after them."""
+    return [(label, body[label]) for label in order if label in body] + [
+        (label, row) for label, row in body.items() if label not in order
+    ]
+
+
 def tables(numbers: Mapping[str, Any]) -> Iterator[str]:
     """Markdown tables of one source's numbers (docs/results.md quotes them): mean ± 95% half-width."""
     if "face" in numbers:
@@ -508,7 +481,7 @@ def tables(numbers: Mapping[str, Any]) -> Iterator[str]:
                "| GL staleness p95 ms | NC staleness p95 ms | odom->GL->NC->base mean ms | GM Hz |")  # fmt: skip
         yield "|---|---|---|---|---|---|---|---|---|---|---|"
         for cores, body in numbers["nav2d"].items():
-            for label, row in body.items():
+            for label, row in in_order(body, list(NAV_POLICIES)):
                 local, pose = row["local"], row["pose_at_base"]
                 yield (f"| {cores} | {label} | {_hz(row['local_hz'])} | {_ms(local['mean_ms'])} "
                        f"| {_ms(local['p95_ms'])} | {_ms(local['max_ms'])} | {_hz(row['GL_hz'])} "
@@ -524,7 +497,7 @@ def tables(numbers: Mapping[str, Any]) -> Iterator[str]:
                "| odom->GL->NC->base median, first / last bucket (ms) | GL Hz | GM Hz | re-plans |")  # fmt: skip
         yield "|---|---|---|---|---|---|---|---|---|"
         for cores, body in ((k, v) for k, v in numbers[variant].items() if k != "growth_over_s"):
-            for policy, row in body.items():
+            for policy, row in in_order(body, [*YOLO_POLICIES, *ONE_CORE_RATES.values()]):
                 period, pose = row["yolo_period_s"], row["pose_at_base_median_ms"]
                 yield (f"| {cores} | {policy} | {_hz(row['yolo_hz'])} "
                        f"| {_with_ci(period[0], '.2f')} / {_with_ci(period[-1], '.2f')} "
@@ -538,7 +511,7 @@ def tables(numbers: Mapping[str, Any]) -> Iterator[str]:
         yield "| cores | policy | A mean ms | B mean ms | C mean ms | A, B, C p95 ms | Render Hz | VIO Hz |"
         yield "|---|---|---|---|---|---|---|---|"
         for cores, body in numbers[variant].items():
-            for policy, row in body.items():
+            for policy, row in in_order(body, list(VR_POLICIES)):
                 means = " | ".join(_ms(row[n]["mean_ms"]) for n in "ABC")
                 p95s = " / ".join(_plain(row[n]["p95_ms"], ".1f") for n in "ABC")
                 yield f"| {cores} | {policy} | {means} | {p95s} | {_hz(row['Render_hz'])} | {_hz(row['VIO_hz'])} |"
@@ -546,7 +519,7 @@ def tables(numbers: Mapping[str, Any]) -> Iterator[str]:
         yield "Mean response against fifo-static's, seed by seed (paired):\n"
         yield "| cores | policy | A | B | C |\n|---|---|---|---|---|"
         for cores, body in numbers[variant].items():
-            for policy, row in body.items():
+            for policy, row in in_order(body, list(VR_POLICIES)):
                 if policy != "fifo-static":
                     ratios = " | ".join(_pct(row["vs_fifo_static"][n]) for n in "ABC")
                     yield f"| {cores} | {policy} | {ratios} |"

@@ -103,3 +103,35 @@ def t_interval(values: Sequence[float], confidence: float = 0.95) -> tuple[float
         return mean, math.nan
     deviation = math.sqrt(math.fsum((value - mean) ** 2 for value in values) / (n - 1))
     return mean, float(stats.t.ppf(0.5 + confidence / 2, n - 1)) * deviation / math.sqrt(n)
+
+
+def over_seeds(measured: Sequence[Any]) -> Any:
+    """Per-seed measurements (equal nested dicts and lists of numbers) as one: each number becomes
+    ``{"mean", "ci95", "n", "values"}`` (:func:`stat`); a list is summarised item by item."""
+    first = measured[0]
+    if isinstance(first, dict):
+        return {key: over_seeds([m[key] for m in measured]) for key in first}
+    if isinstance(first, list):
+        width = max(len(m) for m in measured)
+        return [over_seeds([m[i] if i < len(m) else None for m in measured]) for i in range(width)]
+    return stat([m for m in measured if m is not None])
+
+
+def stat(values: Sequence[float]) -> dict[str, Any] | None:
+    """The mean over seeds and the half-width of its 95% t-interval (None: no seed had a value)."""
+    if not values:
+        return None
+    mean, half = t_interval([float(v) for v in values])
+    return {
+        "mean": round(mean, 4),
+        "ci95": None if math.isnan(half) else round(half, 4),
+        "n": len(values),
+        "values": [round(float(v), 4) for v in values],
+    }
+
+
+def paired_ratio(mine: Mapping[str, Any] | None, theirs: Mapping[str, Any] | None) -> dict[str, Any] | None:
+    """``mine / theirs - 1`` seed by seed (the same workload draws), as a :func:`stat`."""
+    if mine is None or theirs is None or len(mine["values"]) != len(theirs["values"]):
+        return None
+    return stat([a / b - 1.0 for a, b in zip(mine["values"], theirs["values"], strict=True) if b])

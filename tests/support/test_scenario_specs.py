@@ -12,6 +12,8 @@ from tests.support.scenario_specs import (
     DATASET,
     bucket_medians,
     bucket_periods,
+    over_seeds,
+    paired_ratio,
     spec_file,
     spec_yaml,
     t_interval,
@@ -105,3 +107,29 @@ def test_the_illixr_variant_adds_vsync_and_a_dataset_and_nothing_else() -> None:
         if name != "Display":
             assert changed.nodes[name] == node
     assert changed.model_dump(exclude={"nodes", "edges"}) == same.model_dump(exclude={"nodes", "edges"})
+
+
+def test_measurements_over_seeds_become_means_with_intervals_leaf_by_leaf() -> None:
+    measured = [
+        {"rate": 1.0, "chain": {"mean_ms": 10.0, "model_ms": None}, "buckets": [2.0, None]},
+        {"rate": 3.0, "chain": {"mean_ms": 14.0, "model_ms": None}, "buckets": [4.0, 5.0]},
+    ]
+    summary = over_seeds(measured)
+    # two values: mean, deviation sqrt(2) * |a - b| / 2, t(0.975, 1 dof) = 12.706 from the table
+    assert summary["rate"]["mean"] == 2.0
+    assert summary["rate"]["ci95"] == pytest.approx(12.706 * 1.0, abs=1e-3)  # s = sqrt(2), / sqrt(2)
+    assert summary["rate"]["values"] == [1.0, 3.0]
+    assert summary["chain"]["mean_ms"]["mean"] == 12.0
+    assert summary["chain"]["model_ms"] is None  # no seed had one
+    assert summary["buckets"][0]["mean"] == 3.0
+    assert summary["buckets"][1] == {"mean": 5.0, "ci95": None, "n": 1, "values": [5.0]}
+
+
+def test_paired_ratios_compare_seed_by_seed() -> None:
+    mine = over_seeds([8.0, 18.0, 27.0])
+    theirs = over_seeds([10.0, 20.0, 30.0])
+    ratio = paired_ratio(mine, theirs)
+    assert ratio is not None
+    assert ratio["values"] == [pytest.approx(-0.2), pytest.approx(-0.1), pytest.approx(-0.1)]
+    assert ratio["mean"] == pytest.approx(-0.1333, abs=1e-4)
+    assert paired_ratio(mine, None) is None
