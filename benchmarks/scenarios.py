@@ -26,6 +26,7 @@ import argparse
 import copy
 import json
 import math
+import os
 import sys
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -466,6 +467,11 @@ def in_order(body: Mapping[str, Any], order: Sequence[str]) -> list[tuple[str, A
 
 def tables(numbers: Mapping[str, Any]) -> Iterator[str]:
     """Markdown tables of one source's numbers (docs/results.md quotes them): mean ± 95% half-width."""
+    if "load_average" in numbers:
+        yield "| scenario | load average (1, 5, 15 min) at the start | at the end |\n|---|---|---|"
+        for name, load in numbers["load_average"].items():
+            yield f"| {name} | {', '.join(map(str, load['start']))} | {', '.join(map(str, load['end']))} |"
+        yield ""
     if "face" in numbers:
         yield "| cores | camera Hz (CFS) | achieved Hz | mean ms | p95 ms |\n|---|---|---|---|---|"
         for cores, body in numbers["face"].items():
@@ -549,7 +555,11 @@ def main() -> None:
     files: dict[str, bytes] = {}
     for name in chosen:
         print(f"{source.name}: {name}", file=sys.stderr, flush=True)
+        before = os.getloadavg()
         numbers[name], figure = SCENARIOS[name](source)
+        if source is REAL:  # the machine's load beside the numbers it shaped (1, 5, 15 min averages)
+            loads = numbers.setdefault("load_average", {})
+            loads[name] = {"start": [round(x, 2) for x in before], "end": [round(x, 2) for x in os.getloadavg()]}
         files[f"{source.name}-{name}.png"] = png_bytes(figure)
         # Written after each scenario: a long real run keeps what it measured if it is stopped.
         write_files(
