@@ -247,7 +247,6 @@ def nav2d(source: Source) -> tuple[dict[str, Any], Figure]:
             "local_hz": rate(result, "LP"),
             "GL_hz": rate(result, "GL"),
             "GL_staleness_p95_ms": staleness(result, "GL"),
-            "NC_staleness_p95_ms": staleness(result, "NC"),
             "pose_at_base": response(result, POSE_CHAIN),
             "GM_hz": rate(result, "GM"),
             "GP_hz": rate(result, "GP"),
@@ -484,14 +483,14 @@ def tables(numbers: Mapping[str, Any]) -> Iterator[str]:
         yield ""
     if "nav2d" in numbers:
         yield ("| cores | policy | local chain Hz | local mean ms | local p95 ms | local max ms | GL Hz "
-               "| GL staleness p95 ms | NC staleness p95 ms | odom->GL->NC->base mean ms | GM Hz |")  # fmt: skip
-        yield "|---|---|---|---|---|---|---|---|---|---|---|"
+               "| GL staleness p95 ms | odom->GL->NC->base mean ms | GM Hz |")  # fmt: skip
+        yield "|---|---|---|---|---|---|---|---|---|---|"
         for cores, body in numbers["nav2d"].items():
             for label, row in in_order(body, list(NAV_POLICIES)):
                 local, pose = row["local"], row["pose_at_base"]
                 yield (f"| {cores} | {label} | {_hz(row['local_hz'])} | {_ms(local['mean_ms'])} "
                        f"| {_ms(local['p95_ms'])} | {_ms(local['max_ms'])} | {_hz(row['GL_hz'])} "
-                       f"| {_ms(row['GL_staleness_p95_ms'])} | {_ms(row['NC_staleness_p95_ms'])} "
+                       f"| {_ms(row['GL_staleness_p95_ms'])} "
                        f"| {_ms(pose['mean_ms'])} | {_hz(row['GM_hz'])} |")  # fmt: skip
         yield ""
     for variant in ("yolo", "yolo-fast"):
