@@ -49,7 +49,7 @@ from catanc.runtime.cores import SharedCores
 from catanc.runtime.costs import Costs
 from catanc.runtime.endpoints import Endpoint, EnforcerSocket, Received, Registry, decode_or_none
 from catanc.runtime.levels import Levels
-from catanc.runtime.log import Notes, RunLog
+from catanc.runtime.log import LOG_FORMAT, Notes, RunLog
 from catanc.runtime.measure import Measurements, OpenCpuClocks
 from catanc.runtime.nodes import NodeThreads, Wiring
 from catanc.runtime.own_threads import OwnThreads
@@ -197,7 +197,9 @@ class Enforcer:
                 if self.log_path is not None:
                     self.notes.log = RunLog(self.log_path)
                 self.own.raise_self(pin=None)
-                self.notes.write("start", cores=self.schedule.cores, plan=self.replanning.answer.summary)
+                self.notes.write(
+                    "start", format=LOG_FORMAT, cores=self.schedule.cores, plan=self.replanning.answer.summary
+                )
                 failure: list[BaseException] = []
                 loop = threading.Thread(
                     target=self._loop_thread, args=(on_tick, failure), name="catanc-loop", daemon=True

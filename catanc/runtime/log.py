@@ -13,6 +13,11 @@ written in batches at each flush (about once a second): one
 each field a column and ``at`` the samples' times.  Encoding a line per
 sample cost the enforcer about 0.03 cores on nav2d.  :func:`read_log`
 expands batches back into single events.
+
+The ``start`` event carries ``format`` (:data:`LOG_FORMAT`), bumped when a
+reader of the log (``catanc profile``) would misread an older one.  A
+``compute`` sample's ``threads`` is how many threads its run used (its
+``ms`` is already one-thread time, converted with the spec's speedup).
 """
 
 from __future__ import annotations
@@ -30,8 +35,11 @@ from typing import IO, Any
 
 from catanc.errors import CatancError, ExitCode
 
+LOG_FORMAT = 1
+"""The log's format version, in its ``start`` event (logs without one are older)."""
+
 BATCHED: dict[str, tuple[str, tuple[tuple[str, int | None], ...]]] = {
-    "compute": ("node", (("ms", 4), ("reported_ms", None), ("kernel_ms", 4))),
+    "compute": ("node", (("ms", 4), ("reported_ms", None), ("kernel_ms", 4), ("threads", None))),
     "run": ("subchain", (("seq", None), ("latency_ms", 3))),
 }
 """Sampled events: the field that names what was sampled, and the value fields with their rounding."""
@@ -192,11 +200,11 @@ def read_log(path: str | Path) -> list[dict[str, Any]]:
             event = json.loads(line)
         except json.JSONDecodeError:
             continue
-        events.extend(_expand(event))
+        events.extend(expand(event))
     return events
 
 
-def _expand(event: Any) -> list[Any]:
+def expand(event: Any) -> list[Any]:
     """A batch line as its single events; any other line (even a malformed one) as itself."""
     name = event.get("event") if isinstance(event, dict) else None
     if not isinstance(name, str) or not name.endswith(BATCH_SUFFIX) or name[: -len(BATCH_SUFFIX)] not in BATCHED:
@@ -204,8 +212,11 @@ def _expand(event: Any) -> list[Any]:
     single = name[: -len(BATCH_SUFFIX)]
     key_field, value_fields = BATCHED[single]
     times = event.get("at")
-    columns = [event.get(field) for field, _ in value_fields]
-    if not isinstance(times, list) or not all(isinstance(c, list) and len(c) == len(times) for c in columns):
+    if not isinstance(times, list):
+        return [event]
+    # A column an older catanc did not write (``threads``) reads as unknown in every sample.
+    columns = [event.get(field, [None] * len(times)) for field, _ in value_fields]
+    if not all(isinstance(c, list) and len(c) == len(times) for c in columns):
         return [event]  # not a batch this catanc wrote: the report skips what it cannot read
     return [
         {"t": t, "event": single, key_field: event.get(key_field)}

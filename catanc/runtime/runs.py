@@ -77,6 +77,7 @@ class ComputeSample(NamedTuple):
     ms: float | None  # what is planned with (one-thread time), None if unknown
     reported_ms: float | None
     kernel_ms: float | None
+    threads: int  # threads the run used (``ms`` is one-thread time)
 
 
 class RunSample(NamedTuple):
@@ -232,7 +233,7 @@ class RunBook:
         if compute is not None and entry.threads > 1:
             _, speedup = threads_and_speedup(self.speedups.get(node, (1.0,)), entry.threads)
             compute *= speedup  # a run on q threads: back to the one-thread time the planner budgets
-        seen.computes.append(ComputeSample(end_ms, node, compute, own, kernel_ms))
+        seen.computes.append(ComputeSample(end_ms, node, compute, own, kernel_ms, max(entry.threads, 1)))
         handoff = state.node_done(seq, length)
         if handoff is None:  # pragma: no cover - matched just above
             return
@@ -334,7 +335,10 @@ class Reader:
                 if compute.ms is not None and compute.node in self.measured:
                     self.record(compute.node, compute.ms)
                 self.sample(
-                    "compute", compute.at_ms, compute.node, (compute.ms, compute.reported_ms, compute.kernel_ms)
+                    "compute",
+                    compute.at_ms,
+                    compute.node,
+                    (compute.ms, compute.reported_ms, compute.kernel_ms, compute.threads),
                 )
             seen.computes.clear()
         if seen.runs:
