@@ -30,7 +30,7 @@ class ExitCode(IntEnum):
     """Process exit codes (documented in the README)."""
 
     OK = 0
-    DRIFT = 1  # `compile --check` found stale output
+    DRIFT = 1  # `compile --check` found stale output; `profile --check` a spec off its measurements
     BAD_INPUT = 2  # bad spec or bad command-line usage
     INFEASIBLE = 3  # no plan satisfies the spec's hard requirements
     NO_PRIVILEGE = 4  # SCHED_FIFO / affinity not permitted

@@ -1,7 +1,7 @@
 """The ``catanc`` command line: parse options, call the core, map errors to exit codes.
 
 One module per group of commands (:mod:`catanc.cli.init_command`, :mod:`catanc.cli.spec`,
-:mod:`catanc.cli.planning`, :mod:`catanc.cli.runtime`, :mod:`catanc.cli.clients`,
+:mod:`catanc.cli.planning`, :mod:`catanc.cli.runtime`, :mod:`catanc.cli.clients`, :mod:`catanc.cli.profile`,
 :mod:`catanc.cli.compare`), each importing what it needs when it runs, so
 that ``validate`` loads no solver; :mod:`catanc.cli.common` holds what they
 share.  Here they are registered, in the order ``--help`` lists them.
@@ -13,7 +13,7 @@ import sys
 
 import typer
 
-from catanc.cli import clients, compare, planning, runtime, spec
+from catanc.cli import clients, compare, planning, profile, runtime, spec
 from catanc.cli.common import reporting
 from catanc.cli.init_command import init
 
@@ -45,6 +45,7 @@ app.command()(runtime.calibrate)
 app.command(name="set-cores")(runtime.set_cores_)
 app.command()(runtime.report)
 app.command()(clients.client)
+app.command()(profile.profile)
 app.command()(compare.simulate)
 app.command()(compare.bench)
 app.command()(spec.schema)

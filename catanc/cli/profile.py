@@ -1,0 +1,87 @@
+"""``catanc profile``: a spec's compute times from what ``catanc run`` measured (a diff, ``--write``, ``--check``)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from catanc.cli.common import reporting, stderr_console
+from catanc.errors import ExitCode
+
+
+@reporting
+def profile(
+    log: Annotated[Path, typer.Argument(metavar="LOG", help="A `catanc run` log (JSON lines).", show_default=False)],
+    spec_path: Annotated[Path, typer.Option("--spec", metavar="SPEC", help="The spec the run was planned from.")],
+    write: Annotated[bool, typer.Option("--write", help="Edit the spec in place (comments and layout kept).")] = False,
+    check: Annotated[
+        bool, typer.Option("--check", help="Exit 1 if a compute time or speedup is more than --tolerance off.")
+    ] = False,
+    tolerance: Annotated[float, typer.Option(min=0.0, help="--check's relative tolerance (0.15: 15%).")] = 0.15,
+) -> None:
+    """Propose each node's compute_ms (the p95 the runtime plans with, modes, speedups) from a run's log."""
+    from catanc.errors import UsageError
+    from catanc.runtime.profile import profile_spec
+    from catanc.spec.parse import read_spec_text
+
+    if write and check:
+        raise UsageError("--write and --check: pick one (--check after --write always passes)")
+    spec_text, _ = read_spec_text(spec_path)
+    result = profile_spec(spec_text, str(spec_path), read_log_text(log), str(log), tolerance=tolerance)
+    if write and result.text != spec_text:
+        write_atomically(spec_path, result.text)
+    console = stderr_console()
+    for line in result.summary:
+        console.print(line, markup=False)
+    sys.stdout.write(result.diff)
+    if check and result.off:
+        for line in result.off:
+            console.print(line, markup=False)
+        raise typer.Exit(int(ExitCode.DRIFT))
+
+
+def read_log_text(log: Path) -> str:
+    """The log's text; :class:`~catanc.errors.UsageError` naming the file if it cannot be read."""
+    from catanc.errors import UsageError
+
+    try:
+        return log.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise UsageError(f"{log}: no such log file") from None
+    except IsADirectoryError:
+        raise UsageError(f"{log}: is a folder, not a log file") from None
+    except UnicodeDecodeError:
+        raise UsageError(f"{log}: cannot read the log: not UTF-8 text") from None
+    except OSError as exc:
+        raise UsageError(f"{log}: cannot read the log: {exc.strerror or exc}") from None
+
+
+def write_atomically(path: Path, text: str) -> None:
+    """Replace ``path``'s text in one rename (a temporary file beside it, its mode kept): never half-written."""
+    import os
+    import tempfile
+
+    from catanc.errors import OutputError
+
+    target = path.resolve()  # a link to the spec: its target is edited, the link stays
+    try:
+        mode = target.stat().st_mode & 0o7777
+        handle, temporary = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot write the spec: {exc.strerror or exc}") from None
+    try:
+        with os.fdopen(handle, "w", encoding="utf-8", newline="") as stream:
+            stream.write(text)
+            stream.flush()
+            os.fsync(stream.fileno())
+        Path(temporary).chmod(mode)
+        Path(temporary).replace(target)
+    except OSError as exc:
+        Path(temporary).unlink(missing_ok=True)
+        raise OutputError(f"{path}: cannot write the spec: {exc.strerror or exc}") from None
+    except BaseException:
+        Path(temporary).unlink(missing_ok=True)
+        raise

@@ -1,0 +1,502 @@
+"""Compute profiles from measurements: what ``catanc profile`` proposes for a spec, from a ``catanc run`` log.
+
+Pure: :func:`read_measurements` turns a log's text into each node's compute samples,
+:func:`propose` turns those into a proposal per scheduled node of a spec, :func:`deviations`
+says where a spec is more than a tolerance off, and :func:`spec_edits` says which values of
+the spec's text to rewrite (:mod:`catanc.spec.profile_edit` rewrites them).
+
+What is proposed, per scheduled node (``q`` = :attr:`~catanc.spec.language.Runtime.percentile`,
+95 by default, the statistic the runtime plans with: :mod:`catanc.runtime.measure`):
+
+- **compute_ms**: the ``q``-th percentile (:func:`~catanc.runtime.measure.percentile`) of the
+  node's one-thread compute times, the ``ms`` of the log's ``compute`` samples: what the
+  enforcer recorded for planning.  Where the node ran on one thread at least
+  :data:`MIN_SAMPLES` times, only those runs count (a run on several threads was converted to
+  one-thread time with the spec's speedup, which is what is being measured).
+- **modes**, where the samples are clearly multimodal (:func:`find_modes`): sorted, they
+  split where one sample is at least :data:`MODE_GAP_RATIO` times the one before it and each
+  side keeps at least :data:`MIN_MODE_SHARE` of the samples (and :data:`MIN_MODE_SAMPLES`);
+  the widest such gap first, at most :data:`MAX_MODES` modes.  The split is kept only if the
+  runtime's own rule (each sample to the mode nearest on a log scale,
+  :func:`~catanc.runtime.measure.split_modes`) puts every sample in the mode it was split
+  into, so the runtime sees the modes proposed.  Each mode's ``ms`` is the ``q``-th
+  percentile of its samples and its ``share`` the fraction of samples in it: then the
+  spec's planning figure (share-weighted mean) is the runtime's estimate of the whole log.
+  The spec language's modes are exactly these ``{share, ms}`` pairs.
+- **threads.speedup**, where runs used several threads and the spec lists speedups:
+  ``speedup(k) = P(one-thread times) / P(times of the runs on k threads)`` (``P`` the same
+  percentile; a run's time on ``k`` threads is its own figure, its wall time), so that
+  ``compute_ms / speedup(k)`` is the ``k``-thread runs' percentile, as the planner's Eq. 1
+  uses it.  Measured only for thread counts with :data:`MIN_SAMPLES` runs, and only with as
+  many one-thread runs; the others keep the spec's value.
+
+Numbers are rounded to what is written (compute times to 4 significant digits, shares and
+speedups to 2 decimals), so a spec written from a proposal checks clean against it.
+
+The log must be this catanc's format (:data:`~catanc.runtime.log.LOG_FORMAT`), end with the
+enforcer's ``stop`` (a killed run's log is truncated) and have samples for every scheduled node.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from catanc.errors import CatancError, ExitCode, FieldPath
+from catanc.runtime.log import LOG_FORMAT, expand
+from catanc.runtime.measure import MIN_PLANNING_MS, percentile, split_modes, valid_sample
+from catanc.spec.language import ModalCompute, Spec
+from catanc.spec.profile_edit import Edit
+from catanc.spec.speedup import threads_and_speedup
+
+READ_FORMATS = (LOG_FORMAT,)
+"""The log formats this catanc profiles."""
+
+MIN_SAMPLES = 10
+"""Fewest samples a figure is measured from (a node's compute time, a thread count's speedup)."""
+MODE_GAP_RATIO = 2.0
+"""Modes split where a sorted sample is at least twice the one before it ..."""
+MIN_MODE_SHARE = 0.05
+"""... and each mode keeps at least 5% of the samples ..."""
+MIN_MODE_SAMPLES = 5
+"""... and at least 5 of them."""
+MAX_MODES = 4
+
+DEFAULT_TOLERANCE = 0.15
+"""``--check``: a planning figure more than 15% off the measured one fails."""
+
+SIGNIFICANT_DIGITS = 4
+SHARE_DECIMALS = 2
+SPEEDUP_DECIMALS = 2
+
+
+class MeasurementsError(CatancError):
+    """A log ``catanc profile`` cannot use: not a log, another format, truncated, or missing a node."""
+
+    exit_code = ExitCode.BAD_INPUT
+
+
+# --------------------------------------------------------------------------- the log
+
+
+@dataclass(frozen=True)
+class Sample:
+    """One run of a node, as the enforcer logged it."""
+
+    ms: float  # one-thread compute time, what the runtime planned with
+    threads: int  # threads the run used (1 where the log does not say)
+    wall_ms: float | None  # the run's own figure (its wall time on several threads); None if unknown
+
+
+@dataclass(frozen=True)
+class Measurements:
+    """Each node's compute samples from one log."""
+
+    file: str
+    samples: Mapping[str, tuple[Sample, ...]]  # node -> its samples, in log order
+    first_line: Mapping[str, int]  # node -> the log line of its first sample
+    length_s: float
+    observed: bool = False  # a ``catanc run --observe`` log: the nodes ran on their own timers
+
+
+def read_measurements(text: str, file: str) -> Measurements:
+    """The compute samples of a ``catanc run`` log's text; :class:`MeasurementsError` naming ``file`` and the line."""
+    samples: dict[str, list[Sample]] = {}
+    first_line: dict[str, int] = {}
+    started = stopped = observed = False
+    length = 0.0
+    lines = text.splitlines()
+    if not any(line.strip() for line in lines):
+        raise MeasurementsError(f"{file}: empty: not a catanc run log")
+    for number, line in enumerate(lines, start=1):
+        if not line.strip():
+            continue
+        try:
+            event = json.loads(line)
+        except json.JSONDecodeError:
+            torn = number == len(lines) and not text.endswith("\n")
+            why = "a torn last line: the run was killed while writing" if torn else "not a JSON object"
+            raise MeasurementsError(f"{file}:{number}: {why} (the log is truncated or corrupt)") from None
+        if not isinstance(event, dict) or not isinstance(event.get("event"), str):
+            raise MeasurementsError(f"{file}:{number}: not a catanc run log event (no `event` field)")
+        if not started:
+            _check_start(event, file, number)
+            started, observed = True, event.get("observe") is True
+            continue
+        if isinstance(event.get("t"), int | float) and math.isfinite(event["t"]):
+            length = max(length, float(event["t"]))
+        if event["event"] == "stop":
+            stopped = True
+        for single in expand(event):
+            if not isinstance(single, dict) or single.get("event") != "compute":
+                continue
+            node, ms, wall = single.get("node"), single.get("ms"), single.get("reported_ms")
+            if not isinstance(node, str) or not isinstance(ms, int | float) or not valid_sample(ms):
+                continue
+            threads = single.get("threads")
+            samples.setdefault(node, []).append(
+                Sample(
+                    float(ms),
+                    threads if isinstance(threads, int) and not isinstance(threads, bool) and threads >= 1 else 1,
+                    float(wall) if isinstance(wall, int | float) and valid_sample(wall) else None,
+                )
+            )
+            first_line.setdefault(node, number)
+    if not stopped:
+        raise MeasurementsError(
+            f"{file}:{len(lines)}: truncated: the log ends without the enforcer's stop event "
+            f"(the run was killed {length:.1f} s in?); profile a run that ended (--duration, Ctrl-C or SIGTERM)"
+        )
+    return Measurements(file, {k: tuple(v) for k, v in samples.items()}, first_line, length, observed)
+
+
+def _check_start(event: dict[str, Any], file: str, number: int) -> None:
+    if event["event"] != "start":
+        raise MeasurementsError(f"{file}:{number}: the log does not begin with a start event: not a catanc run log")
+    version = event.get("format")
+    readable = ", ".join(str(v) for v in READ_FORMATS)
+    if version is None:
+        raise MeasurementsError(
+            f"{file}:{number}: log format missing: written by an older catanc (this one reads format {readable}); "
+            "run catanc run again"
+        )
+    if version not in READ_FORMATS:
+        raise MeasurementsError(f"{file}:{number}: log format {version!r}: this catanc reads format {readable}")
+
+
+# --------------------------------------------------------------------------- modes
+
+
+def find_modes(
+    samples: Sequence[float],
+    *,
+    gap_ratio: float = MODE_GAP_RATIO,
+    min_share: float = MIN_MODE_SHARE,
+    min_count: int = MIN_MODE_SAMPLES,
+    max_modes: int = MAX_MODES,
+) -> list[list[float]]:
+    """``samples`` sorted and split into modes at gaps (the module's rule, before the runtime's check).
+
+    Repeatedly the widest gap (largest ratio of a sample to the one before it, on samples floored
+    at :data:`~catanc.runtime.measure.MIN_PLANNING_MS`) that leaves at least ``max(min_count,
+    ceil(min_share * n))`` samples on each side of it within its mode is split, while that ratio
+    is at least ``gap_ratio`` and there are fewer than ``max_modes`` modes.  Ties: the lowest gap.
+    """
+    ordered = sorted(samples)
+    least = max(min_count, math.ceil(min_share * len(ordered)), 1)
+    groups = [ordered]
+    while len(groups) < max_modes:
+        best: tuple[float, int, int] | None = None  # (ratio, group, split index)
+        for g, group in enumerate(groups):
+            for i in range(least, len(group) - least + 1):
+                ratio = max(group[i], MIN_PLANNING_MS) / max(group[i - 1], MIN_PLANNING_MS)
+                if best is None or ratio > best[0]:
+                    best = (ratio, g, i)
+        if best is None or best[0] < gap_ratio:
+            break
+        _, g, i = best
+        groups[g : g + 1] = [groups[g][:i], groups[g][i:]]
+    return groups
+
+
+# --------------------------------------------------------------------------- proposals
+
+
+@dataclass(frozen=True)
+class Mode:
+    share: float
+    ms: float
+    count: int
+
+
+@dataclass(frozen=True)
+class Proposal:
+    """What the measurements say one node's profile is."""
+
+    node: str
+    count: int  # samples the compute time is measured from
+    ms: float  # the percentile of those samples (a modal node's too, for reference)
+    modes: tuple[Mode, ...] = ()  # () unless clearly multimodal
+    speedups: tuple[float | None, ...] = ()  # per thread count 1..threads.max: measured, or None; () for one thread
+    threads: Mapping[int, int] = field(default_factory=dict)  # thread count -> runs
+    notes: tuple[str, ...] = ()
+
+    @property
+    def planning_ms(self) -> float:
+        """The figure planning uses: the time, or the share-weighted mean of the modes."""
+        if self.modes:
+            return math.fsum(mode.share * mode.ms for mode in self.modes)
+        return self.ms
+
+
+def propose(spec: Spec, measured: Measurements) -> dict[str, Proposal]:
+    """A proposal per scheduled node of ``spec``; :class:`MeasurementsError` naming every node with too few samples."""
+    q = spec.runtime.percentile
+    proposals: dict[str, Proposal] = {}
+    missing: list[str] = []
+    for name, node in spec.nodes.items():
+        if not node.scheduled:
+            continue
+        samples = measured.samples.get(name, ())
+        if len(samples) < MIN_SAMPLES:
+            where = _where(spec, ("nodes", name))
+            got = "no compute samples" if not samples else f"only {len(samples)} compute samples"
+            missing.append(f"{where}nodes.{name}: {got} in {measured.file} (at least {MIN_SAMPLES} needed)")
+            continue
+        proposals[name] = _propose_node(name, samples, q, node.threads.speedups, node.threads.speedup is not None)
+    if missing:
+        hint = "did the node run (registered, triggered) for long enough? a longer --duration gives more"
+        raise MeasurementsError("\n".join(missing) + f"\n({hint})")
+    return proposals
+
+
+def _where(spec: Spec, path: FieldPath) -> str:
+    source = spec.source
+    return "" if source is None else f"{source.locate(path, at_key=True)}: "
+
+
+def _propose_node(
+    name: str, samples: Sequence[Sample], q: float, spec_speedups: tuple[float, ...], listed: bool
+) -> Proposal:
+    threads: dict[int, int] = {}
+    for sample in samples:
+        threads[sample.threads] = threads.get(sample.threads, 0) + 1
+    notes: list[str] = []
+    single = [s.ms for s in samples if s.threads == 1]
+    if len(single) >= MIN_SAMPLES:
+        base = single
+    else:
+        base = [s.ms for s in samples]
+        if single != base:
+            notes.append(
+                f"too few one-thread runs ({len(single)}): compute_ms from every run, converted with the spec's speedup"
+            )
+    ms = round_ms(percentile(base, q))
+    modes = _modes(base, q)
+    speedups: tuple[float | None, ...] = ()
+    if len(spec_speedups) > 1:
+        speedups = _speedups(samples, single, q, spec_speedups)
+        if any(s is not None for s in speedups[1:]) and not listed:
+            notes.append("threads.speedup is not listed in the spec (perfect scaling assumed): add it by hand")
+        elif len(single) < MIN_SAMPLES and any(k > 1 for k in threads):
+            notes.append("speedups not measured: they need one-thread runs too")
+        elif all(k == 1 for k in threads):
+            notes.append("every run used one thread: speedups not measured (the spec's are kept)")
+    return Proposal(name, len(base), ms, modes, speedups, dict(sorted(threads.items())), tuple(notes))
+
+
+def _modes(samples: Sequence[float], q: float) -> tuple[Mode, ...]:
+    groups = find_modes(samples)
+    if len(groups) < 2:
+        return ()
+    times = [percentile(group, q) for group in groups]
+    if len(set(times)) < len(times):
+        return ()
+    regrouped = split_modes(samples, times)
+    if [len(group) for group in regrouped] != [len(group) for group in groups]:
+        return ()  # the runtime would see other modes: not clearly these
+    shares = round_shares([len(group) / len(samples) for group in groups])
+    return tuple(Mode(share, round_ms(ms), len(group)) for share, ms, group in zip(shares, times, groups, strict=True))
+
+
+def _speedups(
+    samples: Sequence[Sample], single: Sequence[float], q: float, spec_speedups: tuple[float, ...]
+) -> tuple[float | None, ...]:
+    """Per thread count 1..max: the measured speedup (1.0 for one thread), or None where not measurable."""
+    measured: list[float | None] = [1.0]
+    one = percentile(single, q) if len(single) >= MIN_SAMPLES else None
+    for k in range(2, len(spec_speedups) + 1):
+        walls = [_wall(s, spec_speedups) for s in samples if s.threads == k]
+        if one is None or len(walls) < MIN_SAMPLES:
+            measured.append(None)
+            continue
+        at_k = percentile(walls, q)
+        measured.append(round(one / at_k, SPEEDUP_DECIMALS) if at_k > 0 else None)
+    return tuple(measured)
+
+
+def _wall(sample: Sample, spec_speedups: tuple[float, ...]) -> float:
+    """A several-thread run's time: its own figure, else its one-thread time divided back by the spec's speedup."""
+    if sample.wall_ms is not None:
+        return sample.wall_ms
+    _, speedup = threads_and_speedup(spec_speedups, sample.threads)
+    return sample.ms / speedup
+
+
+def round_ms(ms: float) -> float:
+    """``ms`` (floored at :data:`MIN_PLANNING_MS`, the runtime's floor) to :data:`SIGNIFICANT_DIGITS` digits."""
+    return float(format_ms(ms))
+
+
+def format_ms(ms: float) -> str:
+    """``ms`` as written in a spec: 4 significant digits, no exponent, no trailing zeros (``25``, ``0.2123``)."""
+    value = max(ms, MIN_PLANNING_MS)
+    decimals = max(0, SIGNIFICANT_DIGITS - 1 - math.floor(math.log10(value)))
+    text = f"{value:.{decimals}f}"
+    return text.rstrip("0").rstrip(".") if "." in text else text
+
+
+def round_shares(shares: Sequence[float]) -> list[float]:
+    """Shares to :data:`SHARE_DECIMALS` decimals summing to 1 (largest remainders get the rounding's hundredths)."""
+    scale = 10**SHARE_DECIMALS
+    floors = [math.floor(share * scale) for share in shares]
+    left = scale - sum(floors)
+    order = sorted(range(len(shares)), key=lambda i: (-(shares[i] * scale - floors[i]), i))
+    for i in order[:left]:
+        floors[i] += 1
+    return [units / scale for units in floors]
+
+
+# --------------------------------------------------------------------------- the spec against them
+
+
+def deviations(spec: Spec, proposals: Mapping[str, Proposal], tolerance: float) -> list[str]:
+    """Where ``spec`` is more than ``tolerance`` (relative) off ``proposals``: each a message naming the node."""
+    found = []
+    for name, proposal in sorted(proposals.items()):
+        node = spec.nodes[name]
+        where = _where(spec, ("nodes", name, "compute_ms"))
+        written, measured = node.mean_compute_ms, proposal.planning_ms
+        off = (measured - written) / written
+        if abs(off) > tolerance:
+            found.append(
+                f"{where}nodes.{name}.compute_ms: {written:g} ms planned, {measured:g} ms measured "
+                f"({off:+.0%}, more than {tolerance:.0%} off)"
+            )
+        for k, value in enumerate(proposal.speedups, start=1):
+            spec_value = node.threads.speedups[k - 1]
+            if value is None or k == 1:
+                continue
+            off = (value - spec_value) / spec_value
+            if abs(off) > tolerance:
+                found.append(
+                    f"{_where(spec, ('nodes', name, 'threads'))}nodes.{name}.threads.speedup[{k - 1}]: "
+                    f"{spec_value:g} in the spec, {value:g} measured ({off:+.0%}, more than {tolerance:.0%} off)"
+                )
+    return found
+
+
+def spec_edits(spec: Spec, proposals: Mapping[str, Proposal]) -> list[Edit]:
+    """The values of ``spec``'s text to rewrite so that it says what ``proposals`` do."""
+    edits: list[Edit] = []
+    for name, proposal in sorted(proposals.items()):
+        node = spec.nodes[name]
+        path: FieldPath = ("nodes", name, "compute_ms")
+        compute = node.compute_ms
+        if proposal.modes and isinstance(compute, ModalCompute) and len(compute.modes) == len(proposal.modes):
+            for i, mode in enumerate(proposal.modes):
+                edits.append(Edit((*path, "modes", i, "share"), format_share(mode.share)))
+                edits.append(Edit((*path, "modes", i, "ms"), format_ms(mode.ms)))
+        elif proposal.modes:
+            edits.append(Edit(path, modes_text(proposal.modes), whole=True))
+        else:
+            edits.append(Edit(path, format_ms(proposal.ms), whole=isinstance(compute, ModalCompute)))
+        if node.threads.speedup is not None:
+            for k, value in enumerate(proposal.speedups):
+                if k > 0 and value is not None:
+                    edits.append(Edit(("nodes", name, "threads", "speedup", k), format_speedup(value)))
+    return edits
+
+
+def format_share(share: float) -> str:
+    return f"{share:.{SHARE_DECIMALS}f}".rstrip("0").rstrip(".")
+
+
+def format_speedup(speedup: float) -> str:
+    text = f"{speedup:.{SPEEDUP_DECIMALS}f}".rstrip("0")
+    return text + "0" if text.endswith(".") else text
+
+
+def modes_text(modes: Sequence[Mode]) -> str:
+    """A flow mapping of modes, as the specs write them: ``{modes: [{share: 0.8, ms: 1}, ...]}``."""
+    items = ", ".join(f"{{share: {format_share(m.share)}, ms: {format_ms(m.ms)}}}" for m in modes)
+    return f"{{modes: [{items}]}}"
+
+
+def matches(spec: Spec, proposals: Mapping[str, Proposal]) -> list[str]:
+    """Nodes of ``spec`` whose profile is not exactly what ``proposals`` say (after :func:`spec_edits`: none)."""
+    wrong = []
+    for name, proposal in proposals.items():
+        node = spec.nodes[name]
+        compute = node.compute_ms
+        if proposal.modes:
+            said = tuple((m.share, m.ms) for m in compute.modes) if isinstance(compute, ModalCompute) else ()
+            ok = said == tuple((m.share, m.ms) for m in proposal.modes)
+        else:
+            ok = not isinstance(compute, ModalCompute) and compute == proposal.ms
+        if node.threads.speedup is not None:
+            ok = ok and all(
+                value is None or node.threads.speedups[k] == value for k, value in enumerate(proposal.speedups)
+            )
+        if not ok:
+            wrong.append(name)
+    return sorted(wrong)
+
+
+# --------------------------------------------------------------------------- the whole command, without its I/O
+
+
+@dataclass(frozen=True)
+class Profiled:
+    """What ``catanc profile`` found: a summary per node, the spec rewritten, its diff, where it is off."""
+
+    proposals: Mapping[str, Proposal]
+    summary: tuple[str, ...]  # one line per node, then its notes
+    text: str  # the spec's text with the proposals written in
+    diff: str  # unified diff of the spec's text to ``text`` ("" when they are the same)
+    off: tuple[str, ...]  # :func:`deviations` of the spec as it is
+
+
+def profile_spec(spec_text: str, spec_file: str, log_text: str, log_file: str, *, tolerance: float) -> Profiled:
+    """The spec's text against the log's measurements; :class:`SpecError` or :class:`MeasurementsError` if unusable.
+
+    The rewritten text is read back and must say exactly what was proposed (else nothing is
+    proposed for writing: an internal error, never a half-edited spec).
+    """
+    import difflib  # noqa: PLC0415 - only the command needs it
+
+    from catanc.core.load import check_text  # noqa: PLC0415 - the spec's meaning pass, as validate runs it
+    from catanc.spec.profile_edit import apply_edits  # noqa: PLC0415
+
+    spec, _ = check_text(spec_text, spec_file)
+    measured = read_measurements(log_text, log_file)
+    proposals = propose(spec, measured)
+    source = spec.source
+    if source is None:  # pragma: no cover - check_text always keeps the source map
+        raise MeasurementsError(f"{spec_file}: no source positions to edit")
+    text = apply_edits(spec_text, source, spec_edits(spec, proposals))
+    rewritten, _ = check_text(text, spec_file)
+    wrong = matches(rewritten, proposals)
+    if wrong:
+        raise CatancError(f"{spec_file}: rewriting {', '.join(wrong)} did not give the proposed values (a bug)")
+    name = spec_file
+    diff = "".join(
+        difflib.unified_diff(
+            spec_text.splitlines(keepends=True), text.splitlines(keepends=True), f"a/{name}", f"b/{name}"
+        )
+    )
+    return Profiled(
+        proposals, summary_lines(spec, proposals, measured), text, diff, tuple(deviations(spec, proposals, tolerance))
+    )
+
+
+def summary_lines(spec: Spec, proposals: Mapping[str, Proposal], measured: Measurements) -> tuple[str, ...]:
+    """Per node: samples, threads, the spec's planning figure and the measured one, how far off; then notes."""
+    kind = "observed (own timers)" if measured.observed else "enforced"
+    lines = [f"{measured.file}: {measured.length_s:.1f} s {kind}, p{spec.runtime.percentile:g} per node:"]
+    for name, proposal in sorted(proposals.items()):
+        written = spec.nodes[name].mean_compute_ms
+        off = (proposal.planning_ms - written) / written
+        modes = " modes " + ", ".join(f"{m.share:g}x{m.ms:g}" for m in proposal.modes) if proposal.modes else ""
+        threads = ", ".join(f"{k} thread{'s' if k > 1 else ''}: {n}" for k, n in proposal.threads.items())
+        speedups = [f"{s:g}" if s is not None else "-" for s in proposal.speedups]
+        speedup = f"; speedup [{', '.join(speedups)}]" if proposal.speedups else ""
+        lines.append(
+            f"  {name}: {proposal.count} samples ({threads}); spec {written:.4g} ms, measured "
+            f"{proposal.planning_ms:.4g} ms ({off:+.1%}){modes}{speedup}"
+        )
+        lines += [f"    {name}: {note}" for note in proposal.notes]
+    return tuple(lines)

@@ -1,0 +1,57 @@
+"""Hand-made ``catanc run`` logs for the tests of ``catanc profile``: known samples in the enforcer's format."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+
+from catanc.runtime.log import LOG_FORMAT
+
+SPEC = """catan: 1
+app: demo
+nodes:
+  cam: {compute_ms: 5}          # camera shim
+  det:                          # a detector with two modes
+    compute_ms: {modes: [{share: 0.5, ms: 2}, {share: 0.5, ms: 20}]}
+  plan: {compute_ms: 10, threads: {max: 2, speedup: [1.0, 1.5]}}
+  motor: {scheduled: false}
+edges: [[cam, det], [det, plan], [plan, motor]]
+subchains:
+  main: [cam, det, plan]
+objective:
+  - {chain: [cam, det, plan, motor], weight: 1.0}
+"""
+
+Batch = tuple[str, Sequence[float], Sequence[int] | None, Sequence[float | None] | None]
+
+
+def log_text(*batches: Batch, stop: bool = True, fmt: object = LOG_FORMAT) -> str:
+    """A log as the enforcer writes it: a start, one compute batch per (node, ms, threads, own figures), a stop."""
+    start = {"t": 0.0, "event": "start", "cores": 1, "plan": {}}
+    if fmt is not None:
+        start["format"] = fmt
+    lines = [start]
+    for t, (node, ms, threads, walls) in enumerate(batches, start=1):
+        lines.append(
+            {
+                "t": float(t),
+                "event": "compute_batch",
+                "node": node,
+                "at": [float(t)] * len(ms),
+                "ms": list(ms),
+                "reported_ms": list(walls) if walls is not None else list(ms),
+                "kernel_ms": [None] * len(ms),
+                "threads": list(threads) if threads is not None else [1] * len(ms),
+            }
+        )
+    if stop:
+        lines.append({"t": 9.0, "event": "stop", "summary": {}})
+    return "".join(json.dumps(line, sort_keys=True) + "\n" for line in lines)
+
+
+def every_node(cam: Sequence[float] = (), det: Sequence[float] = (), plan: Sequence[float] = ()) -> list[Batch]:
+    return [
+        ("cam", cam or [5.0] * 20, None, None),
+        ("det", det or [2.0] * 10 + [20.0] * 10, None, None),
+        ("plan", plan or [10.0] * 20, None, None),
+    ]
