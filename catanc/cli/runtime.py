@@ -40,8 +40,18 @@ def run_(
     ] = "bootstrap",
     cores: Annotated[int | None, typer.Option(min=1, help="Plan for this many cores instead of the table's.")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", help="No live status; a summary at the end.")] = False,
+    observe: Annotated[
+        bool,
+        typer.Option(
+            "--observe",
+            help="Schedule nothing: measure --attach/--launch nodes on their own timers (for catanc profile).",
+        ),
+    ] = False,
 ) -> None:
     """Enforce a plan on this machine: trigger subchains, run per-core slices, measure and re-solve."""
+    if observe:
+        observe_(table_path, launch=launch, attach=attach or [], demo=demo, duration=duration, log=log)
+        return
     from catanc.artifacts.runtime_table import load_table
     from catanc.core.priorities import ENFORCER_FIFO
     from catanc.errors import UsageError
@@ -115,6 +125,47 @@ def run_(
         )
     )
     stdout_console().print(f"log: {log_path}", markup=False)
+
+
+def observe_(
+    table_path: Path, *, launch: bool, attach: list[str], demo: bool, duration: float | None, log: Path | None
+) -> None:
+    """``catanc run --observe``: measure the nodes' runs on their own timers; no SCHED_FIFO, no pinning, no trigger."""
+    from catanc.artifacts.runtime_table import load_table
+    from catanc.errors import UsageError
+    from catanc.runtime.observe import Observer, launched_nodes
+    from catanc.runtime.processes import Children, parse_attach, start_launch
+
+    if demo:
+        raise UsageError("--observe with --demo: the demo workers wait for triggers; observe --launch or --attach")
+    if not launch and not attach:
+        raise UsageError("--observe measures nodes on their own timers: give --launch or --attach NODE=PID")
+    table = load_table(table_path)
+    attached = parse_attach(attach, table.spec)
+    log_path = log or Path(f"catanc-run-{table.app}.jsonl")
+    children = Children()
+    observer = Observer(attached, log_path)
+    console = stdout_console()
+
+    def begin(running: Observer) -> None:
+        if not launch:
+            return
+        start_launch(children, table.processes, None)
+        nodes_of = {str(process.get("key")): list(process.get("nodes", [])) for process in table.processes}
+        found, shared = launched_nodes((nodes_of.get(key, []), process.pid) for key, process in children.processes)
+        for node, pid in found.items():
+            if node not in attached:
+                running.observe(node, pid)
+        for nodes in shared:
+            console.print(f"not observed: {', '.join(nodes)} share one process (attach each on its own)", markup=False)
+
+    try:
+        observer.run(duration, on_start=begin)
+    finally:
+        children.stop()
+    counts = ", ".join(f"{node} {count}" for node, count in sorted(observer.counts.items()))
+    console.print(f"observed {observer.elapsed_s():.1f} s, runs per node: {counts or 'none'}", markup=False)
+    console.print(f"log: {log_path}", markup=False)
 
 
 @reporting

@@ -7,6 +7,9 @@
 - ``--attach NODE=PID``: a running process that does not speak the protocol:
   its threads are pinned and prioritised as NODE's, and it keeps its own timer.
 
+With ``--observe`` nothing is pinned or triggered: launched processes get no
+``CATANC_SOCKET`` and keep their own timers (:mod:`catanc.runtime.observe`).
+
 Started processes get ``CATANC_SOCKET`` in their environment, their own
 process group (so a Ctrl-C reaches the enforcer, which stops them), and
 are stopped with SIGTERM, then SIGKILL, when the run ends.
@@ -36,8 +39,11 @@ class Children:
 
     processes: list[tuple[str, subprocess.Popen[bytes]]] = field(default_factory=list)
 
-    def start(self, name: str, argv: Sequence[str], socket_path: str) -> None:
-        env = {**os.environ, SOCKET_ENV: socket_path}
+    def start(self, name: str, argv: Sequence[str], socket_path: str | None) -> None:
+        """Start ``argv``; ``socket_path`` None: without ``CATANC_SOCKET`` (no enforcer: ``--observe``)."""
+        env = {key: value for key, value in os.environ.items() if key != SOCKET_ENV}
+        if socket_path is not None:
+            env[SOCKET_ENV] = socket_path
         try:
             process = subprocess.Popen(list(argv), env=env, start_new_session=True)
         except OSError as exc:
@@ -98,7 +104,7 @@ def start_demo(children: Children, spec: Spec, socket_path: str, *, seed: int = 
         children.start(", ".join(group), argv, socket_path)
 
 
-def start_launch(children: Children, processes: Sequence[Mapping[str, object]], socket_path: str) -> None:
+def start_launch(children: Children, processes: Sequence[Mapping[str, object]], socket_path: str | None) -> None:
     """The runtime table's processes that have a command."""
     for process in processes:
         argv = process.get("argv")
