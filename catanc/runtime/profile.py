@@ -314,7 +314,8 @@ def _speedups(
             measured.append(None)
             continue
         at_k = percentile(walls, q)
-        measured.append(round(one / at_k, SPEEDUP_DECIMALS) if at_k > 0 else None)
+        speedup = round(one / at_k, SPEEDUP_DECIMALS) if at_k > 0 else 0.0
+        measured.append(speedup if speedup > 0 else None)  # a spec's speedup is > 0: too slow to write is unknown
     return tuple(measured)
 
 
