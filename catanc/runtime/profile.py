@@ -13,15 +13,16 @@ What is proposed, per scheduled node (``q`` = :attr:`~catanc.spec.language.Runti
   enforcer recorded for planning.  Where the node ran on one thread at least
   :data:`MIN_SAMPLES` times, only those runs count (a run on several threads was converted to
   one-thread time with the spec's speedup, which is what is being measured).
-- **modes**, where the samples are clearly multimodal (:func:`find_modes`): sorted, they
-  split where one sample is at least :data:`MODE_GAP_RATIO` times the one before it and each
-  side keeps at least :data:`MIN_MODE_SHARE` of the samples (and :data:`MIN_MODE_SAMPLES`);
-  the widest such gap first, at most :data:`MAX_MODES` modes.  The split is kept only if the
-  runtime's own rule (each sample to the mode nearest on a log scale,
-  :func:`~catanc.runtime.measure.split_modes`) puts every sample in the mode it was split
-  into, so the runtime sees the modes proposed.  Each mode's ``ms`` is the ``q``-th
-  percentile of its samples and its ``share`` the fraction of samples in it: then the
-  spec's planning figure (share-weighted mean) is the runtime's estimate of the whole log.
+- **modes**, where the samples are clearly multimodal (:func:`find_modes`): split where the
+  logs of the samples separate best (Otsu's rule), each side keeping at least
+  :data:`MIN_MODE_SHARE` of the samples (and :data:`MIN_MODE_SAMPLES`), if the upper side's
+  5th percentile is at least :data:`MODE_SEPARATION` times the lower side's 95th (a few stray
+  samples in between do not hide two modes; one wide mode is never split); at most
+  :data:`MAX_MODES` modes.  The groups are then regrouped by the runtime's own rule (each
+  sample to the mode time nearest on a log scale, :func:`~catanc.runtime.measure.split_modes`)
+  until they settle, so the runtime sees the modes proposed.  Each mode's ``ms`` is the
+  ``q``-th percentile of its samples and its ``share`` the fraction of samples in it: then
+  the spec's planning figure (share-weighted mean) is the runtime's estimate of the whole log.
   The spec language's modes are exactly these ``{share, ms}`` pairs.
 - **threads.speedup**, where runs used several threads and the spec lists speedups:
   ``speedup(k) = P(one-thread times) / P(times of the runs on k threads)`` (``P`` the same
@@ -57,13 +58,16 @@ READ_FORMATS = (LOG_FORMAT,)
 
 MIN_SAMPLES = 10
 """Fewest samples a figure is measured from (a node's compute time, a thread count's speedup)."""
-MODE_GAP_RATIO = 2.0
-"""Modes split where a sorted sample is at least twice the one before it ..."""
+MODE_SEPARATION = 2.0
+"""Two modes are clear when the upper one's 5th percentile is at least twice the lower one's 95th ..."""
+EDGE_PERCENTILE = 5.0
 MIN_MODE_SHARE = 0.05
 """... and each mode keeps at least 5% of the samples ..."""
 MIN_MODE_SAMPLES = 5
 """... and at least 5 of them."""
 MAX_MODES = 4
+REGROUPINGS = 8
+"""The runtime's regrouping of modes settles within this many rounds, or the modes are not clear."""
 
 DEFAULT_TOLERANCE = 0.15
 """``--check``: a planning figure more than 15% off the measured one fails."""
@@ -173,33 +177,62 @@ def _check_start(event: dict[str, Any], file: str, number: int) -> None:
 def find_modes(
     samples: Sequence[float],
     *,
-    gap_ratio: float = MODE_GAP_RATIO,
+    separation: float = MODE_SEPARATION,
     min_share: float = MIN_MODE_SHARE,
     min_count: int = MIN_MODE_SAMPLES,
     max_modes: int = MAX_MODES,
 ) -> list[list[float]]:
-    """``samples`` sorted and split into modes at gaps (the module's rule, before the runtime's check).
+    """``samples`` sorted and split into modes (the module's rule, before the runtime's regrouping).
 
-    Repeatedly the widest gap (largest ratio of a sample to the one before it, on samples floored
-    at :data:`~catanc.runtime.measure.MIN_PLANNING_MS`) that leaves at least ``max(min_count,
-    ceil(min_share * n))`` samples on each side of it within its mode is split, while that ratio
-    is at least ``gap_ratio`` and there are fewer than ``max_modes`` modes.  Ties: the lowest gap.
+    Each mode is split in two where the split best separates its samples on a log scale (Otsu's
+    rule: the largest between-group variance of the logs, each side keeping at least
+    ``max(min_count, ceil(min_share * n))`` of the ``n`` samples), if the upper side's
+    :data:`EDGE_PERCENTILE`-th percentile is at least ``separation`` times the lower side's
+    ``100 - EDGE_PERCENTILE``-th: a few stray samples in between (a run preempted, a wake-up
+    counted) do not hide two modes, and one wide mode is never split.  The best separated split
+    first, while there are fewer than ``max_modes`` modes.
     """
     ordered = sorted(samples)
     least = max(min_count, math.ceil(min_share * len(ordered)), 1)
     groups = [ordered]
     while len(groups) < max_modes:
-        best: tuple[float, int, int] | None = None  # (ratio, group, split index)
+        best: tuple[float, int, int] | None = None  # (separation, group, split index)
         for g, group in enumerate(groups):
-            for i in range(least, len(group) - least + 1):
-                ratio = max(group[i], MIN_PLANNING_MS) / max(group[i - 1], MIN_PLANNING_MS)
-                if best is None or ratio > best[0]:
-                    best = (ratio, g, i)
-        if best is None or best[0] < gap_ratio:
+            i = _best_split(group, least)
+            if i is None:
+                continue
+            ratio = _floored(percentile(group[i:], EDGE_PERCENTILE)) / _floored(
+                percentile(group[:i], 100.0 - EDGE_PERCENTILE)
+            )
+            if ratio >= separation and (best is None or ratio > best[0]):
+                best = (ratio, g, i)
+        if best is None:
             break
         _, g, i = best
         groups[g : g + 1] = [groups[g][:i], groups[g][i:]]
     return groups
+
+
+def _floored(ms: float) -> float:
+    return max(ms, MIN_PLANNING_MS)
+
+
+def _best_split(ordered: Sequence[float], least: int) -> int | None:
+    """Where sorted ``ordered`` splits best on a log scale (Otsu): the index of the upper side's first sample."""
+    count = len(ordered)
+    if count < 2 * least:
+        return None
+    logs = [math.log(_floored(x)) for x in ordered]
+    prefix = [0.0]
+    for value in logs:
+        prefix.append(prefix[-1] + value)
+    best, where = -1.0, None
+    for i in range(least, count - least + 1):
+        low, high = prefix[i] / i, (prefix[count] - prefix[i]) / (count - i)
+        score = i * (count - i) * (high - low) ** 2
+        if score > best:
+            best, where = score, i
+    return where
 
 
 # --------------------------------------------------------------------------- proposals
@@ -289,17 +322,24 @@ def _propose_node(
 
 
 def _modes(samples: Sequence[float], q: float) -> tuple[Mode, ...]:
-    groups = find_modes(samples)
-    if len(groups) < 2:
-        return ()
-    times = [percentile(group, q) for group in groups]
-    if len(set(times)) < len(times):
-        return ()
-    regrouped = split_modes(samples, times)
-    if [len(group) for group in regrouped] != [len(group) for group in groups]:
-        return ()  # the runtime would see other modes: not clearly these
-    shares = round_shares([len(group) / len(samples) for group in groups])
-    return tuple(Mode(share, round_ms(ms), len(group)) for share, ms, group in zip(shares, times, groups, strict=True))
+    """The modes of ``samples`` as the runtime will see them: :func:`find_modes`, then regrouped by the runtime's
+    rule (each sample to the mode time nearest on a log scale) until the groups stop changing."""
+    groups: Sequence[Sequence[float]] = find_modes(samples)
+    least = max(MIN_MODE_SAMPLES, math.ceil(MIN_MODE_SHARE * len(samples)))
+    for _ in range(REGROUPINGS):
+        if len(groups) < 2 or any(len(group) < least for group in groups):
+            return ()
+        times = [percentile(group, q) for group in groups]
+        if len(set(times)) < len(times):
+            return ()
+        regrouped = split_modes(samples, times)
+        if [len(group) for group in regrouped] == [len(group) for group in groups]:
+            shares = round_shares([len(group) / len(samples) for group in groups])
+            return tuple(
+                Mode(share, round_ms(ms), len(group)) for share, ms, group in zip(shares, times, groups, strict=True)
+            )
+        groups = regrouped
+    return ()  # the runtime's groups keep moving: not clearly modes
 
 
 def _speedups(

@@ -55,6 +55,15 @@ def test_two_clusters_are_two_modes_with_their_shares_and_p95s() -> None:
     assert proposal.planning_ms == pytest.approx(3.2)
 
 
+def test_stray_samples_between_two_modes_do_not_hide_them() -> None:
+    """80 runs at 1 ms, 20 at 12, strays at 2, 3.5 and 6 ms.  Worked by hand: the runtime's boundary between the
+    modes' p95s (1 and 12) is sqrt(12) = 3.46, so 2 goes low (81 samples: p95 x[76] = 1) and 3.5, 6 high
+    (22 samples: p95 between x[19] = x[20] = 12); shares 81/103 = 0.786 and 22/103 = 0.214 round to 0.79 and 0.21."""
+    measured = read_measurements(log_text(*every_node(det=[1.0] * 80 + [12.0] * 20 + [2.0, 3.5, 6.0])), "run.jsonl")
+    proposal = propose(parse_spec(SPEC), measured)["det"]
+    assert [(m.share, m.ms, m.count) for m in proposal.modes] == [(0.79, 1.0, 81), (0.21, 12.0, 22)]
+
+
 def test_a_rare_spike_is_no_mode() -> None:
     """2 of 100 runs at 50 ms: under 5% of the samples, so no mode; the p95 (x[94] = x[95] = 1) is 1."""
     measured = read_measurements(log_text(*every_node(cam=[1.0] * 98 + [50.0] * 2)), "run.jsonl")
