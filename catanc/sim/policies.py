@@ -1,17 +1,7 @@
 """Who triggers what, and at which priority: catanc's schedule and the hand-tuned baselines.
 
 - :class:`CatanPolicy` does what ``catan run`` does (catan-model.md sections
-from catanc.control.flights import Flight, Flights, NodeQueues
-from catanc.control.policy import Cadence, SlotRule, boundary_ms, decide, slot_rules
-from catanc.control.timers import Triggers, trigger_rules
-from catanc.control.schedule import CoreSchedule, RuntimeSchedule, SubchainRun, is_late, runtime_schedule
-from catanc.errors import UsageError
-from catanc.planning.replan import Replanner
-from catanc.runtime.measure import Measurements
-from catanc.sim.cpu import Discipline, Job, Pool
-from catanc.sim.dataflow import Dataflow, Origins
-from catanc.sim.engine import Engine
-from catanc.spec.language import Spec
+  5 and 6, with :mod:`catanc.control.policy`'s decisions, the enforcer's too):
   a clock per dedicated (or clock-triggered) subchain, a periodic slot
   schedule per shared core that raises one subchain at a time, later nodes
   event-triggered, priority stealing, and, given a replanner, the periodic
