@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import Annotated
 
 import typer
 
@@ -13,9 +13,6 @@ from catanc.cli.common import (
     stdout_console,
 )
 from catanc.errors import ExitCode
-
-if TYPE_CHECKING:
-    pass
 
 
 @reporting
