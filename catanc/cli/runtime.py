@@ -239,7 +239,7 @@ def report(
 ) -> None:
     """Summarise a `catanc run` log: rates, latencies, compute times, re-plans; optionally plot a timeline."""
     from catanc.extras import require
-    from catanc.runtime.log_summary import report_command
+    from catanc.runtime.log_report import report_command
 
     if plot is not None:
         require("matplotlib", "catanc report --plot")
