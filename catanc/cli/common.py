@@ -58,7 +58,7 @@ PlotDirOpt = Annotated[
 PIPED_WIDTH = 160
 """Table width when stdout is not a terminal (rich would assume 80 and wrap every chain)."""
 
-REPORT_WIDTH = 100
+REPORT_WIDTH = 80
 """``explain``'s width when stdout is not a terminal: its tables wrap their text to fit, so a file reads well."""
 
 

@@ -218,43 +218,57 @@ def _dedicated_line(view: DedicatedView, explanation: Explanation) -> Paragraph:
     )
 
 
-def _subchain_table(explanation: Explanation) -> TableBlock:
-    columns = (
-        "subchain", "nodes", "cores", "how", "rate Hz", "period ms", "fraction", "every k", "slice ms",
-        "latency ms",
-    )  # fmt: skip
-    rows = []
+def _subchain_tables(explanation: Explanation) -> list[TableBlock]:
+    """Two tables, so each fits an 80-column editor: where each subchain runs, then its rate and slice."""
+    placement, timing = [], []
     for sub in explanation.subchains:
         runs = runs_per_period(sub, sub.name in explanation.batch)
         fraction = f"1/{runs}" if runs is not None and runs > 1 else f"{sub.fraction:.4g}"
-        slice_ms = _ms(sub.fraction * explanation.compute_ms[sub.name]) if sub.shared else "-"
-        rows.append(
+        placement.append(
             (
                 sub.name,
                 " -> ".join(sub.nodes),
                 ",".join(str(c) for c in sub.cores) or "-",
-                f"{'shared' if sub.shared else 'dedicated'}, FIFO {fifo_levels(sub.shared)}",
+                "shared" if sub.shared else "dedicated",
+                fifo_levels(sub.shared),
+            )
+        )
+        timing.append(
+            (
+                sub.name,
                 _rate(sub.period_ms),
                 _ms(sub.period_ms),
                 fraction,
                 "-" if sub.every is None else str(sub.every),
-                slice_ms,
+                _ms(sub.fraction * explanation.compute_ms[sub.name]) if sub.shared else "-",
                 _ms(sub.latency_ms),
             )
         )
     unscheduled = explanation.unscheduled
     own_clock = f" Unscheduled nodes ({', '.join(unscheduled)}): {UNSCHEDULED_FIFO}." if unscheduled else ""
-    footer = (
-        "FIFO: the SCHED_FIFO level of a subchain's threads as deployed: at rest (launch.sh sets it) -> in its "
-        f"slice (catanc run raises it).{own_clock} catanc run's own threads: {ENFORCER_FIFO}."
+    fifo_note = (
+        "FIFO: the SCHED_FIFO levels of a subchain's threads as deployed: at rest (launch.sh sets it) -> in "
+        f"its slice (catanc run raises it).{own_clock} catanc run's own threads: {ENFORCER_FIFO}."
     )
-    return TableBlock(_columns(columns, left=("subchain", "nodes", "how")), tuple(rows), footer=footer)
+    placement_columns = ("subchain", "nodes", "cores", "cores are", "FIFO")
+    timing_columns = ("subchain", "rate Hz", "period ms", "fraction", "every k", "slice ms", "latency ms")
+    return [
+        TableBlock(
+            _columns(placement_columns, left=("subchain", "nodes", "cores are", "FIFO")),
+            tuple(placement),
+            footer=fifo_note,
+        ),
+        TableBlock(
+            _columns(timing_columns, left=("subchain",)),
+            tuple(timing),
+            title="Rates and slices (a slice is f*c of the schedule period; - on dedicated cores)",
+        ),
+    ]
 
 
 def fifo_levels(shared: bool) -> str:
     """The SCHED_FIFO levels of a subchain's threads as the deployment applies them (catan-model.md section 6)."""
-    rest = resting_fifo(shared)
-    return f"{rest}->{RUNNING_FIFO}" if rest != RUNNING_FIFO else str(rest)
+    return f"{resting_fifo(shared)}->{RUNNING_FIFO}"
 
 
 def _chain_table(explanation: Explanation) -> TableBlock:
@@ -385,7 +399,7 @@ def report_blocks(explanation: Explanation) -> list[Block]:
         blocks += _shared_blocks(view, explanation)
     blocks += [_dedicated_line(view, explanation) for view in explanation.dedicated]
     blocks += [Paragraph(f"core {core}: idle (no subchain runs here)") for core in explanation.idle_cores]
-    blocks += [Heading("2. Subchains"), _subchain_table(explanation)]
+    blocks += [Heading("2. Subchains"), *_subchain_tables(explanation)]
     count = len(explanation.chains)
     chains = f"3. Chains ({count}, the most weighted first)" if count > 1 else f"3. Chains ({count})"
     blocks += [Heading(chains), _chain_table(explanation)]

@@ -7,6 +7,7 @@ from typing import assert_never
 
 from rich.console import Console, ConsoleOptions, RenderableType, RenderResult
 from rich.measure import Measurement
+from rich.padding import Padding
 from rich.table import Table
 from rich.text import Text
 
@@ -22,11 +23,16 @@ def _rich_parts(block: Block) -> list[RenderableType]:
         return [Text(block.text, style="bold" if block.strong else "")]
     if isinstance(block, Preformatted):
         return [Text("\n".join(f"  {line}" for line in block.text.splitlines()))]
-    if isinstance(block, Bullets):
-        return [Text(f"- {item}") for item in block.items]
+    if isinstance(block, Bullets):  # a hanging indent: a wrapped item stays clear of the dashes
+        items = Table.grid(padding=(0, 1, 0, 0))
+        items.add_column(no_wrap=True)
+        items.add_column()
+        for item in block.items:
+            items.add_row("-", Text(item))
+        return [items]
     if isinstance(block, TableBlock):
         table = FittedTable(block)
-        return [table] if block.footer is None else [table, Text(f"  {block.footer}")]
+        return [table] if block.footer is None else [table, Padding(Text(block.footer), (0, 0, 0, 2))]
     assert_never(block)
 
 
@@ -62,8 +68,16 @@ class FittedTable:
                 header = column.header.replace(" ", "\n") if stacked else column.header
                 widest = max((len(row[index]) for row in block.rows), default=0)
                 table.add_column(header, justify="right", no_wrap=True, min_width=widest)
-            else:
-                table.add_column(column.header, justify="left")
+            else:  # text wraps between words, never inside one
+                longest = max(
+                    (
+                        len(word)
+                        for text in (column.header, *(row[index] for row in block.rows))
+                        for word in text.split()
+                    ),
+                    default=0,
+                )
+                table.add_column(column.header, justify="left", min_width=longest)
         for row in block.rows:
             table.add_row(*row)
         return table

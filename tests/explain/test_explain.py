@@ -69,14 +69,16 @@ def test_explain_shows_every_subchain_with_the_plans_numbers(name: str, cores: i
     expected = planned(name, cores)
     assert f"objective {expected.objective:.3f} ms" in out
     table = out[out.index("2. Subchains") : out.index("3. Chains")]
-    rows = {line.split()[1]: line for line in table.splitlines() if line.startswith("│ ")}
-    assert set(rows) == set(expected.subchains)
+    placement, timing = table.split("Rates and slices")
+    places = {line.split()[1]: line for line in placement.splitlines() if line.startswith("│ ")}
+    rows = {line.split()[1]: line for line in timing.splitlines() if line.startswith("│ ")}
+    assert set(places) == set(rows) == set(expected.subchains)
     for sub in expected.subchains.values():
         row = flat(rows[sub.name])
         assert f" {1000 / sub.period_ms:.2f} {sub.period_ms:.3f} " in row
         assert row.endswith(f" {sub.latency_ms:.3f} ")
         # catan-model.md section 6: shared threads rest at SCHED_FIFO 1 and run their slice at 2; dedicated at 2.
-        assert (" shared, FIFO 1->2 " if sub.shared else " dedicated, FIFO 2 ") in row
+        assert flat(places[sub.name]).endswith(" shared 1->2 " if sub.shared else " dedicated 2->2 ")
     for core in expected.shared_cores:
         assert f"core {core.core}: shared by {len(core.order)} subchain" in out
         assert f"T = {core.period_ms:.3f} ms" in out
@@ -461,16 +463,18 @@ def test_markdown_is_a_well_formed_reproducible_document(report: Report) -> None
             assert (align == "---:") == numeric, (header[index], column)
     # The subchain table holds each subchain's numbers, in its row.
     (subchains,) = [table for table in tables if table[0][:2] == ["subchain", "nodes"]]
-    rows = {row[0]: row for row in subchains[2:]}
+    (timing,) = [table for table in tables if table[0][:2] == ["subchain", "rate Hz"]]
+    places = {row[0]: row for row in subchains[2:]}
+    rows = {row[0]: row for row in timing[2:]}
     chosen = planned(report.name, report.cores).subchains
-    assert set(rows) == set(chosen)
+    assert set(places) == set(rows) == set(chosen)
     for name, sub in chosen.items():
-        row = rows[name]
-        assert unescape(row[1]) == " -> ".join(sub.nodes)
-        assert row[3] == ("shared, FIFO 1->2" if sub.shared else "dedicated, FIFO 2")
-        assert row[4:6] == [f"{1000 / sub.period_ms:.2f}", f"{sub.period_ms:.3f}"]
-        assert row[7] == ("-" if sub.every is None else str(sub.every))
-        assert row[9:] == [f"{sub.latency_ms:.3f}"]
+        place, row = places[name], rows[name]
+        assert unescape(place[1]) == " -> ".join(sub.nodes)
+        assert place[3:] == (["shared", "1->2"] if sub.shared else ["dedicated", "2->2"])
+        assert row[1:3] == [f"{1000 / sub.period_ms:.2f}", f"{sub.period_ms:.3f}"]
+        assert row[4] == ("-" if sub.every is None else str(sub.every))
+        assert row[6:] == [f"{sub.latency_ms:.3f}"]
 
 
 def test_markdown_says_what_the_terminal_says(report: Report) -> None:
