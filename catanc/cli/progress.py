@@ -44,11 +44,12 @@ def shown(quiet: bool = False) -> bool:
 class Bar:
     """How far a long loop got; a no-op when the bar is not shown."""
 
-    def __init__(self, bar: Progress | None, task: TaskID | None, description: str) -> None:
+    def __init__(self, bar: Progress | None, task: TaskID | None, description: str, *, redraw: bool = False) -> None:
         self._bar = bar
         self._task = task
         self._description = description
         self._started = False
+        self._redraw = redraw
 
     @property
     def shown(self) -> bool:
@@ -67,6 +68,8 @@ class Bar:
         if self._bar is None or self._task is None:
             return
         self._bar.update(self._task, completed=completed, description=self._label(note))
+        if self._redraw:
+            self._bar.refresh()
 
     def _label(self, note: str | None) -> str:
         return f"{self._description}: {note}" if note else self._description
@@ -77,8 +80,15 @@ class Bar:
 
 
 @contextmanager
-def progress(description: str, total: float | None, *, unit: str = "", quiet: bool = False) -> Iterator[Bar]:
-    """A bar for one long loop (``total`` steps, or None when unknown), cleared when the loop ends."""
+def progress(
+    description: str, total: float | None, *, unit: str = "", quiet: bool = False, drawing_thread: bool = True
+) -> Iterator[Bar]:
+    """A bar for one long loop (``total`` steps, or None when unknown), cleared when the loop ends.
+
+    ``drawing_thread=False``: no thread of rich's redraws the bar ten times a second; each
+    :meth:`Bar.update` draws it (for a real-time loop that must not wait on another thread for the
+    interpreter lock).
+    """
     if not shown(quiet):
         yield Bar(None, None, description)
         return
@@ -90,11 +100,12 @@ def progress(description: str, total: float | None, *, unit: str = "", quiet: bo
         TimeElapsedColumn(),
         console=Console(stderr=True),
         transient=True,
+        auto_refresh=drawing_thread,
         redirect_stdout=False,  # stdout is the command's output, byte for byte: never routed through the bar
         redirect_stderr=False,
     )
     with bar:
-        handle = Bar(bar, bar.add_task(description, total=total), description)
+        handle = Bar(bar, bar.add_task(description, total=total), description, redraw=not drawing_thread)
         yield handle
         handle._finish()
 

@@ -13,6 +13,7 @@ from catanc.cli.common import (
     stdout_console,
 )
 from catanc.errors import ExitCode
+from catanc.text import plural
 
 
 @reporting
@@ -47,7 +48,7 @@ def run_(
 ) -> None:
     """Enforce a plan on this machine: trigger subchains, run per-core slices, measure and re-solve."""
     if observe:
-        observe_(table_path, launch=launch, attach=attach or [], demo=demo, duration=duration, log=log)
+        observe_(table_path, launch=launch, attach=attach or [], demo=demo, duration=duration, log=log, quiet=quiet)
         return
     from catanc.artifacts.runtime_table import load_table
     from catanc.core.priorities import ENFORCER_FIFO
@@ -125,10 +126,18 @@ def run_(
 
 
 def observe_(
-    table_path: Path, *, launch: bool, attach: list[str], demo: bool, duration: float | None, log: Path | None
+    table_path: Path,
+    *,
+    launch: bool,
+    attach: list[str],
+    demo: bool,
+    duration: float | None,
+    log: Path | None,
+    quiet: bool,
 ) -> None:
     """``catanc run --observe``: measure the nodes' runs on their own timers; no SCHED_FIFO, no pinning, no trigger."""
     from catanc.artifacts.runtime_table import load_table
+    from catanc.cli.progress import progress
     from catanc.errors import UsageError
     from catanc.runtime.observe import Observer, launched_nodes
     from catanc.runtime.processes import Children, parse_attach, start_launch
@@ -156,10 +165,17 @@ def observe_(
         for nodes in shared:
             console.print(f"not observed: {', '.join(nodes)} share one process (attach each on its own)", markup=False)
 
-    try:
-        observer.run(duration, on_start=begin)
-    finally:
-        children.stop()
+    # Seconds of a bounded run, else just the time and the runs so far.
+    with progress("observing", duration, unit="s" if duration else "", quiet=quiet) as bar:
+
+        def tick(running: Observer) -> None:
+            elapsed = running.elapsed_s()
+            bar.update(min(elapsed, duration) if duration else elapsed, f"{sum(running.counts.values())} runs")
+
+        try:
+            observer.run(duration, on_start=begin, on_tick=tick)
+        finally:
+            children.stop()
     counts = ", ".join(f"{node} {count}" for node, count in sorted(observer.counts.items()))
     console.print(f"observed {observer.elapsed_s():.1f} s, runs per node: {counts or 'none'}", markup=False)
     console.print(f"log: {log_path}", markup=False)
@@ -185,7 +201,7 @@ def doctor(
     else:
         table = load_table(table_path)
         needs = needs_of(table)
-        title = f"catanc doctor: {table_path} ({table.app}, {table.cores} core{'s' if table.cores > 1 else ''})"
+        title = f"catanc doctor: {table_path} ({table.app}, {plural(table.cores, 'core')})"
     findings = diagnose(needs, inspect_machine(needs))
     sys.stdout.write(render(findings, title))
     if any(finding.verdict is Verdict.FAIL for finding in findings):
@@ -198,8 +214,10 @@ def calibrate(
         "machine.yaml"
     ),
     duration: Annotated[float, typer.Option(min=1.0, help="Seconds of measuring.")] = 6.0,
+    quiet: Annotated[bool, typer.Option("--quiet", help="No progress bar.")] = False,
 ) -> None:
     """Measure the enforcer's own costs on this machine (a few seconds of a synthetic app) into a machine profile."""
+    from catanc.cli.progress import progress
     from catanc.core.priorities import ENFORCER_FIFO
     from catanc.runtime.calibrate import calibrate as measure
     from catanc.runtime.sched import Restorer, check_fifo_allowed
@@ -207,7 +225,21 @@ def calibrate(
     from catanc.spec.machine import write_machine
 
     check_fifo_allowed(ENFORCER_FIFO)
-    profile = measure(duration_s=duration, restorer=Restorer(Watchdog().start()))
+    # Drawn from the enforcer's real-time loop once a second: no drawing thread competes with what is measured.
+    with progress("calibrate", duration, unit="s", quiet=quiet, drawing_thread=False) as bar:
+        phase = ""
+
+        def tell(step: str, detail: str) -> None:
+            nonlocal phase
+            phase = f"{step} {detail}"
+            bar.update(0.0, phase)
+
+        profile = measure(
+            duration_s=duration,
+            restorer=Restorer(Watchdog().start()),
+            progress=tell,
+            each_second=lambda elapsed: bar.update(min(elapsed, duration), phase),
+        )
     write_machine(out, profile)
     stdout_console().print(
         f"{out}: switch {profile.switch_ms:.4f} ms, hop {profile.hop_ms:.4f} ms (p95), "

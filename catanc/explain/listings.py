@@ -17,6 +17,7 @@ from catanc.errors import Diagnostic, format_path
 from catanc.planning.stage1 import Stage1Result
 from catanc.planning.stage1.estimate import option_table
 from catanc.spec.language import Spec
+from catanc.text import plural
 
 DEFAULT_CHAIN_LIMIT = 10_000
 
@@ -121,7 +122,7 @@ def allocation_table(problem: Problem, result: Stage1Result, cores: int) -> Tabl
     payload = allocation_payload(problem, result, cores)
     status = "optimal" if result.optimal else f"not proven optimal (gap {_gap_text(result.gap)})"
     title = (
-        f"Stage I on {cores} core{'s' if cores > 1 else ''}: objective {result.objective:.4g} ms "
+        f"Stage I on {plural(cores, 'core')}: objective {result.objective:.4g} ms "
         f"(estimate), {status}, by {result.method}"
     )
     table = Table(title=title, title_justify="left")

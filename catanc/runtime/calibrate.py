@@ -66,9 +66,17 @@ class CalibrationError(CatancError):
 
 
 def calibrate(
-    *, duration_s: float = DEFAULT_DURATION_S, restorer: Restorer, progress: Progress | None = None
+    *,
+    duration_s: float = DEFAULT_DURATION_S,
+    restorer: Restorer,
+    progress: Progress | None = None,
+    each_second: Callable[[float], None] | None = None,
 ) -> MachineProfile:
-    """Run the calibration app under the enforcer for ``duration_s``; the machine profile of what it measured."""
+    """Run the calibration app under the enforcer for ``duration_s``; the machine profile of what it measured.
+
+    ``progress`` hears each phase; ``each_second`` the seconds measured so far, once a second, from
+    the enforcer's loop (keep it short: the loop is what is being measured).
+    """
     from catanc.artifacts.compile import compile_spec  # noqa: PLC0415 - the planner is needed only here
     from catanc.artifacts.output import write  # noqa: PLC0415
     from catanc.artifacts.runtime_table import load_table  # noqa: PLC0415
@@ -93,8 +101,12 @@ def calibrate(
             start_demo(children, table.spec, socket_path)
             tell("measuring", f"{duration_s:g} s")
 
+        def tick(running: Enforcer) -> None:
+            if each_second is not None:
+                each_second(running.elapsed_s())
+
         try:
-            enforcer.run(duration_s, on_start=begin)
+            enforcer.run(duration_s, on_start=begin, on_tick=tick)
         finally:
             children.stop()
     summary = (enforcer.final or enforcer.status())["costs"]

@@ -102,8 +102,15 @@ class Observer:
     def stop(self) -> None:
         self._stop.set()
 
-    def run(self, duration_s: float | None = None, *, on_start: Callable[[Observer], None] | None = None) -> None:
-        """Observe from the main thread; ``on_start`` (start the app) runs once the log is open."""
+    def run(
+        self,
+        duration_s: float | None = None,
+        *,
+        on_start: Callable[[Observer], None] | None = None,
+        on_tick: Callable[[Observer], None] | None = None,
+    ) -> None:
+        """Observe from the main thread; ``on_start`` (start the app) runs once the log is open, ``on_tick``
+        once a second (a progress bar)."""
         previous = {signum: signal.signal(signum, self._on_signal) for signum in (signal.SIGINT, signal.SIGTERM)}
         try:
             with RunLog(self.log_path) as log:
@@ -111,7 +118,7 @@ class Observer:
                 log.write("start", 0.0, {"format": LOG_FORMAT, "observe": True, "nodes": self._pids(), "plan": {}})
                 if on_start is not None:
                     on_start(self)
-                self._loop(log, duration_s)
+                self._loop(log, duration_s, on_tick)
                 log.write("stop", self.elapsed_s(), {"summary": {"samples": dict(sorted(self.counts.items()))}})
         finally:
             for signum, handler in previous.items():
@@ -132,7 +139,7 @@ class Observer:
     def elapsed_s(self) -> float:
         return (self.clock() - self.started_ns) / 1e9
 
-    def _loop(self, log: RunLog, duration_s: float | None) -> None:
+    def _loop(self, log: RunLog, duration_s: float | None, on_tick: Callable[[Observer], None] | None) -> None:
         deadline = None if duration_s is None else self.clock() + int(duration_s * 1e9)
         next_threads = next_flush = self.clock()
         while not self._stop.is_set():
@@ -148,6 +155,8 @@ class Observer:
             if now >= next_flush:
                 next_flush = now + int(FLUSH_EVERY_S * 1e9)
                 log.flush()
+                if on_tick is not None:
+                    on_tick(self)
             self._stop.wait(self.poll_ms / 1000.0)
 
     def _refresh_threads(self, observed: ObservedNode, log: RunLog) -> None:

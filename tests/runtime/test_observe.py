@@ -113,10 +113,14 @@ def test_observe_measures_nodes_on_their_own_timers(
     log = tmp_path / "observe.jsonl"
     attach = [word for node, p in timer_nodes.items() for word in ("--attach", f"{node}={p.pid}")]
     command = [sys.executable, "-m", "catanc", "run", str(table), "--observe", *attach]
+    terminal = {**os.environ, "TTY_COMPATIBLE": "1"}  # as on a terminal: a bar of the seconds observed
     done = subprocess.run(
-        [*command, "--duration", "3", "--log", str(log)], capture_output=True, timeout=60, check=False
+        [*command, "--duration", "3", "--log", str(log)], capture_output=True, timeout=60, check=False, env=terminal
     )
     assert done.returncode == 0, done.stderr.decode(errors="replace")
+    assert "observing: " in done.stderr.decode()
+    assert " runs" in done.stderr.decode()
+    assert b"observing" not in done.stdout  # the bar stays off stdout
     after = {node: (os.sched_getscheduler(p.pid), os.sched_getaffinity(p.pid)) for node, p in timer_nodes.items()}
     assert after == before
     spec = tmp_path / "timers.yaml"

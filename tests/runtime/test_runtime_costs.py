@@ -103,8 +103,12 @@ def test_calibrate_writes_a_profile_compile_reads(tmp_path: Path) -> None:
         timeout=120,
         check=False,
         cwd=tmp_path,
+        env={**os.environ, "TTY_COMPATIBLE": "1"},  # as on a terminal: the seconds measured on stderr
     )
     assert finished.returncode == 0, finished.stderr
+    assert "calibrate: measuring 4 s" in finished.stderr
+    assert "4/4 s" in finished.stderr or "3/4 s" in finished.stderr  # drawn once a second, to the end
+    assert f"{profile}: switch" in finished.stdout
     read = read_machine(profile).profile
     assert read.switch_ms > 0
     assert read.hop_ms > 0
