@@ -14,6 +14,7 @@ from __future__ import annotations
 import os
 import signal
 import subprocess
+import sys
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -28,6 +29,7 @@ from tests.support.client_nodes import (
     build_cpp_example,
     client_run,
     finish,
+    parse_runs,
     planned_period_ms,
     python_node,
     rate_hz,
@@ -214,3 +216,43 @@ def test_an_enforcer_killed_mid_run_ends_the_loop_without_a_hang(
         assert took < 3.0, f"the loop ended {took:.1f} s after the enforcer died"
         print(f"{node_argv[0]}: the loop ended {took:.2f} s after the enforcer's SIGKILL")
         assert all(sched_of(pid, tid) is None for pid, tid in threads.values())
+
+
+# --------------------------------------------------------------------------- deployed by launch.sh
+
+
+def test_launch_sh_deploys_the_node_under_the_enforcer_at_its_planned_rate(
+    real_kernel: None, node_argv: list[str], tmp_path: Path
+) -> None:
+    """The path a user takes: the spec's deploy command, compiled, started by ``bash launch.sh`` (its
+    default: the enforcer first, then the process with CATANC_SOCKET), stopped by SIGINT."""
+    command = " ".join([*node_argv, *served(COMPUTE)])
+    deploy = f'deploy:\n  A: {{ros_node: /ab, command: "{command}"}}\n  B: {{ros_node: /ab}}\n'
+    table = compile_table(SPEC + deploy, tmp_path, 1)
+    catanc = str(Path(sys.executable).with_name("catanc"))  # this checkout's, as launch.sh's $CATANC
+    proc = subprocess.Popen(
+        ["bash", str(table.parent / "launch.sh")],
+        cwd=tmp_path,
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**without_enforcer(), "CATANC": catanc},
+        start_new_session=True,
+    )
+    try:
+        time.sleep(DURATION_S)
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=10.0)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert "launch.sh: started catanc run" in out, err
+    runs = parse_runs("\n".join(line for line in out.splitlines() if line.split(" ", 1)[0] in COMPUTE))
+    for name in COMPUTE:
+        starts = [run.start_ns for run in runs if run.node == name]
+        settled = [start for start in starts if start >= starts[0] + 500_000_000]  # after the first plan
+        measured = rate_hz(settled)
+        print(f"{node_argv[0]} {name} under launch.sh: {measured:.2f} Hz (25 Hz planned)")
+        assert measured == pytest.approx(25.0, rel=RATE_TOLERANCE), name
