@@ -566,9 +566,17 @@ def test_reconcile_hand_worked() -> None:
     assert reconcile(10.9, 10.0) == 10.9
     assert reconcile(9.1, 10.0) == 9.1
     assert reconcile(0.24, 0.2) == 0.24  # 0.04 ms apart: under the 0.05 ms floor
-    # Beyond: the kernel's (preempted wall-clock above it, missed CPU below it).
+    # Above: the kernel's (wall-clock that includes preemption, or a lie).
     assert reconcile(15.0, 12.0) == 12.0
+    assert reconcile(0.26, 0.2) == 0.2  # 0.06 ms above: over the 0.05 ms floor
+    # Below by up to the client's own work per run (0.5 ms) more: the client's.
+    assert reconcile(0.2, 0.5) == 0.2  # the kernel counted 0.3 ms of the client's own work too
+    assert reconcile(0.2, 0.75) == 0.2  # 0.55 ms below: 0.5 + the 0.05 ms floor, just
+    assert reconcile(10.0, 11.5) == 10.0  # 1.5 ms below: 0.5 + 10% of 11.5 ms = 1.65 ms allowed
+    # Further below: CPU the thread used that the client did not report, the kernel's.
+    assert reconcile(0.2, 0.8) == 0.8
     assert reconcile(5.0, 12.0) == 12.0
+    assert reconcile(0.2, 0.5, client_ms=0.0) == 0.5  # no allowance for the client's work: as before issue 32
     # Only one usable figure: that one.
     assert reconcile(3.0, None) == 3.0
     assert reconcile(3.0, math.nan) == 3.0
@@ -579,10 +587,12 @@ def test_reconcile_hand_worked() -> None:
 
 
 @untimed
-@given(samples_ms, samples_ms, st.floats(0, 1), st.floats(0, 10))
-def test_reconcile_returns_one_of_the_figures_within_tolerance(
-    reported: float, kernel: float, rel_tol: float, abs_tol: float
+@given(samples_ms, samples_ms, st.floats(0, 1), st.floats(0, 10), st.floats(0, 10))
+def test_reconcile_keeps_the_clients_figure_exactly_where_the_kernel_makes_it_plausible(
+    reported: float, kernel: float, rel_tol: float, abs_tol: float, client: float
 ) -> None:
-    chosen = reconcile(reported, kernel, rel_tol=rel_tol, abs_tol_ms=abs_tol)
-    assert chosen in (reported, kernel)
-    assert abs(chosen - kernel) <= max(abs_tol, rel_tol * kernel)
+    chosen = reconcile(reported, kernel, rel_tol=rel_tol, abs_tol_ms=abs_tol, client_ms=client)
+    tol = max(abs_tol, rel_tol * kernel)
+    plausible = kernel - client - tol <= reported <= kernel + tol
+    assert chosen == (reported if plausible else kernel)
+    assert kernel - client - tol <= chosen <= kernel + tol  # never more than the kernel counted, nor far below it

@@ -174,6 +174,33 @@ def test_the_heads_kernel_check_spans_no_later_run_of_it(two_nodes: TwoNodes, ag
     assert computes == ([2.0] if again else [5.0])
 
 
+@pytest.mark.parametrize(
+    ("kernel_ms", "recorded"),
+    [
+        (0.5, 0.2),  # 0.3 ms more: the client's own work around its callback, which the kernel counts too
+        (0.1, 0.1),  # 0.1 ms less than claimed: the thread cannot have used more than the kernel counted
+        (1.0, 1.0),  # 0.8 ms more: more than the client's work explains, CPU it did not report
+    ],
+)
+def test_a_checked_head_run_keeps_the_clients_figure_where_the_kernel_makes_it_plausible(
+    two_nodes: TwoNodes, kernel_ms: float, recorded: float
+) -> None:
+    book, run, (a, _b), readers = two_nodes
+    head = readers[0][1]
+    kernel: dict[int, int] = book.kernel_counts  # type: ignore[attr-defined]
+    for _ in range(KERNEL_CHECK_EVERY - 1):  # up to the run the kernel checks
+        book.trigger(run, 0.0, head)
+        book.state("s").in_flight.clear()
+    kernel[100] = 7 * MS
+    checked = book.trigger(run, 100.0, head)
+    assert checked is not None
+    a.append(checked.seq, 100 * MS, int(100.2 * MS), int(0.2 * MS))  # the client: 0.2 ms
+    kernel[100] = 7 * MS + int(kernel_ms * MS)
+    computes = read(book, run, readers, 101.0).computes
+    assert len(computes) == 1
+    assert (computes[0].ms, computes[0].reported_ms, computes[0].kernel_ms) == pytest.approx((recorded, 0.2, kernel_ms))
+
+
 def test_a_trigger_while_the_head_runs_is_sent_and_starts_when_the_head_is_done(two_nodes: TwoNodes) -> None:
     book, run, (a, _b), readers = two_nodes
     first = book.trigger(run, 0.0, None)
