@@ -31,6 +31,12 @@ What is proposed, per scheduled node (``q`` = :attr:`~catanc.spec.language.Runti
   uses it.  Measured only for thread counts with :data:`MIN_SAMPLES` runs, and only with as
   many one-thread runs; the others keep the spec's value.
 
+What the kernel said is reported beside each node (:class:`KernelCheck`): the enforcer also
+measures every 8th run of a head by its thread's CPU count (:mod:`catanc.runtime.runs`), which
+holds the client's own work around the callback, and keeps the node's figure where the count
+makes it plausible (:func:`~catanc.runtime.measure.reconcile`); the summary says by how much the
+count exceeded the node's figure and on how many runs it replaced it.
+
 Numbers are rounded to what is written (compute times to 4 significant digits, shares and
 speedups to 2 decimals), so a spec written from a proposal checks clean against it.
 
@@ -47,7 +53,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from catanc.errors import CatancError, ExitCode, FieldPath
-from catanc.runtime.log import LOG_FORMAT, expand
+from catanc.runtime.log import BATCHED, LOG_FORMAT, expand
 from catanc.runtime.measure import MIN_PLANNING_MS, percentile, split_modes, valid_sample
 from catanc.spec.language import ModalCompute, Spec
 from catanc.spec.profile_edit import Edit
@@ -73,6 +79,8 @@ DEFAULT_TOLERANCE = 0.15
 """``--check``: a planning figure more than 15% off the measured one fails."""
 
 SIGNIFICANT_DIGITS = 4
+LOGGED_DECIMALS = dict(BATCHED["compute"][1])["ms"] or 0
+"""The decimals the log keeps of a sample's ``ms`` (the node's own figure is written in full)."""
 SHARE_DECIMALS = 2
 SPEEDUP_DECIMALS = 2
 
@@ -93,6 +101,7 @@ class Sample:
     ms: float  # one-thread compute time, what the runtime planned with
     threads: int  # threads the run used (1 where the log does not say)
     wall_ms: float | None  # the run's own figure (its wall time on several threads); None if unknown
+    kernel_ms: float | None = None  # the kernel's count for the head's thread, on the runs it checked
 
 
 @dataclass(frozen=True)
@@ -137,7 +146,7 @@ def read_measurements(text: str, file: str) -> Measurements:
         for single in expand(event):
             if not isinstance(single, dict) or single.get("event") != "compute":
                 continue
-            node, ms, wall = single.get("node"), single.get("ms"), single.get("reported_ms")
+            node, ms = single.get("node"), single.get("ms")
             if not isinstance(node, str) or not isinstance(ms, int | float) or not valid_sample(ms):
                 continue
             threads = single.get("threads")
@@ -145,7 +154,8 @@ def read_measurements(text: str, file: str) -> Measurements:
                 Sample(
                     float(ms),
                     threads if isinstance(threads, int) and not isinstance(threads, bool) and threads >= 1 else 1,
-                    float(wall) if isinstance(wall, int | float) and valid_sample(wall) else None,
+                    _number(single.get("reported_ms")),
+                    _number(single.get("kernel_ms")),
                 )
             )
             first_line.setdefault(node, number)
@@ -155,6 +165,10 @@ def read_measurements(text: str, file: str) -> Measurements:
             f"(the run was killed {length:.1f} s in?); profile a run that ended (--duration, Ctrl-C or SIGTERM)"
         )
     return Measurements(file, {k: tuple(v) for k, v in samples.items()}, first_line, length, observed)
+
+
+def _number(value: object) -> float | None:
+    return float(value) if isinstance(value, int | float) and valid_sample(value) else None
 
 
 def _check_start(event: dict[str, Any], file: str, number: int) -> None:
@@ -246,6 +260,15 @@ class Mode:
 
 
 @dataclass(frozen=True)
+class KernelCheck:
+    """What the kernel's count said of a node's one-thread runs it checked (a head's every 8th run)."""
+
+    runs: int  # runs checked
+    replaced: int  # runs where the kernel's count stood in for the node's figure (implausible)
+    extra_ms: float  # the median of the kernel's count less the node's figure: the client's own work per run
+
+
+@dataclass(frozen=True)
 class Proposal:
     """What the measurements say one node's profile is."""
 
@@ -256,6 +279,7 @@ class Proposal:
     speedups: tuple[float | None, ...] = ()  # per thread count 1..threads.max: measured, or None; () for one thread
     threads: Mapping[int, int] = field(default_factory=dict)  # thread count -> runs
     notes: tuple[str, ...] = ()
+    kernel: KernelCheck | None = None  # None: the kernel checked none of its runs
 
     @property
     def planning_ms(self) -> float:
@@ -318,7 +342,24 @@ def _propose_node(
             notes.append("speedups not measured: they need one-thread runs too")
         elif all(k == 1 for k in threads):
             notes.append("every run used one thread: speedups not measured (the spec's are kept)")
-    return Proposal(name, len(base), ms, modes, speedups, dict(sorted(threads.items())), tuple(notes))
+    kernel = _kernel_check(samples)
+    if kernel is not None and kernel.replaced:
+        notes.append(
+            f"the kernel's count stood in for the node's own figure on {kernel.replaced} of {kernel.runs} checked runs "
+            "(more CPU than it reported, beyond the client's own work, or less than it claimed)"
+        )
+    return Proposal(name, len(base), ms, modes, speedups, dict(sorted(threads.items())), tuple(notes), kernel)
+
+
+def _kernel_check(samples: Sequence[Sample]) -> KernelCheck | None:
+    """The node's one-thread runs the kernel checked: how many, on how many its count replaced the node's figure,
+    and by how much the count exceeded the node's figure (the median)."""
+    checked = [(s.ms, s.wall_ms, s.kernel_ms) for s in samples if s.threads == 1 and s.kernel_ms is not None]
+    pairs = [(ms, own, kernel) for ms, own, kernel in checked if own is not None]
+    if not pairs:
+        return None
+    replaced = sum(1 for ms, own, _ in pairs if ms != round(own, LOGGED_DECIMALS))
+    return KernelCheck(len(pairs), replaced, percentile([kernel - own for _, own, kernel in pairs], 50.0))
 
 
 def _modes(samples: Sequence[float], q: float) -> tuple[Mode, ...]:
@@ -537,7 +578,16 @@ def summary_lines(spec: Spec, proposals: Mapping[str, Proposal], measured: Measu
         speedup = f"; speedup [{', '.join(speedups)}]" if proposal.speedups else ""
         lines.append(
             f"  {name}: {proposal.count} samples ({threads}); spec {written:.4g} ms, measured "
-            f"{proposal.planning_ms:.4g} ms ({off:+.1%}){modes}{speedup}"
+            f"{proposal.planning_ms:.4g} ms ({off:+.1%}){modes}{speedup}{_kernel_text(proposal.kernel)}"
         )
         lines += [f"    {name}: {note}" for note in proposal.notes]
     return tuple(lines)
+
+
+def _kernel_text(kernel: KernelCheck | None) -> str:
+    if kernel is None:
+        return ""
+    return (
+        f"; {kernel.runs} runs checked by the kernel: {kernel.extra_ms:+.3f} ms a run over the node's own figure "
+        "(median: the client's own work around its callback)"
+    )

@@ -158,6 +158,29 @@ def test_a_written_time_has_four_significant_digits_and_reads_back(ms: float) ->
     assert float(text) == pytest.approx(ms, rel=5e-4)
 
 
+def test_what_the_kernel_counted_is_reported_beside_the_proposal() -> None:
+    # cam: 20 runs the client timed at 5 ms; the kernel checked 5 of them, counting 0.3 ms more
+    # on four (the client's own work: its figure kept) and 4 ms more on one (its count stood in).
+    own = [5.0] * 20
+    kernel: list[float | None] = [None] * 20
+    kernel[0:5] = [5.3, 5.3, 9.0, 5.3, 5.3]
+    ms = [k if k == 9.0 else o for o, k in zip(own, kernel, strict=True)]
+    batches = every_node()
+    batches[0] = ("cam", ms, None, own)
+    spec = parse_spec(SPEC, "demo.yaml")
+    measured = read_measurements(log_text(*batches, kernels={"cam": kernel}), "run.jsonl")
+    proposals = propose(spec, measured)
+    kernel_check = proposals["cam"].kernel
+    assert kernel_check is not None
+    assert (kernel_check.runs, kernel_check.replaced) == (5, 1)
+    assert kernel_check.extra_ms == pytest.approx(0.3)
+    assert proposals["det"].kernel is None  # nothing checked
+    result = profile_spec(SPEC, "demo.yaml", log_text(*batches, kernels={"cam": kernel}), "run.jsonl", tolerance=1.0)
+    cam = [line for line in result.summary if line.lstrip().startswith("cam:")]
+    assert "5 runs checked by the kernel: +0.300 ms a run over the node's own figure" in cam[0]
+    assert "the kernel's count stood in for the node's own figure on 1 of 5 checked runs" in cam[1]
+
+
 # --------------------------------------------------------------------------- bad logs
 
 

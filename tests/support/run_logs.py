@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 from catanc.runtime.log import LOG_FORMAT
 
@@ -25,8 +25,13 @@ objective:
 Batch = tuple[str, Sequence[float], Sequence[int] | None, Sequence[float | None] | None]
 
 
-def log_text(*batches: Batch, stop: bool = True, fmt: object = LOG_FORMAT) -> str:
-    """A log as the enforcer writes it: a start, one compute batch per (node, ms, threads, own figures), a stop."""
+def log_text(
+    *batches: Batch, stop: bool = True, fmt: object = LOG_FORMAT, kernels: Mapping[str, Sequence[float | None]] = {}
+) -> str:
+    """A log as the enforcer writes it: a start, one compute batch per (node, ms, threads, own figures), a stop.
+
+    ``kernels``: per node, the kernel's counts of its batch's runs (None where unchecked; default all None).
+    """
     start = {"t": 0.0, "event": "start", "cores": 1, "plan": {}}
     if fmt is not None:
         start["format"] = fmt
@@ -40,7 +45,7 @@ def log_text(*batches: Batch, stop: bool = True, fmt: object = LOG_FORMAT) -> st
                 "at": [float(t)] * len(ms),
                 "ms": list(ms),
                 "reported_ms": list(walls) if walls is not None else list(ms),
-                "kernel_ms": [None] * len(ms),
+                "kernel_ms": list(kernels.get(node, [None] * len(ms))),
                 "threads": list(threads) if threads is not None else [1] * len(ms),
             }
         )
