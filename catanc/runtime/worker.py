@@ -404,9 +404,10 @@ class Turns:
                 self._changed.notify_all()
 
 
-def burn(compute_ms: float) -> None:
-    """Busy-loop until this thread has used ``compute_ms`` of CPU time."""
-    end = time.thread_time() + compute_ms / 1000.0
+def burn(compute_ms: float, since_s: float | None = None) -> None:
+    """Busy-loop until this thread has used ``compute_ms`` of CPU time (since ``since_s`` on its
+    ``time.thread_time()`` clock, default now)."""
+    end = (time.thread_time() if since_s is None else since_s) + compute_ms / 1000.0
     while time.thread_time() < end:
         pass
 
@@ -415,29 +416,30 @@ HASHED_BLOCK = bytes(16 * 1024)
 """What a parallel burn hashes at a time: hashlib lets go of the interpreter lock for blocks this big."""
 
 
-def burn_released(compute_ms: float) -> None:
+def burn_released(compute_ms: float, since_s: float | None = None) -> None:
     """:func:`burn`, but in C code that releases the interpreter lock, so threads really burn in parallel."""
-    end = time.thread_time() + compute_ms / 1000.0
+    end = (time.thread_time() if since_s is None else since_s) + compute_ms / 1000.0
     while time.thread_time() < end:
         hashlib.sha256(HASHED_BLOCK)
 
 
-def burn_parallel(compute_ms: float, threads: int, speedups: Sequence[float]) -> int:
+def burn_parallel(compute_ms: float, threads: int, speedups: Sequence[float], since_s: float | None = None) -> int:
     """One run of a node whose single-thread compute is ``compute_ms``, on ``threads`` threads; the threads used.
 
     As the planner models it (``c^q = c / speedup(q)``), each of the ``q`` threads the speedup
     table makes worth using burns ``c / speedup(q)`` of CPU time, so the run takes that long.
-    The calling thread is one of them: it is the one the enforcer pins and measures.
+    The calling thread is one of them: it is the one the enforcer pins and measures, and it counts
+    its CPU time from ``since_s`` (:func:`burn`).
     """
     q, speedup = threads_and_speedup(speedups, threads)
     each_ms = compute_ms / speedup
     if q == 1:
-        burn(each_ms)
+        burn(each_ms, since_s)
         return 1
     helpers = [threading.Thread(target=burn_released, args=(each_ms,), daemon=True) for _ in range(q - 1)]
     for helper in helpers:
         helper.start()
-    burn_released(each_ms)
+    burn_released(each_ms, since_s)
     for helper in helpers:
         helper.join()
     return q
@@ -594,13 +596,17 @@ def _run(
     registered_at: float,
     records: list[RunRecord] | None,
 ) -> None:
-    """One run: burn the drawn compute time on the threads the trigger gives, record it, report done."""
+    """One run: burn the drawn compute time on the threads the trigger gives, record it, report done.
+
+    The run's own bookkeeping (the draw, the thread count) comes out of its compute time: the
+    node's thread uses what the profile says from here to ``done``, as a real node would.
+    """
     started_ns = time.monotonic_ns()
     cpu_before = time.thread_time_ns()
     compute_ms = draw((started_ns - clock_start_ns) / 1e9)
     if scale_after is not None and time.monotonic() - registered_at >= scale_after[0]:
         compute_ms *= scale_after[1]
-    threads = burn_parallel(compute_ms, trigger.threads, speedups)
+    threads = burn_parallel(compute_ms, trigger.threads, speedups, since_s=cpu_before / 1e9)
     ended_ns = time.monotonic_ns()
     if records is not None:  # each helper thread burned as long as this one
         cpu_ns = (time.thread_time_ns() - cpu_before) * threads

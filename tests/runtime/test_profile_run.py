@@ -2,10 +2,10 @@
 
 On the real kernel: each example spec is compiled, run with ``--demo`` (a synthetic worker per
 node burning exactly the spec's compute profile), profiled, written, and checked again.  The
-oracle is the spec itself: the workers burn its compute times.  The runtime's figure adds the
-node's own per-run cost (the Python client's wake-up and report: ~0.1-0.2 ms a run where the
-kernel measures a head's run, benchmarks/RESULTS.md), so a node is within 15% of its spec or
-within :data:`CLIENT_COST_MS` of it.
+oracle is the spec itself: the workers burn its compute times.  The runtime's figure is the node's own
+(its thread's CPU from the trigger to ``done``), where the kernel's count of a head's run, which
+also holds the Python client's work around it (~0.1-0.45 ms a run here, benchmarks/RESULTS.md),
+makes it plausible; so a node is within 15% of its spec, or within :data:`IN_RUN_MS` of it.
 """
 
 from __future__ import annotations
@@ -30,8 +30,9 @@ from tests.support.enforcer_runs import ENFORCER_MAIN, compile_table
 REALTIME_PRIORITY = WATCHDOG_PRIORITY  # conftest's real_kernel: the enforcer's watchdog runs at it
 ROOT = Path(__file__).parents[2]
 TARGET = 0.15
-CLIENT_COST_MS = 0.5
-"""What a small head may measure above its spec: the client's own work per run, which the kernel counts."""
+IN_RUN_MS = 0.05
+"""What a small node may measure above its spec: the client's and the worker's own work between the trigger and
+``done`` (0.01-0.03 ms at the p95 on the 2-core VM: a 0.2 ms node's +15% is 0.03 ms)."""
 SHARE_SLACK = 0.1
 """A mode's share in a run of a few hundred draws is within 0.1 of the spec's (5 standard deviations)."""
 FLOOR = 0.97
@@ -54,7 +55,7 @@ def demo_log(spec: Path, folder: Path, duration_s: float) -> Path:
 
 @pytest.mark.slow
 @pytest.mark.usefixtures("real_kernel")
-@pytest.mark.parametrize(("name", "duration_s"), [("face_tracking", 6.0), ("nav2d", 14.0)])
+@pytest.mark.parametrize(("name", "duration_s"), [("face_tracking", 6.0), ("nav2d", 14.0), ("vr_illixr", 8.0)])
 def test_profile_finds_what_the_workers_burn(tmp_path: Path, name: str, duration_s: float) -> None:
     source = ROOT / "specs" / f"{name}.yaml"
     log = demo_log(source, tmp_path / "run", duration_s)
@@ -73,7 +74,7 @@ def test_profile_finds_what_the_workers_burn(tmp_path: Path, name: str, duration
             burnt, found = [(1.0, float(compute or 0.0))], [(1.0, proposal.ms)]
         for (_, ms), (_, planned) in zip(found, burnt, strict=True):
             assert ms >= FLOOR * planned, (node, result.summary)
-            assert ms - planned <= max(TARGET * planned, CLIENT_COST_MS), (node, result.summary)
+            assert ms - planned <= max(TARGET * planned, IN_RUN_MS), (node, result.summary)
     write = runner.invoke(app, ["profile", str(log), "--spec", str(spec), "--write"])
     assert write.exit_code == ExitCode.OK, write.output
     assert spec.read_text() == result.text
