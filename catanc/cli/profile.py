@@ -24,6 +24,7 @@ def profile(
 ) -> None:
     """Propose each node's compute_ms (the p95 the runtime plans with, modes, speedups) from a run's log."""
     from catanc.errors import UsageError
+    from catanc.runtime.log import read_log_text
     from catanc.runtime.profile import profile_spec
     from catanc.spec.parse import read_spec_text
 
@@ -41,22 +42,6 @@ def profile(
         for line in result.off:
             console.print(line, markup=False)
         raise typer.Exit(int(ExitCode.DRIFT))
-
-
-def read_log_text(log: Path) -> str:
-    """The log's text; :class:`~catanc.errors.UsageError` naming the file if it cannot be read."""
-    from catanc.errors import UsageError
-
-    try:
-        return log.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise UsageError(f"{log}: no such log file") from None
-    except IsADirectoryError:
-        raise UsageError(f"{log}: is a folder, not a log file") from None
-    except UnicodeDecodeError:
-        raise UsageError(f"{log}: cannot read the log: not UTF-8 text") from None
-    except OSError as exc:
-        raise UsageError(f"{log}: cannot read the log: {exc.strerror or exc}") from None
 
 
 def write_atomically(path: Path, text: str) -> None:

@@ -33,7 +33,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import IO, Any
 
-from catanc.errors import CatancError, ExitCode
+from catanc.errors import CatancError, ExitCode, UsageError
 
 LOG_FORMAT = 1
 """The log's format version, in its ``start`` event (logs without one are older)."""
@@ -194,8 +194,27 @@ def _batch_lines(samples: deque[tuple[str, float, str, tuple[Any, ...]]]) -> lis
 
 def read_log(path: str | Path) -> list[dict[str, Any]]:
     """Every event of a log, in order, batches expanded (a torn last line from a killed run is skipped)."""
+    return log_events(Path(path).read_text(encoding="utf-8"))
+
+
+def read_log_text(path: Path) -> str:
+    """The text of the log at ``path``; :class:`~catanc.errors.UsageError` naming it if it cannot be read."""
+    try:
+        return path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise UsageError(f"{path}: no such log file") from None
+    except IsADirectoryError:
+        raise UsageError(f"{path}: is a folder, not a log file") from None
+    except UnicodeDecodeError:
+        raise UsageError(f"{path}: cannot read the log: not UTF-8 text") from None
+    except OSError as exc:
+        raise UsageError(f"{path}: cannot read the log: {exc.strerror or exc}") from None
+
+
+def log_events(text: str) -> list[dict[str, Any]]:
+    """Every event of a log's text, in order, batches expanded (a torn last line from a killed run is skipped)."""
     events: list[dict[str, Any]] = []
-    for line in Path(path).read_text(encoding="utf-8").splitlines():
+    for line in text.splitlines():
         try:
             event = json.loads(line)
         except json.JSONDecodeError:

@@ -19,7 +19,7 @@ from rich.console import Console
 from rich.table import Table
 
 from catanc.errors import UsageError
-from catanc.runtime.log import read_log
+from catanc.runtime.log import log_events, read_log_text
 from catanc.runtime.log_summary import CostsSummary, Quantiles, RunSummary, Stats, summarise, usable
 from catanc.runtime.log_timeline import plot_timeline
 
@@ -224,17 +224,7 @@ def _costs_table(costs: CostsSummary) -> Table:
 
 def load_events(log: Path) -> list[dict[str, Any]]:
     """The log's usable events; :class:`UsageError` naming the file if it is missing, unreadable or empty."""
-    try:
-        events = read_log(log)
-    except FileNotFoundError:
-        raise UsageError(f"{log}: no such log file") from None
-    except IsADirectoryError:
-        raise UsageError(f"{log}: is a folder, not a log file") from None
-    except UnicodeDecodeError:
-        raise UsageError(f"{log}: cannot read the log: not UTF-8 text") from None
-    except OSError as exc:
-        raise UsageError(f"{log}: cannot read the log: {exc.strerror or exc}") from None
-    good = [event for event in events if usable(event)]
+    good = [event for event in log_events(read_log_text(log)) if usable(event)]
     if not good:
         raise UsageError(f"{log}: no events (an empty log, or not a catanc run log)")
     return good
