@@ -289,19 +289,59 @@ def create_file(path: Path, text: str) -> None:
     parent = path.parent
     if not parent.is_dir():
         raise OutputError(f"{parent}: no such folder")
-    fd, staging = tempfile.mkstemp(dir=parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        staging = _staged(parent, path.name, text, 0o666 & ~_umask())
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot write: {exc.strerror or exc}") from None
+    try:
+        os.link(staging, path)
+    except FileExistsError:
+        raise UsageError(f"{path}: already exists; catanc does not overwrite it") from None
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot write: {exc.strerror or exc}") from None
+    finally:
+        staging.unlink(missing_ok=True)
+    _sync(parent)
+
+
+def replace_file(path: Path, text: str) -> None:
+    """Replace ``path``'s text atomically (or create it): the old file or all of ``text``, never a mix.
+
+    The text goes to a temporary file beside it, flushed to disk, with the old file's mode (a new
+    file's from the umask), then replaces it in one rename.  A symbolic link to the file: its
+    target is replaced and the link stays.  :class:`~catanc.errors.OutputError` naming ``path``
+    if it cannot be written; no temporary file is left behind.
+    """
+    target = path.resolve()
+    try:
+        mode = target.stat().st_mode & 0o7777
+    except FileNotFoundError:
+        mode = 0o666 & ~_umask()
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot write: {exc.strerror or exc}") from None
+    try:
+        staging = _staged(target.parent, target.name, text, mode)
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot write: {exc.strerror or exc}") from None
+    try:
+        staging.replace(target)
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot write: {exc.strerror or exc}") from None
+    finally:
+        staging.unlink(missing_ok=True)
+    _sync(target.parent)
+
+
+def _staged(parent: Path, name: str, text: str, mode: int) -> Path:
+    """``text`` in a new temporary file in ``parent`` (named after ``name``), flushed to disk, with ``mode``."""
+    fd, staging = tempfile.mkstemp(dir=parent, prefix=f".{name}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as handle:
             handle.write(text.encode("utf-8"))
             handle.flush()
             os.fsync(handle.fileno())
-        Path(staging).chmod(0o666 & ~_umask())  # mkstemp made it private
-        try:
-            os.link(staging, path)
-        except FileExistsError:
-            raise UsageError(f"{path}: already exists; catanc does not overwrite it") from None
-    except OSError as exc:
-        raise OutputError(f"{path}: cannot write: {exc.strerror or exc}") from None
-    finally:
+        Path(staging).chmod(mode)  # mkstemp made it private
+    except BaseException:
         Path(staging).unlink(missing_ok=True)
-    _sync(parent)
+        raise
+    return Path(staging)

@@ -23,6 +23,7 @@ def profile(
     tolerance: Annotated[float, typer.Option(min=0.0, help="--check's relative tolerance (0.15: 15%).")] = 0.15,
 ) -> None:
     """Propose each node's compute_ms (the p95 the runtime plans with, modes, speedups) from a run's log."""
+    from catanc.artifacts.output import replace_file
     from catanc.errors import UsageError
     from catanc.runtime.log import read_log_text
     from catanc.runtime.profile import profile_spec
@@ -33,7 +34,7 @@ def profile(
     spec_text, _ = read_spec_text(spec_path)
     result = profile_spec(spec_text, str(spec_path), read_log_text(log), str(log), tolerance=tolerance)
     if write and result.text != spec_text:
-        write_atomically(spec_path, result.text)
+        replace_file(spec_path, result.text)
     console = stderr_console()
     for line in result.summary:
         console.print(line, markup=False)
@@ -42,31 +43,3 @@ def profile(
         for line in result.off:
             console.print(line, markup=False)
         raise typer.Exit(int(ExitCode.DRIFT))
-
-
-def write_atomically(path: Path, text: str) -> None:
-    """Replace ``path``'s text in one rename (a temporary file beside it, its mode kept): never half-written."""
-    import os
-    import tempfile
-
-    from catanc.errors import OutputError
-
-    target = path.resolve()  # a link to the spec: its target is edited, the link stays
-    try:
-        mode = target.stat().st_mode & 0o7777
-        handle, temporary = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
-    except OSError as exc:
-        raise OutputError(f"{path}: cannot write the spec: {exc.strerror or exc}") from None
-    try:
-        with os.fdopen(handle, "w", encoding="utf-8", newline="") as stream:
-            stream.write(text)
-            stream.flush()
-            os.fsync(stream.fileno())
-        Path(temporary).chmod(mode)
-        Path(temporary).replace(target)
-    except OSError as exc:
-        Path(temporary).unlink(missing_ok=True)
-        raise OutputError(f"{path}: cannot write the spec: {exc.strerror or exc}") from None
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise

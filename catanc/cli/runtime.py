@@ -217,12 +217,13 @@ def calibrate(
     quiet: Annotated[bool, typer.Option("--quiet", help="No progress bar.")] = False,
 ) -> None:
     """Measure the enforcer's own costs on this machine (a few seconds of a synthetic app) into a machine profile."""
+    from catanc.artifacts.output import replace_file
     from catanc.cli.progress import progress
     from catanc.core.priorities import ENFORCER_FIFO
     from catanc.runtime.calibrate import calibrate as measure
     from catanc.runtime.sched import Restorer, check_fifo_allowed
     from catanc.runtime.watchdog import Watchdog
-    from catanc.spec.machine import write_machine
+    from catanc.spec.machine import profile_text
 
     check_fifo_allowed(ENFORCER_FIFO)
     # Drawn from the enforcer's real-time loop once a second: no drawing thread competes with what is measured.
@@ -240,7 +241,7 @@ def calibrate(
             progress=tell,
             each_second=lambda elapsed: bar.update(min(elapsed, duration), phase),
         )
-    write_machine(out, profile)
+    replace_file(out, profile_text(profile))
     stdout_console().print(
         f"{out}: switch {profile.switch_ms:.4f} ms, hop {profile.hop_ms:.4f} ms (p95), "
         f"overhead {max(profile.overhead):.2%} of a core, RT limit {profile.rt.share:.0%}",

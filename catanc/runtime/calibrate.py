@@ -13,9 +13,10 @@ workers, SCHED_FIFO, its watchdog), from the app's plan, and reports what it mea
 - ``overhead``: its CPU share of each core (its loop runs on one of them; the others' is 0);
 - the kernel's real-time limit (``/proc/sys/kernel/sched_rt_{runtime,period}_us``).
 
-The result is a :class:`~catanc.spec.machine.MachineProfile` (the CLI writes it with
-:func:`~catanc.spec.machine.write_machine`).  :func:`calibrate` reports its phases to a callback
-(``planning``, ``starting``, ``measuring``, ``done``) so a front end can show progress.
+The result is a :class:`~catanc.spec.machine.MachineProfile` (the CLI writes its
+:func:`~catanc.spec.machine.profile_text` with :func:`~catanc.artifacts.output.replace_file`).
+:func:`calibrate` reports its phases to a callback (``planning``, ``starting``, ``measuring``,
+``done``) so a front end can show progress.
 """
 
 from __future__ import annotations

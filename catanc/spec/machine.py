@@ -29,8 +29,6 @@ What the plan uses (never below the spec's values):
 from __future__ import annotations
 
 import hashlib
-import os
-import tempfile
 from collections.abc import Hashable
 from dataclasses import dataclass
 from pathlib import Path
@@ -214,19 +212,6 @@ def profile_text(profile: MachineProfile) -> str:
     """The profile as YAML, fields in the documented order (same profile, same bytes)."""
     data = profile.model_dump(mode="json")
     return f"# catanc machine profile ({MACHINE_FORMAT})\n" + yaml.safe_dump(data, sort_keys=False)
-
-
-def write_machine(path: str | Path, profile: MachineProfile) -> None:
-    """Write ``profile`` to ``path`` atomically: a temporary file beside it, then one rename."""
-    target = Path(path)
-    handle, temporary = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
-    try:
-        with os.fdopen(handle, "w", encoding="utf-8", newline="\n") as stream:
-            stream.write(profile_text(profile))
-        Path(temporary).replace(target)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise
 
 
 def _validate(data: Any, source: SourceMap) -> MachineProfile:

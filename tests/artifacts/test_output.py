@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import py_compile
 import stat
 from pathlib import Path
@@ -9,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from catanc.artifacts import output
-from catanc.artifacts.output import Status, compare, ensure_comparable, write
+from catanc.artifacts.output import Status, compare, ensure_comparable, replace_file, write
 from catanc.errors import ExitCode, NotCompiledError, OutputBlockedError, OutputError
 
 FILES = {
@@ -222,3 +223,42 @@ def test_only_a_folder_named_pycache_is_ignored(tmp_path: Path, name: str, make:
     with pytest.raises(OutputBlockedError, match=name):
         write(folder, {**FILES, "PLAN.md": "# other\n"})
     assert (folder / name).exists()
+
+
+# --------------------------------------------------------------------------- one file replaced
+
+
+def test_replace_file_keeps_the_mode_and_writes_through_a_link(tmp_path: Path) -> None:
+    target = tmp_path / "spec.yaml"
+    target.write_text("old\n")
+    target.chmod(0o640)
+    link = tmp_path / "link.yaml"
+    link.symlink_to(target)
+    replace_file(link, "new: é\n")
+    assert link.is_symlink()  # the link stays, its target is replaced
+    assert target.read_bytes() == "new: é\n".encode()
+    assert stat.S_IMODE(target.stat().st_mode) == 0o640
+    replace_file(tmp_path / "fresh.yaml", "x\n")  # a new file: created
+    assert (tmp_path / "fresh.yaml").read_text() == "x\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["fresh.yaml", "link.yaml", "spec.yaml"]  # no temporary
+
+
+def test_a_failed_replace_leaves_the_old_file_and_no_temporary(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    target = tmp_path / "machine.yaml"
+    target.write_text("old\n")
+
+    def full(_fd: int) -> None:
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(os, "fsync", full)
+    with pytest.raises(OutputError) as caught:
+        replace_file(target, "new\n")
+    assert str(caught.value) == f"{target}: cannot write: No space left on device"
+    assert caught.value.exit_code == ExitCode.OUTPUT
+    assert target.read_text() == "old\n"
+    assert [p.name for p in tmp_path.iterdir()] == ["machine.yaml"]
+
+
+def test_replace_file_in_an_unwritable_place_is_an_output_error() -> None:
+    with pytest.raises(OutputError, match="cannot write"):
+        replace_file(Path("/sys/catanc-test.yaml"), "x\n")  # sysfs refuses new files, even to root
