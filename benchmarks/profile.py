@@ -8,9 +8,10 @@ Per spec: ``catanc compile`` into a temporary folder, ``catanc run --demo`` for 
 (root: SCHED_FIFO), ``catanc profile`` of its log.  Prints, per node, the spec's planning
 figure, the proposed one and how far off (the workers burn exactly the spec's profile), then
 whether ``--write`` followed by ``--check --tolerance 0`` round-trips, and the load average.
-Beside the proposal, the p95 of the clients' own figures: the runtime's samples replace every
-8th run of a head by the kernel's count (``catanc.runtime.runs``), which adds the client's own
-per-run work; the difference shows it.
+Beside the proposal, the p95 of the clients' own figures, and for heads what the kernel said of
+every 8th run (``catanc.runtime.runs``): by how much its count exceeded the client's figure (the
+median: the client's own work around its callback) and on how many checked runs it stood in for
+the client's figure (:func:`catanc.runtime.measure.reconcile`).
 """
 
 from __future__ import annotations
@@ -52,9 +53,11 @@ def profile_one(spec_path: Path, duration_s: float, cores: int, folder: Path) ->
         planned = spec.nodes[name].mean_compute_ms
         off = (proposal.planning_ms - planned) / planned
         modes = ", ".join(f"{m.share:g} x {m.ms:g}" for m in proposal.modes)
+        kernel = proposal.kernel
+        checked = f"  kernel {kernel.extra_ms:+.3f} ms/run, {kernel.replaced}/{kernel.runs} replaced" if kernel else ""
         lines.append(
             f"  {name:8} {proposal.count:6d} samples  spec {planned:8.4g} ms  proposed {proposal.planning_ms:8.4g} ms"
-            f"  {off:+6.1%}  (p95 of the clients' own figures {percentile(own[name], 95):.4g} ms)"
+            f"  {off:+6.1%}  (p95 of the clients' own figures {percentile(own[name], 95):.4g} ms){checked}"
             + (f"  modes {modes}" if modes else "")
         )
     copy.write_text(result.text)
