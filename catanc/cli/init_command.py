@@ -8,9 +8,11 @@ from typing import Annotated
 
 import typer
 
+from catanc.cli.common import reporting
 from catanc.spec.starter import DEFAULT_APP
 
 
+@reporting
 def init(
     app_name: Annotated[str, typer.Option("--app", metavar="NAME", help="The app's name.")] = DEFAULT_APP,
     out: Annotated[

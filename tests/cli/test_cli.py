@@ -13,6 +13,7 @@ import pytest
 from typer.testing import CliRunner
 
 from catanc.cli import app
+from catanc.cli.main import COMMANDS
 from catanc.errors import ExitCode
 
 ROOT = Path(__file__).parents[2]
@@ -118,6 +119,22 @@ def test_bugs_get_their_own_exit_code(good: Path, monkeypatch: pytest.MonkeyPatc
     assert "Traceback" not in result.output
 
 
+def test_help_lists_every_command_in_order() -> None:
+    # The commands are built when looked up; --help looks up each, in COMMANDS' order.
+    result = runner.invoke(app, ["--help"], env={"COLUMNS": "200"})
+    assert result.exit_code == ExitCode.OK, result.output
+    listed = re.findall(r"^[│|] ([a-z][a-z-]*) {2,}\S", result.stdout, re.MULTILINE)
+    assert listed == list(COMMANDS)
+    for name in COMMANDS:
+        assert runner.invoke(app, [name, "--help"]).exit_code == ExitCode.OK, name
+
+
+def test_a_misspelt_command_gets_suggestions() -> None:
+    result = runner.invoke(app, ["compil", "specs/nav2d.yaml"])
+    assert result.exit_code == ExitCode.BAD_INPUT
+    assert "No such command 'compil'. Did you mean 'compile'?" in result.output
+
+
 def test_readme_documents_every_exit_code() -> None:
     readme = (ROOT / "README.md").read_text()
     for code in ExitCode:
@@ -125,14 +142,15 @@ def test_readme_documents_every_exit_code() -> None:
 
 
 def test_python_m_catanc_runs_without_heavy_imports(good: Path) -> None:
-    # validate and chains never solve: cvxpy and pulp must stay unimported.
+    # validate never solves (cvxpy, pulp), and loads no other command's module (issue 33: at most 0.5 s).
+    others = sorted(f"catanc.cli.{module}" for module, _ in COMMANDS.values() if module not in ("spec", "main"))
     code = (
         "import sys; from catanc.cli import app\n"
         "try:\n"
         f"    app(['validate', {str(good)!r}])\n"
         "except SystemExit as exit:\n"
         "    assert exit.code == 0, exit.code\n"
-        "heavy = sorted(m for m in ('cvxpy', 'pulp') if m in sys.modules)\n"
+        f"heavy = sorted(m for m in ('cvxpy', 'pulp', 'numpy', 'jinja2', *{others!r}) if m in sys.modules)\n"
         "assert not heavy, heavy\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)
