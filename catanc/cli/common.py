@@ -3,6 +3,11 @@
 Every command reports a :class:`~catanc.errors.CatancError` as a short
 message with its exit code; anything else is a bug and exits with
 ``ExitCode.INTERNAL`` (set ``CATANC_DEBUG=1`` for the traceback).
+
+One-line messages (diagnostics, warnings, errors) are plain text, written
+as they are: rich would read ``:name:`` in a user's file name or key as an
+emoji code, and importing it costs ``catanc validate`` a tenth of its time.
+Tables, reports and progress use rich's consoles, imported when made.
 """
 
 from __future__ import annotations
@@ -15,11 +20,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, ParamSpec, TypeVar
 
 import typer
-from rich.console import Console
 
 from catanc.errors import CatancError, Diagnostic, ExitCode, SpecError
 
 if TYPE_CHECKING:
+    from rich.console import Console
+
     from catanc.core.problem import Problem
     from catanc.spec.language import Spec
 
@@ -63,30 +69,40 @@ REPORT_WIDTH = 80
 
 
 def stdout_console() -> Console:
+    from rich.console import Console
+
     width = None if sys.stdout.isatty() else PIPED_WIDTH
     return Console(highlight=False, soft_wrap=True, width=width)
 
 
 def report_console(width: int | None) -> Console:
     """A console whose text wraps at ``width``: the terminal's by default, else :data:`REPORT_WIDTH`."""
+    from rich.console import Console
+
     if width is None and not sys.stdout.isatty():
         width = REPORT_WIDTH
     return Console(highlight=False, soft_wrap=False, width=width)
 
 
 def stderr_console() -> Console:
+    from rich.console import Console
+
     return Console(stderr=True, highlight=False, soft_wrap=True)
 
 
+def print_line(text: str, *, stderr: bool = False) -> None:
+    """One line of plain text on stdout (or stderr), as it is."""
+    (sys.stderr if stderr else sys.stdout).write(f"{text}\n")
+
+
 def print_diagnostics(diagnostics: Sequence[Diagnostic], *, warning: bool = False) -> None:
-    console = stderr_console()
     for diagnostic in diagnostics:
         text = str(diagnostic)
         if warning:
             where = f"{diagnostic.location}: " if diagnostic.location else ""
             what = f"{diagnostic.field}: " if diagnostic.field else ""
             text = f"{where}warning: {what}{diagnostic.message}"
-        console.print(text, markup=False)
+        print_line(text, stderr=True)
 
 
 def load_problem(spec_path: Path) -> tuple[Spec, Problem]:
@@ -100,7 +116,7 @@ def load_problem(spec_path: Path) -> tuple[Spec, Problem]:
 
 def print_notes(spec_path: Path, notes: Sequence[str]) -> None:
     for note in notes:
-        stderr_console().print(f"{spec_path}: warning: {note}", markup=False)
+        print_line(f"{spec_path}: warning: {note}", stderr=True)
 
 
 def reporting(command: Callable[P, R]) -> Callable[P, R]:
@@ -116,15 +132,15 @@ def reporting(command: Callable[P, R]) -> Callable[P, R]:
             print_diagnostics(exc.diagnostics)
             raise typer.Exit(int(exc.exit_code)) from None
         except CatancError as exc:
-            stderr_console().print(f"catanc: {exc}", markup=False)
+            print_line(f"catanc: {exc}", stderr=True)
             raise typer.Exit(int(exc.exit_code)) from None
         except Exception as exc:
             if os.environ.get("CATANC_DEBUG"):
                 raise
-            stderr_console().print(
+            print_line(
                 f"catanc: internal error: {type(exc).__name__}: {exc}\n"
                 "This is a bug in catanc; rerun with CATANC_DEBUG=1 for the traceback and report it.",
-                markup=False,
+                stderr=True,
             )
             raise typer.Exit(int(ExitCode.INTERNAL)) from None
 

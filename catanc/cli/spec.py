@@ -5,21 +5,19 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import Annotated, Any
 
 import typer
 
 from catanc.cli.common import (
     SpecArg,
     print_diagnostics,
+    print_line,
     reporting,
     stdout_console,
 )
 from catanc.errors import ExitCode, SpecError
 from catanc.text import plural
-
-if TYPE_CHECKING:
-    pass
 
 
 @reporting
@@ -30,7 +28,6 @@ def validate(
     from catanc.core.load import read_spec
 
     failed = False
-    out = stdout_console()
     for path in specs:
         try:
             loaded = read_spec(path)
@@ -40,11 +37,10 @@ def validate(
             continue
         spec, problem = loaded.spec, loaded.problem
         print_diagnostics(problem.warnings, warning=True)
-        out.print(
+        print_line(
             f"{path}: ok: app {spec.app}, {plural(len(spec.nodes), 'node')}, "
             f"{plural(len(problem.subchains), 'subchain')}, "
-            f"{plural(len(problem.chains), 'chain')} in the objective and constraints",
-            markup=False,
+            f"{plural(len(problem.chains), 'chain')} in the objective and constraints"
         )
     if failed:
         raise typer.Exit(int(ExitCode.BAD_INPUT))

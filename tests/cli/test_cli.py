@@ -99,6 +99,18 @@ def test_committed_schema_is_current() -> None:
     assert committed == runner.invoke(app, ["schema"]).stdout, "regenerate: catanc schema > specs/catanc.schema.json"
 
 
+def test_messages_show_the_users_text_as_it_is(tmp_path: Path) -> None:
+    # rich would print ':smile:' as an emoji and a tab as spaces; a file's name is the user's own text.
+    good = tmp_path / "a:smile:\tb.yaml"
+    good.write_text(GOOD)
+    bad = tmp_path / "c:smile:.yaml"
+    bad.write_text(GOOD.replace("[cam, det], [odom", "[cam, dett], [odom"))
+    result = runner.invoke(app, ["validate", str(good), str(bad)])
+    assert result.exit_code == ExitCode.BAD_INPUT
+    assert result.stdout.startswith(f"{good}: ok: app demo")
+    assert result.stderr.startswith(f"{bad}:8:15: edges[0][1]: unknown node 'dett'")
+
+
 def test_missing_file_is_a_bad_input(tmp_path: Path) -> None:
     result = runner.invoke(app, ["validate", str(tmp_path / "nope.yaml")])
     assert result.exit_code == ExitCode.BAD_INPUT
@@ -142,7 +154,8 @@ def test_readme_documents_every_exit_code() -> None:
 
 
 def test_python_m_catanc_runs_without_heavy_imports(good: Path) -> None:
-    # validate never solves (cvxpy, pulp), and loads no other command's module (issue 33: at most 0.5 s).
+    # validate never solves (cvxpy, pulp), prints plain lines (no rich), and loads no other command's module
+    # (issue 33: at most 0.5 s).
     others = sorted(f"catanc.cli.{module}" for module, _ in COMMANDS.values() if module not in ("spec", "main"))
     code = (
         "import sys; from catanc.cli import app\n"
@@ -150,7 +163,7 @@ def test_python_m_catanc_runs_without_heavy_imports(good: Path) -> None:
         f"    app(['validate', {str(good)!r}])\n"
         "except SystemExit as exit:\n"
         "    assert exit.code == 0, exit.code\n"
-        f"heavy = sorted(m for m in ('cvxpy', 'pulp', 'numpy', 'jinja2', *{others!r}) if m in sys.modules)\n"
+        f"heavy = sorted(m for m in ('cvxpy', 'pulp', 'numpy', 'jinja2', 'rich', *{others!r}) if m in sys.modules)\n"
         "assert not heavy, heavy\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)
