@@ -117,11 +117,10 @@ def parse_yaml(text: str, file: str) -> ParsedYaml:
     later checks still run; syntax errors, unsupported tags and documents
     that expand too far raise :class:`SpecError`.
     """
-    loader: yaml.SafeLoader | None = None
+    loader: _Loader | None = None
     try:
         try:
-            _check_depth(text, file)  # before composing: PyYAML's composer recurses once per level
-            loader = yaml.SafeLoader(text)  # checks every character up front
+            loader = _Loader(text, file)  # checks every character up front
             root = loader.get_single_node()
         except yaml.MarkedYAMLError as exc:
             raise SpecError([_syntax_diagnostic(exc, file)]) from None
@@ -142,24 +141,31 @@ def parse_yaml(text: str, file: str) -> ParsedYaml:
             loader.dispose()
 
 
-def _check_depth(text: str, file: str) -> None:
-    """:class:`SpecError` at the first collection nested deeper than :data:`MAX_DEPTH` (parsed event by event,
-    without recursion, so a document of a thousand ``[`` is an error and not a crash)."""
-    loader = yaml.SafeLoader(text)
-    try:
-        depth = 0
-        while (event := loader.get_event()) is not None:  # type: ignore[no-untyped-call]
-            if isinstance(event, yaml.CollectionStartEvent):
-                depth += 1
-                if depth > MAX_DEPTH:
-                    mark = event.start_mark
-                    line, column = (mark.line + 1, mark.column + 1) if mark is not None else (1, 1)
-                    message = f"nested deeper than {MAX_DEPTH} levels (a spec needs a handful)"
-                    raise SpecError([Diagnostic(Location(file, line, column), "", message)])
-            elif isinstance(event, yaml.CollectionEndEvent):
-                depth -= 1
-    finally:
-        loader.dispose()
+class _Loader(yaml.SafeLoader):
+    """PyYAML's safe loader, with a :class:`SpecError` at the first collection nested deeper than :data:`MAX_DEPTH`.
+
+    PyYAML's composer recurses once per level; the parser's events are
+    counted as the composer takes them, so a document of a thousand ``[`` is
+    an error and not a crash, in the same one pass over the text.
+    """
+
+    def __init__(self, text: str, file: str) -> None:
+        super().__init__(text)
+        self.file = file
+        self.depth = 0
+
+    def get_event(self) -> yaml.Event:
+        event: yaml.Event = super().get_event()  # type: ignore[no-untyped-call]
+        if isinstance(event, yaml.CollectionStartEvent):
+            self.depth += 1
+            if self.depth > MAX_DEPTH:
+                mark = event.start_mark
+                line, column = (mark.line + 1, mark.column + 1) if mark is not None else (1, 1)
+                message = f"nested deeper than {MAX_DEPTH} levels (a spec needs a handful)"
+                raise SpecError([Diagnostic(Location(self.file, line, column), "", message)])
+        elif isinstance(event, yaml.CollectionEndEvent):
+            self.depth -= 1
+        return event
 
 
 def _line_col(text: str, position: int) -> tuple[int, int]:
