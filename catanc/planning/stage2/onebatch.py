@@ -570,10 +570,3 @@ def _at_most(piece: Piece, limit: float) -> tuple[float, float] | None:
     least = 2 * b / (room + root) if b > 0 else 0.0
     most = (room + root) / (2 * a) if a > 0 else math.inf
     return least, most
-
-
-def _least_of(a: float, b: float, low: float, high: float) -> float:
-    """Where ``a x + b / x`` is least on ``[low, high]`` (``a, b >= 0``)."""
-    if a > 0 and b > 0:
-        return min(max(math.sqrt(b / a), low), high)
-    return low if a > 0 else high
