@@ -26,8 +26,9 @@ from catanc.core.problem import Problem
 from catanc.planning.stage1 import allocate
 from catanc.planning.stage2.base import Layout, RelaxedSolution, SharedCore
 from catanc.planning.stage2.conic import ConicStage2
+from catanc.planning.stage2.convex import OPEN
 from catanc.planning.stage2.integer import most_runs, solve_integer
-from catanc.planning.stage2.onebatch import OPEN, OneBatchRuns
+from catanc.planning.stage2.onebatch import OneBatchRuns
 from catanc.spec.language import Schedule, Spec
 from tests.planning.test_stage2_conic import AGREE, apps
 

@@ -20,7 +20,8 @@ from dataclasses import dataclass
 
 from catanc.core.problem import Problem
 from catanc.planning.stage2.base import RelaxedSolution, Stage2Model
-from catanc.planning.stage2.onebatch import OPEN, OneBatchRuns, Open
+from catanc.planning.stage2.convex import OPEN, Open
+from catanc.planning.stage2.onebatch import OneBatchRuns
 from catanc.planning.stage2.whole import ENUMERATE_UP_TO, WholeRuns
 from catanc.spec.language import Schedule
 

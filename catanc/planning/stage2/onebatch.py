@@ -32,19 +32,15 @@ conic solve (~400 us against ~300); plain, it takes ~100 us.
 
 from __future__ import annotations
 
-import itertools
 import math
 import weakref
 from dataclasses import dataclass
-from enum import Enum
-from typing import Final
 
 from catanc.core.problem import ChainForm, Problem
 from catanc.planning.stage2.base import RelaxedSolution, Stage2Model, aligned_every, length_candidates
+from catanc.planning.stage2.convex import OPEN, Convex, Open, Piece, least_scale_point, optimum_point
 from catanc.planning.stage2.whole import FEASIBILITY, WholeRuns
 
-Piece = tuple[float, float, float]
-"""``(a, b, c)`` of ``a x + b / x + c``."""
 Row = dict[int, float]
 """A piece as weights on the basis pieces (see :func:`_compile`)."""
 
@@ -53,20 +49,9 @@ class _OpenError(Exception):
     """Raised inside a search where the closed form has no unique attained optimum (then: OPEN)."""
 
 
-class Open(Enum):
-    """The closed form has no unique attained optimum here: solve the relaxation instead."""
-
-    OPEN = "open"
-
-
-OPEN: Final = Open.OPEN
-
 MARGIN = FEASIBILITY / 2
 """The bounds' slack used to choose ``x``; the plan is then checked with :data:`FEASIBILITY`, so a
 point on a bound's boundary passes despite rounding."""
-
-FLAT = 1e-12
-"""An objective piece whose terms in ``x`` are this small against its value counts as flat in ``x``."""
 
 
 @dataclass(frozen=True)
@@ -299,7 +284,7 @@ class OneBatchRuns:
 
     def _convex(
         self, runs: dict[str, int], lengths: dict[int, float] | None, every: dict[str, int] | None
-    ) -> list[_Convex] | None:
+    ) -> list[Convex] | None:
         """The objective and each bound in ``x`` (None: ``T / x`` is constant).
 
         ``every`` None: the relaxation (``p = max(n T, p_min)``); else the batch core's ``k``
@@ -309,17 +294,17 @@ class OneBatchRuns:
         return None if pieces is None else self._expressions(pieces)
 
     def _choose(
-        self, expressions: list[_Convex], scale: float, *, least_scale: bool, window: tuple[float, float]
+        self, expressions: list[Convex], scale: float, *, least_scale: bool, window: tuple[float, float]
     ) -> float | Open | None:
         objective, *bounds = expressions
         limits = self.structure.limits
         if least_scale:
             scaled = [bound.scaled(1.0 / limit) for bound, limit in zip(bounds, limits, strict=True)]
-            return _least_scale_point(scaled, *window)
+            return least_scale_point(scaled, *window)
         allowed = [limit * scale * (1 + MARGIN) for limit in limits]
-        return _optimum_point(objective, bounds, allowed, *window)
+        return optimum_point(objective, bounds, allowed, *window)
 
-    def _value(self, expressions: list[_Convex], x: float, *, least_scale: bool) -> float:
+    def _value(self, expressions: list[Convex], x: float, *, least_scale: bool) -> float:
         objective, *bounds = expressions
         if least_scale:
             limits = self.structure.limits
@@ -372,7 +357,7 @@ class OneBatchRuns:
             pieces.append((a, b, c))
         return pieces
 
-    def _expressions(self, pieces: list[Piece]) -> list[_Convex]:
+    def _expressions(self, pieces: list[Piece]) -> list[Convex]:
         """The objective and each bound as sums of maxima, with what cannot decide a maximum dropped.
 
         Equal pieces are kept once and constants only at their largest (several subchains on
@@ -399,174 +384,4 @@ class OneBatchRuns:
                 base[2] += c
             else:
                 maxima[expression].append(tuple(sorted(distinct)))
-        return [_Convex(tuple(m), (b[0], b[1], b[2])) for m, b in zip(maxima, bases, strict=True)]
-
-
-@dataclass(frozen=True)
-class _Convex:
-    """A sum of maxima of pieces: the maxima of two or more pieces, and the single pieces summed."""
-
-    maxima: tuple[tuple[Piece, ...], ...]
-    base: Piece
-
-    def at(self, x: float) -> Piece:
-        """The one piece this equals around ``x``, for ``x`` strictly between breakpoints."""
-        a, b, c = self.base
-        for pieces in self.maxima:
-            top = pieces[0]
-            highest = top[0] * x + top[1] / x + top[2]
-            for piece in pieces[1:]:
-                value = piece[0] * x + piece[1] / x + piece[2]
-                if value > highest:
-                    top, highest = piece, value
-            a, b, c = a + top[0], b + top[1], c + top[2]
-        return a, b, c
-
-    def value(self, x: float) -> float:
-        a, b, c = self.at(x)
-        return a * x + b / x + c
-
-    def edges(self, least: float) -> list[float]:
-        """``least``, the breakpoints above it (where two pieces of a maximum cross), then infinity."""
-        crossings: set[float] = set()
-        for pieces in self.maxima:
-            for i, first in enumerate(pieces):
-                for second in pieces[i + 1 :]:
-                    crossings.update(_crossings(first, second))
-        return [least, *sorted(x for x in crossings if x > least), math.inf]
-
-    def scaled(self, factor: float) -> _Convex:
-        def times(piece: Piece) -> Piece:
-            return piece[0] * factor, piece[1] * factor, piece[2] * factor
-
-        return _Convex(tuple(tuple(times(piece) for piece in pieces) for pieces in self.maxima), times(self.base))
-
-
-def _inside(low: float, high: float) -> float:
-    """A point strictly inside ``(low, high)``, ``0 <= low < high <= inf``."""
-    if math.isfinite(high):
-        return math.sqrt(low * high) if low > 0 else high / 2
-    return 2 * low if low > 0 else 1.0
-
-
-def _minimisers(objective: _Convex, least: float) -> tuple[float, float]:
-    """Where ``objective`` is least on ``[least, inf)``: one point, or a segment where it is flat.
-
-    Convexity orders the segments: a binary search for the one whose piece is stationary
-    inside it, or the breakpoint between one that falls and one that rises.  An end at 0 or
-    infinity means the least value is approached, not attained.
-    """
-    edges = objective.edges(least)
-    first, last = 0, len(edges) - 2
-    while first <= last:
-        k = (first + last) // 2
-        low, high = edges[k], edges[k + 1]
-        a, b, _ = objective.at(_inside(low, high))
-        if a == 0 and b == 0:
-            return low, high
-        stationary = math.sqrt(b / a) if a > 0 and b > 0 else (0.0 if a > 0 else math.inf)
-        if stationary < low:
-            last = k - 1
-        elif stationary > high:
-            first = k + 1
-        else:
-            return stationary, stationary
-    return edges[first], edges[first]
-
-
-def _sublevel(bound: _Convex, limit: float, least: float) -> tuple[float, float] | None:
-    """Where ``bound <= limit`` on ``[least, inf)``: an interval, by convexity (None: nowhere)."""
-    edges = bound.edges(least)
-    low, high = math.inf, -math.inf
-    for start, end in itertools.pairwise(edges):
-        allowed = _at_most(bound.at(_inside(start, end)), limit)
-        if allowed is not None and max(start, allowed[0]) <= min(end, allowed[1]):
-            low, high = min(low, max(start, allowed[0])), max(high, min(end, allowed[1]))
-    return (low, high) if low <= high else None
-
-
-def _optimum_point(
-    objective: _Convex, bounds: list[_Convex], limits: list[float], least: float, most: float = math.inf
-) -> float | Open | None:
-    """The objective's least ``x`` in ``[least, most]`` where every bound holds (None: nowhere; OPEN: not
-    one attained point).
-
-    On an interval a convex function is least at its unconstrained minimiser clipped to it.
-    """
-    low, high = least, most
-    for bound, limit in zip(bounds, limits, strict=True):
-        allowed = _sublevel(bound, limit, least)
-        if allowed is None:
-            return None
-        low, high = max(low, allowed[0]), min(high, allowed[1])
-        if low > high:
-            return None
-    first, last = _minimisers(objective, least)
-    x = min(max(first, low), high)
-    if min(max(last, low), high) != x or not 0 < x < math.inf:
-        return OPEN
-    return x
-
-
-def _least_scale_point(bounds: list[_Convex], least: float, most: float = math.inf) -> float | Open:
-    """The ``x`` in ``[least, most]`` needing the least scale: ``max(1, max_j bound_j)``, least (bounds
-    divided by their limits).
-
-    On each segment every bound is one piece, and the maximum of convex pieces is least where
-    one is stationary, two cross (the constant 1 among them), or at an end.  A least value
-    approached at ``x = 0`` or ``x = inf`` is not attained: OPEN.
-    """
-    crossings = {x for bound in bounds for x in bound.edges(least)[1:-1] if x < most}
-    edges = [least, *sorted(crossings), most]
-    best: tuple[float, float] | None = None
-    limits: list[float] = []  # the least scale approached at x = 0 (where no slice bounds x), then at inf
-    last: list[Piece] = []
-    for low, high in itertools.pairwise(edges):
-        sample = _inside(low, high)
-        last = [bound.at(sample) for bound in bounds] + [(0.0, 0.0, 1.0)]
-        if low == 0:
-            limits.append(math.inf if any(b > 0 for _, b, _ in last) else max(c for _, _, c in last))
-        candidates = [low, high, sample]
-        for i, (a, b, _) in enumerate(last):
-            if a > 0 and b > 0:
-                candidates.append(math.sqrt(b / a))
-            for other in last[i + 1 :]:
-                candidates += _crossings(last[i], other)
-        for x in candidates:
-            if low <= x <= high and 0 < x < math.inf:
-                needed = max(a * x + b / x + c for a, b, c in last)
-                if best is None or needed < best[0]:
-                    best = (needed, x)
-    assert best is not None  # the last segment's sample is a candidate
-    if math.isinf(most):  # where no bound grows with x on the last segment, the least scale may lie at x = inf
-        limits.append(math.inf if any(a > 0 for a, _, _ in last) else max(c for _, _, c in last))
-    needed, x = best
-    return OPEN if limits and needed > min(limits) * (1 + FLAT) else x
-
-
-def _crossings(first: Piece, second: Piece) -> list[float]:
-    """Where two pieces are equal, for ``x > 0``: the positive roots of ``da x^2 + dc x + db``."""
-    da, db, dc = first[0] - second[0], first[1] - second[1], first[2] - second[2]
-    if da == 0:
-        return [-db / dc] if dc != 0 and -db / dc > 0 else []
-    discriminant = dc * dc - 4 * da * db
-    if discriminant < 0:
-        return []
-    q = -0.5 * (dc + math.copysign(math.sqrt(discriminant), dc))  # the stable pair of roots
-    roots = [q / da] + ([db / q] if q != 0 else [])
-    return [x for x in roots if x > 0]
-
-
-def _at_most(piece: Piece, limit: float) -> tuple[float, float] | None:
-    """Where ``a x + b / x + c <= limit`` for ``x > 0`` (an interval; None: nowhere)."""
-    a, b, c = piece
-    room = limit - c  # a x^2 - room x + b <= 0
-    if room < 0 or (room == 0 and b > 0):
-        return None
-    discriminant = room * room - 4 * a * b
-    if discriminant < 0:
-        return None
-    root = math.sqrt(discriminant)
-    least = 2 * b / (room + root) if b > 0 else 0.0
-    most = (room + root) / (2 * a) if a > 0 else math.inf
-    return least, most
+        return [Convex(tuple(m), (b[0], b[1], b[2])) for m, b in zip(maxima, bases, strict=True)]

@@ -33,8 +33,8 @@ from catanc.core.metrics import Timing, bound_scale, capped_dedicated, objective
 from catanc.core.problem import Problem
 from catanc.errors import InfeasibleError
 from catanc.planning.stage2.base import Layout, Stage2Model, aligned_every, schedule_length
+from catanc.planning.stage2.convex import Open
 from catanc.planning.stage2.integer import Effort, IntegerSolution, closed_form, solve_integer
-from catanc.planning.stage2.onebatch import Open
 from catanc.spec.language import Schedule
 
 SCALE_PRECISION = 1e-6
