@@ -18,25 +18,28 @@ every derived number with :mod:`catanc.core.metrics`:
    which objective terms dominate;
 5. warnings: the plan's own, bounds with less than :data:`NEAR_SATURATION`
    headroom (and by how much compute may grow on their cores before they are
-   missed, at this schedule), subchains starved at the minimum slice;
+   missed, at this schedule: :mod:`catanc.explain.headroom`), subchains
+   starved at the minimum slice;
 6. the spec's baseline under the same model (:mod:`catanc.planning.baseline`).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
 
 from catanc.core.metrics import Timing, evaluate_chain
-from catanc.core.problem import Chain, Executor, Problem, Subchain
+from catanc.core.problem import Executor, Problem, Subchain
 from catanc.errors import Diagnostic
 from catanc.explain.enforceable import short_slots
+from catanc.explain.headroom import NEAR_SATURATION, Headroom, plan_headrooms
 from catanc.planning.baseline import BaselineEvaluation, BaselineGap, TermValue, evaluate_baseline, objective_terms
 from catanc.planning.order import slot_starts
 from catanc.planning.stage1.estimate import Allocation
 from catanc.spec.language import Schedule, Spec
+from catanc.text import hz
 
 if TYPE_CHECKING:
     from catanc.planning.types import CorePlan, Plan, SubchainPlan
@@ -44,9 +47,6 @@ if TYPE_CHECKING:
 
 BINDING_TOLERANCE = 1e-6
 """Relative distance at which a constraint counts as binding."""
-
-NEAR_SATURATION = 0.10
-"""Headroom below which a bound is warned about."""
 
 
 # --------------------------------------------------------------------------- data
@@ -95,21 +95,6 @@ class Binding:
 
 
 @dataclass(frozen=True)
-class Headroom:
-    """How far one bound is from being missed."""
-
-    what: str  # e.g. "GL's rate floor (>= 40 Hz)"
-    cores: tuple[int, ...]
-    value: float  # what the plan sustains (a period, or a response time; ms)
-    limit: float  # the bound, scaled by the constraint scale (ms)
-    growth: float | None  # how much every compute time on those cores may grow (0.1 = 10%); None: unaffected
-
-    @property
-    def headroom(self) -> float:
-        return self.limit / self.value - 1.0 if self.value > 0 else math.inf
-
-
-@dataclass(frozen=True)
 class Explanation:
     app: str
     cores: int
@@ -146,7 +131,7 @@ def explain_plan(spec: Spec, problem: Problem, plan: Plan, machine: MachineUse |
     timings = plan_timings(plan)
     responses = [evaluate_chain(problem, chain, timings).response_ms for chain in problem.chains]
     terms = objective_terms(problem, responses, lambda term: timings[term.subchain].period_ms)
-    headrooms = tuple(_headrooms(plan, problem, spec.schedule))
+    headrooms = tuple(plan_headrooms(plan, problem, spec.schedule))
     shared = tuple(
         _shared_view(core, plan, by_name, spec.schedule) for core in sorted(plan.shared_cores, key=lambda c: c.core)
     )
@@ -324,10 +309,6 @@ def _close(a: float, b: float) -> bool:
     return abs(a - b) <= BINDING_TOLERANCE * max(abs(a), abs(b))
 
 
-def _hz(period_ms: float) -> str:
-    return f"{1000.0 / period_ms:.4g} Hz"
-
-
 def bindings(plan: Plan, problem: Problem, schedule: Schedule) -> list[Binding]:
     """Constraints the plan sits on (within :data:`BINDING_TOLERANCE`, relative)."""
     scale = plan.constraint_scale
@@ -339,24 +320,24 @@ def bindings(plan: Plan, problem: Problem, schedule: Schedule) -> list[Binding]:
         floored = sub.max_period_ms < math.inf and _close(period, sub.max_period_ms * scale)
         if sub.min_period_ms > 0 and sub.min_period_ms == sub.max_period_ms:
             if capped or floored:
-                found.append(Binding("fixed rate", sub.name, f"runs at exactly {_hz(sub.min_period_ms)}"))
+                found.append(Binding("fixed rate", sub.name, f"runs at exactly {hz(sub.min_period_ms)}"))
         else:
             held = chosen.every is not None and chosen.every > (runs_per_period(chosen, sub.batch) or 1)
             if capped:
-                found.append(Binding("rate cap", sub.name, f"period {period:.3f} ms = its cap of {_hz(period)}"))
+                found.append(Binding("rate cap", sub.name, f"period {period:.3f} ms = its cap of {hz(period)}"))
             elif held:  # aligned with the slots: every k periods, the first multiple of T at or above the cap
                 found.append(
                     Binding(
                         "rate cap",
                         sub.name,
                         f"period {period:.3f} ms = {chosen.every} periods, the fewest at or above its cap of "
-                        f"{_hz(sub.min_period_ms)}",
+                        f"{hz(sub.min_period_ms)}",
                     )
                 )
             if floored:
                 scaled = "" if scale == 1.0 else f" (scaled by {scale:.4g})"
                 found.append(
-                    Binding("rate floor", sub.name, f"period {period:.3f} ms = its floor of {_hz(period)}{scaled}")
+                    Binding("rate floor", sub.name, f"period {period:.3f} ms = its floor of {hz(period)}{scaled}")
                 )
         if not chosen.shared:
             continue
@@ -401,114 +382,6 @@ def _at_minimum_slice(chosen: SubchainPlan, sub: Subchain, schedule: Schedule) -
     assert runs is not None
     most = math.floor(sub.compute_ms / floor * (1 + BINDING_TOLERANCE))
     return runs > 1 and runs >= most
-
-
-# --------------------------------------------------------------------------- headroom
-
-
-def _sustained(plan: Plan, problem: Problem, schedule: Schedule, growth: float) -> dict[str, Timing]:
-    """Timings at this schedule (same fractions, cores, threads) with every compute time times ``growth``.
-
-    A shared core's ``T`` grows with its slices (switches stay); a
-    dedicated subchain's Eq. 1 period and latency grow in proportion.  The
-    period is before any rate cap: what the schedule can sustain.
-    """
-    by_name = {sub.name: sub for sub in problem.subchains}
-    timings: dict[str, Timing] = {}
-    for core in plan.shared_cores:
-        load = math.fsum(plan.subchains[name].fraction * by_name[name].compute_ms for name in core.order)
-        fit = (load * growth + len(core.order) * schedule.switch_ms) / (1.0 - schedule.slack)
-        # T may sit above what fits (a fixed rate's p_min / k): runs then take as long until the
-        # slots outgrow it, and the periods the schedule can sustain are those of the fitted T.
-        length = max(core.period_ms, fit)
-        for name in core.order:
-            fraction = plan.subchains[name].fraction
-            timings[name] = Timing(fit / fraction, length / fraction)
-    for name, chosen in plan.subchains.items():
-        if chosen.shared:
-            continue
-        cores = max(1, len(chosen.cores))
-        threads = max(1, min(chosen.threads, cores))
-        times = by_name[name].compute_by_threads(cores)[threads - 1]
-        period = max(*times, math.fsum(times) / (cores // threads))
-        timings[name] = Timing(growth * period, growth * chosen.latency_ms)
-    return timings
-
-
-def _capped(problem: Problem, timings: dict[str, Timing]) -> dict[str, Timing]:
-    caps = {sub.name: sub.min_period_ms for sub in problem.subchains}
-    return {name: Timing(max(t.period_ms, caps[name]), t.latency_ms) for name, t in timings.items()}
-
-
-def _growth(value_at: Callable[[float], float], limit: float) -> float | None:
-    """How far compute may grow (``g - 1``) before ``value_at(g)`` exceeds ``limit``; None if it never does."""
-    if value_at(1.0) >= limit:
-        return 0.0
-    low, high = 1.0, 2.0
-    while value_at(high) <= limit:
-        low, high = high, 2.0 * high
-        if high > 1e9:
-            return None
-    for _ in range(100):
-        middle = 0.5 * (low + high)
-        if value_at(middle) <= limit:
-            low = middle
-        else:
-            high = middle
-        if high - low <= 1e-12 * high:
-            break
-    return low - 1.0
-
-
-def _headrooms(plan: Plan, problem: Problem, schedule: Schedule) -> list[Headroom]:
-    """Every rate floor, fixed rate and chain bound: how close the plan is to missing it."""
-    scale = plan.constraint_scale
-    found: list[Headroom] = []
-
-    def sustained(growth: float) -> dict[str, Timing]:
-        return _sustained(plan, problem, schedule, growth)
-
-    for sub in problem.subchains:
-        if sub.max_period_ms == math.inf:
-            continue
-        limit = sub.max_period_ms * scale
-        fixed = sub.min_period_ms == sub.max_period_ms
-        what = (
-            f"{sub.name}'s fixed rate ({_hz(sub.max_period_ms)})"
-            if fixed
-            else f"{sub.name}'s rate floor (>= {_hz(limit)})"
-        )
-
-        def period(growth: float, name: str = sub.name) -> float:
-            return sustained(growth)[name].period_ms
-
-        found.append(
-            Headroom(
-                what=what,
-                cores=plan.subchains[sub.name].cores,
-                value=period(1.0),
-                limit=limit,
-                growth=_growth(period, limit),
-            )
-        )
-    for bound in problem.response_bounds:
-        chain = problem.chains[bound.chain]
-        limit = bound.max_response_ms * scale
-        cores = sorted({core for s in chain.stages if not s.fixed for core in plan.subchains[s.name].cores})
-
-        def response(growth: float, chain: Chain = chain) -> float:
-            return evaluate_chain(problem, chain, _capped(problem, sustained(growth))).response_ms
-
-        found.append(
-            Headroom(
-                what=f"the bound on {chain.label} (R <= {limit:.4g} ms)",
-                cores=tuple(cores),
-                value=response(1.0),
-                limit=limit,
-                growth=_growth(response, limit) if cores else None,
-            )
-        )
-    return found
 
 
 def cores_text(cores: Sequence[int]) -> str:
