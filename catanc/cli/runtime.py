@@ -244,6 +244,7 @@ def calibrate(
     replace_file(out, profile_text(profile))
     stdout_console().print(
         f"{out}: switch {profile.switch_ms:.4f} ms, hop {profile.hop_ms:.4f} ms (p95), "
+        f"enforcer {profile.wake_ms:.4f} ms per wake-up, "
         f"overhead {max(profile.overhead):.2%} of a core, RT limit {profile.rt.share:.0%}",
         markup=False,
     )

@@ -10,6 +10,7 @@ workers, SCHED_FIFO, its watchdog), from the app's plan, and reports what it mea
   head triggered);
 - ``hop_ms``: the p95 of the hop delay while the subchain runs raised (a trigger, or a node's end,
   to the next node's start);
+- ``wake_ms``: its own CPU per wake-up (part of each head's hop on its core, and of its overhead);
 - ``overhead``: its CPU share of each core (its loop runs on one of them; the others' is 0);
 - the kernel's real-time limit (``/proc/sys/kernel/sched_rt_{runtime,period}_us``).
 

@@ -1,14 +1,16 @@
 """The enforcer's own costs, measured as it runs (catan-model.md section 5).
 
 - **Switch**: from a boundary's due time until its owner is raised and its head triggered
-  (what a slot loses to the switch), per shared core.
+  (the enforcer waking late, then its own CPU), per shared core.
 - **Hop**: from a trigger to the head's start, and from a node's end to the next node's start
   (read from the nodes' rings).
 - **Overhead**: the enforcer's CPU share of the core its loop is pinned to, and its CPU per
   wake-up, from its thread's CPU clock between two readings.
 
 :meth:`Costs.summary` gives the figures the log, the status, ``catanc report`` and a machine
-profile (``catanc calibrate``) use: p50, p95 and max of each, and the share.
+profile (``catanc calibrate``) use: p50, p95 and max of each, and the share.  A plan charges each
+once (:func:`catanc.spec.machine.costs`): the overhead as slack, each slot's hop beyond the
+enforcer's CPU per wake-up as its switch_ms.
 """
 
 from __future__ import annotations
@@ -118,7 +120,8 @@ def this_machine() -> MeasuredOn:
 def measured_profile(
     summary: dict[str, Any], *, rt: RtLimit, machine: MeasuredOn, minimum: int = MIN_SWITCHES
 ) -> MachineProfile | None:
-    """A machine profile of what :meth:`Costs.summary` measured: p95 switch and hop, the share of each core.
+    """A machine profile of what :meth:`Costs.summary` measured: p95 switch and hop, the enforcer's CPU per
+    wake-up, the share of each core.
 
     None until ``minimum`` switches were measured (a few seconds of a busy core).
     """
@@ -130,6 +133,7 @@ def measured_profile(
         machine=machine,
         switch_ms=float(switch["p95_ms"]),
         hop_ms=float(hop["p95_ms"]) if hop else 0.0,
+        wake_ms=float(summary.get("cpu_per_wake_ms") or 0.0),
         overhead=[min(float(share), MAX_SHARE) for share in summary.get("overhead") or [0.0]],
         rt=rt,
     )

@@ -53,8 +53,8 @@ class Replanning:
         """The ``(switch_ms, slack)`` the runtime's measured costs call for (never below ``schedule``'s), once there
         are enough of them (:func:`~catanc.runtime.costs.measured_profile`).
 
-        The machine profile's formulas (:func:`catanc.spec.machine.costs`): a slot pays one switch and
-        one hop; the enforcer's own CPU share of its core comes off the kernel's real-time budget first.
+        The machine profile's formulas (:func:`catanc.spec.machine.costs`): the enforcer's own CPU share of
+        its core comes off the kernel's real-time budget first; a slot pays its head's hop beyond that CPU.
         """
         profile = measured_profile(summary, rt=self.rt, machine=self.machine)
         if profile is None:

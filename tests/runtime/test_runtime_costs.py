@@ -1,7 +1,7 @@
 """The enforcer's own costs on the real kernel: measured, reported, planned with, written as a machine profile.
 
 - ``catanc run`` measures its switch latency, hop delay and CPU share; ``catanc report`` shows them;
-- it re-plans with switch_ms and slack raised to cover them (never below the spec's);
+- it re-plans with switch_ms and slack raised to cover them, each once (never below the spec's);
 - ``catanc calibrate`` writes a machine profile that ``catanc compile --machine`` reads back.
 
 Skips with the reason where SCHED_FIFO (up to the watchdog's priority) is not available.
@@ -76,7 +76,9 @@ def test_a_run_measures_its_costs_reports_them_and_plans_with_them(tmp_path: Pat
         assert replan["error"] is None
         assert replan["plan"]["switch_ms"] >= spec_switch
         assert replan["plan"]["slack"] >= 0.05
-    assert replans[0]["plan"]["switch_ms"] != spec_switch  # raised: this VM's switch and hop are slower
+    # Raised: the enforcer's own CPU comes off the RT budget (a slot pays only its head's hop beyond that CPU,
+    # which may stay under the spec's 0.12 ms).
+    assert replans[0]["plan"]["slack"] > 0.05
     report = subprocess.run(
         [sys.executable, "-m", "catanc", "report", str(log)], capture_output=True, text=True, timeout=60, check=True
     )
@@ -112,6 +114,7 @@ def test_calibrate_writes_a_profile_compile_reads(tmp_path: Path) -> None:
     read = read_machine(profile).profile
     assert read.switch_ms > 0
     assert read.hop_ms > 0
+    assert 0 < read.wake_ms < 50.0
     assert len(read.overhead) == len(os.sched_getaffinity(0))
     assert 0 < max(read.overhead) < 1
     spec = tmp_path / "spec.yaml"

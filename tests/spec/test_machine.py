@@ -12,9 +12,12 @@ from catanc.artifacts.output import replace_file
 from catanc.cli import app
 from catanc.core.load import load_spec
 from catanc.errors import ExitCode
+from catanc.planning.planner import plan
 from catanc.spec.language import Schedule
 from catanc.spec.machine import (
     MACHINE_FORMAT,
+    MachineFile,
+    MachineProfile,
     ProfileError,
     apply_machine,
     costs,
@@ -25,9 +28,10 @@ from catanc.spec.machine import (
 GOOD = """format: catanc-machine/1
 machine: {host: rig-7, cpu: "Intel i7-8650U", kernel: 6.8.0-45-generic, cpus: 8}
 switch_ms: 0.2
-hop_ms: 0.05
+hop_ms: 0.45
 overhead: [0.011, 0.03]
 rt: {runtime_us: 950000, period_us: 1000000}
+wake_ms: 0.2
 """
 
 
@@ -39,7 +43,8 @@ def profile_file(tmp_path: Path, text: str = GOOD, name: str = "rig.yaml") -> Pa
 
 def test_costs_by_hand(tmp_path: Path) -> None:
     profile = read_machine(profile_file(tmp_path)).profile
-    # switch 0.2 + hop 0.05 = 0.25 > the spec's 0.12; 1 - 0.95 + max(0.011, 0.03) = 0.08 > 0.05.
+    # A slot pays its head's hop beyond the enforcer's CPU: 0.45 - 0.2 = 0.25 > the spec's 0.12
+    # (the 0.2 ms switch latency is not charged); 1 - 0.95 + max(0.011, 0.03) = 0.08 > 0.05.
     found = costs(Schedule(), profile)
     assert found.switch_ms == pytest.approx(0.25)
     assert found.slack == pytest.approx(0.08)
@@ -50,6 +55,42 @@ def test_costs_by_hand(tmp_path: Path) -> None:
     # An unthrottled kernel leaves the enforcer's overhead only.
     unlimited = profile.model_copy(update={"rt": profile.rt.model_copy(update={"runtime_us": -1})})
     assert costs(Schedule(slack=0.0), unlimited).slack == pytest.approx(0.03)
+    # A profile without wake_ms (written before it was measured) charges the whole hop.
+    old = read_machine(profile_file(tmp_path, GOOD.replace("wake_ms: 0.2\n", ""), "old.yaml")).profile
+    assert old.wake_ms == 0.0
+    assert costs(Schedule(), old).switch_ms == pytest.approx(0.45)
+    # A wake-up dearer than the hop (the loop on another core than the heads) charges nothing, never less.
+    assert costs(Schedule(switch_ms=0.0), profile.model_copy(update={"wake_ms": 0.9})).switch_ms == 0.0
+
+
+def test_vr_on_one_core_keeps_render_at_vsync_with_this_vms_costs() -> None:
+    # What `catanc run` measured of itself running VR on one core of this VM (docs/results.md
+    # section 4): switch p95 0.336 ms, hop p95 0.505 ms, 0.236 ms of its own CPU per wake-up,
+    # 11.4% of the core; RT limit 95%.  Timewarp at vsync locks T = 8.333 ms.
+    # Counted once: slack 1 - 0.95 + 0.114 = 0.164, per slot 0.505 - 0.236 = 0.269 ms, so
+    # (1 - 0.164) * 8.333 - 3 * 0.269 = 6.16 ms hold Timewarp 1.5 + Render 3 + VIO's least slice
+    # 1 ms = 5.5 ms: Render runs every period (120 Hz), as the kernel ran it.  Charging the switch
+    # and the whole hop besides the overhead (3 * 0.841 ms) left 4.45 ms: not even Timewarp and
+    # Render (4.5 ms), so Render fell to every other period.
+    spec = load_spec("specs/vr_illixr.yaml")
+    profile = MachineProfile.model_validate(
+        {
+            "format": "catanc-machine/1",
+            "machine": {"host": "vm"},
+            "switch_ms": 0.336,
+            "hop_ms": 0.505,
+            "wake_ms": 0.236,
+            "overhead": [0.114],
+            "rt": {"runtime_us": 950000, "period_us": 1000000},
+        }
+    )
+    measured, use = apply_machine(spec, MachineFile(profile, "vm.yaml", "0" * 64))
+    assert use.costs.switch_ms == pytest.approx(0.269)
+    assert use.costs.slack == pytest.approx(0.164)
+    planned = plan(measured, 1)
+    assert planned.shared_cores[0].period_ms == pytest.approx(1000.0 / 120.0, rel=1e-6)
+    assert planned.subchains["render"].period_ms == pytest.approx(1000.0 / 120.0, rel=1e-6)
+    assert planned.subchains["timewarp"].period_ms == pytest.approx(1000.0 / 120.0, rel=1e-6)
 
 
 def test_write_then_read_round_trips_with_the_same_bytes(tmp_path: Path) -> None:
@@ -68,14 +109,15 @@ BAD = [
     ("other format", GOOD.replace("machine/1", "machine/2"), 1, "format", "not format 'catanc-machine/2'"),
     ("no format", GOOD.replace("format: catanc-machine/1\n", ""), 1, "", "not no format"),
     ("negative switch", GOOD.replace("switch_ms: 0.2", "switch_ms: -0.2"), 3, "switch_ms", "must be >= 0"),
-    ("negative hop", GOOD.replace("hop_ms: 0.05", "hop_ms: -1"), 4, "hop_ms", "must be >= 0"),
+    ("negative hop", GOOD.replace("hop_ms: 0.45", "hop_ms: -1"), 4, "hop_ms", "must be >= 0"),
+    ("negative wake", GOOD.replace("wake_ms: 0.2", "wake_ms: -1"), 7, "wake_ms", "must be >= 0"),
     ("overhead of a whole core", GOOD.replace("0.03]", "1.0]"), 5, "overhead[1]", "in [0, 1), got 1"),
     ("negative overhead", GOOD.replace("[0.011", "[-0.1"), 5, "overhead[0]", "in [0, 1), got -0.1"),
     ("RT limit above 1", GOOD.replace("950000", "1200000"), 6, "rt.runtime_us", "must be in (0, 1]"),
     ("RT limit 0", GOOD.replace("950000", "0"), 6, "rt.runtime_us", "must be in (0, 1]"),
     ("RT period 0", GOOD.replace("period_us: 1000000", "period_us: 0"), 6, "rt.period_us", "must be > 0"),
-    ("unknown field", GOOD + "speed: 3\n", 7, "speed", "unknown field 'speed'"),
-    ("missing field", GOOD.replace("hop_ms: 0.05\n", ""), 1, "hop_ms", "missing required field 'hop_ms'"),
+    ("unknown field", GOOD + "speed: 3\n", 8, "speed", "unknown field 'speed'"),
+    ("missing field", GOOD.replace("hop_ms: 0.45\n", ""), 1, "hop_ms", "missing required field 'hop_ms'"),
     ("a string for a number", GOOD.replace("0.2", "fast"), 3, "switch_ms", "got 'fast'"),
     ("YAML syntax", GOOD.replace("cpus: 8}", "cpus: 8"), 2, "", "not closed"),
     ("not a mapping", "- 1\n- 2\n", 1, "", "a machine profile is a mapping"),
