@@ -2,7 +2,7 @@
 
     python -m benchmarks.enforcer                     # nav2d and VR, 1 core, 30 s each
     python -m benchmarks.enforcer --duration 10 --app nav2d
-    python -m benchmarks.enforcer --tree /path/to/another/catanc   # the same, for another catanc tree
+    python -m benchmarks.enforcer --tree . --tree /path/to/another/catanc   # two trees, side by side
     python -m benchmarks.enforcer --json
 
 For each app, in one run:
@@ -23,6 +23,14 @@ For each app, in one run:
 - **switch latency** (a boundary's due time to its owner raised and head triggered) and **hop
   delay** (a node's end, or a trigger, to the next node's start), p50 and p95, from the log;
 - the load average before and after (the VM is shared: compare within one run).
+
+``--tree`` (repeatable; default: this tree) names the catanc source trees to measure, each app
+run once per tree, in turn, so two trees are compared in one run.  Each tree's processes (the
+enforcer, its planner and watchdog, the workers) run its own interpreter (``TREE/.venv/bin/python``
+if there is one, else this one) from a neutral folder with ``PYTHONPATH=TREE``: ``python -m`` and
+``-c`` put the working folder first on ``sys.path``, ahead of ``PYTHONPATH``, so a run started from
+this tree's root imported this tree whatever ``--tree`` said.  Before measuring, the interpreter is
+asked which catanc it imports; a tree that is not the one imported stops the benchmark.
 """
 
 from __future__ import annotations
@@ -83,29 +91,64 @@ def load() -> str:
     return " ".join(Path("/proc/loadavg").read_text().split()[:3])
 
 
-def measure(app: str, duration_s: float, binary: Path, tree: Path | None) -> dict[str, Any]:
-    table_path = ROOT / "out" / app / "cores-1" / "runtime.json"
+class Tree:
+    """A catanc source tree to measure: its interpreter and the environment its processes run in."""
+
+    def __init__(self, path: Path, neutral: Path) -> None:
+        self.path = path.resolve()
+        venv = self.path / ".venv" / "bin" / "python"
+        self.python = str(venv) if venv.exists() else sys.executable
+        self.cwd = neutral  # no catanc here: sys.path[0] of `-m` and `-c` finds nothing
+        self.env = dict(os.environ, PYTHONPATH=str(self.path))
+        self.env.pop("PYTHONSAFEPATH", None)
+
+    def check(self) -> None:
+        """Stop unless this tree's interpreter, run as the benchmark runs it, imports this tree's catanc."""
+        found = subprocess.run(
+            [self.python, "-c", "import catanc, catanc.runtime.planning; print(catanc.__file__)"],
+            cwd=self.cwd,
+            env=self.env,
+            capture_output=True,
+            text=True,
+            check=False,
+        )
+        imported = Path(found.stdout.strip()).resolve().parent.parent if found.returncode == 0 else None
+        if imported != self.path:
+            why = found.stderr.strip().splitlines()[-1:] if found.returncode else [f"imports {imported}"]
+            sys.exit(f"benchmarks.enforcer: {self.python} does not import catanc from {self.path}: {' '.join(why)}")
+
+    def table(self, app: str) -> Path:
+        """The tree's own committed 1-core table of ``app`` (this tree's if it has none)."""
+        own = self.path / "out" / app / "cores-1" / "runtime.json"
+        return own if own.exists() else ROOT / "out" / app / "cores-1" / "runtime.json"
+
+
+def measure(app: str, duration_s: float, binary: Path, tree: Tree) -> dict[str, Any]:
+    table_path = tree.table(app)
     table = load_table(table_path)
     rate = switches_per_s(table.plan)
     cpu = sorted(os.sched_getaffinity(0))[0]  # the plan's core 0: the enforcer's loop runs there
     load_before = load()
     per_wake_us, floor_line = wake_cost(binary, rate, 4.0, cpu)
     floor_cores = rate * per_wake_us / 1e6
-    env = dict(os.environ)
-    if tree is not None:
-        env["PYTHONPATH"] = str(tree)
+    env = tree.env
     with tempfile.TemporaryDirectory() as folder:
         sock = str(Path(folder) / "s.sock")
         log = Path(folder) / "run.jsonl"
-        command = [sys.executable, "-m", "catanc", "run", str(table_path), "--quiet", "--start", "spec"]
+        command = [tree.python, "-m", "catanc", "run", str(table_path), "--quiet", "--start", "spec"]
         command += ["--duration", str(duration_s), "--socket", sock, "--log", str(log)]
         began = time.monotonic()
-        enforcer = subprocess.Popen(command, stdout=subprocess.DEVNULL, env=env)
+        enforcer = subprocess.Popen(command, stdout=subprocess.DEVNULL, env=env, cwd=tree.cwd)
         deadline = time.monotonic() + 30
         while not Path(sock).exists() and time.monotonic() < deadline:
             time.sleep(0.05)
         workers = [
-            subprocess.Popen(worker_command({node: profile}, socket_path=sock), start_new_session=True, env=env)
+            subprocess.Popen(
+                worker_command({node: profile}, socket_path=sock, python=tree.python),
+                start_new_session=True,
+                env=env,
+                cwd=tree.cwd,
+            )
             for node, profile in demo_profiles(table.spec).items()
         ]
         time.sleep(max(began + duration_s / 3 - time.monotonic(), 0.0))
@@ -135,6 +178,8 @@ def measure(app: str, duration_s: float, binary: Path, tree: Path | None) -> dic
     resolves = [e for e in events if e["event"] == "resolve"]
     return {
         "app": app,
+        "tree": str(tree.path),
+        "python": tree.python,
         "exit_status": os.waitstatus_to_exitcode(status),
         "wall_s": round(wall, 2),
         "load_before": load_before,
@@ -170,7 +215,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--duration", type=float, default=30.0)
     parser.add_argument("--app", action="append", choices=APPS, help="nav2d or vr_illixr (default: both)")
-    parser.add_argument("--tree", type=Path, help="run the catanc package found in this source tree instead")
+    parser.add_argument(
+        "--tree",
+        type=Path,
+        action="append",
+        help="a catanc source tree to measure (repeat it to compare trees in one run; default: this tree)",
+    )
     parser.add_argument("--json", action="store_true")
     options = parser.parse_args()
     compiler = shutil.which("cc") or shutil.which("gcc")
@@ -179,13 +229,18 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as folder:
         binary = Path(folder) / "wake_cost"
         subprocess.run([compiler, "-O2", str(ROOT / "benchmarks" / "wake_cost.c"), "-o", str(binary)], check=True)
-        results = [measure(app, options.duration, binary, options.tree) for app in options.app or APPS]
+        neutral = Path(folder) / "neutral"
+        neutral.mkdir()
+        trees = [Tree(path, neutral) for path in options.tree or [ROOT]]
+        for tree in trees:
+            tree.check()
+        results = [measure(app, options.duration, binary, tree) for app in options.app or APPS for tree in trees]
     if options.json:
         sys.stdout.write(json.dumps(results, indent=2, sort_keys=True) + "\n")
         return
     for r in results:
         floor = r["floor"]
-        print(f"{r['app']} (1 core): {r['wall_s']} s, exit {r['exit_status']}")
+        print(f"{r['app']} (1 core), {r['tree']}: {r['wall_s']} s, exit {r['exit_status']}")
         print(f"  load average {r['load_before']} before, {r['load_after']} after")
         per_s, us, cores = floor["switches_per_s"], floor["us_per_wake"], floor["cores"]
         print(f"  floor: {per_s} switches/s x {us} us = {cores:.4f} cores")
