@@ -50,7 +50,7 @@ from typing import Any
 from catanc.artifacts.runtime_table import PlanPayload, load_table
 from catanc.runtime.log import read_log
 from catanc.runtime.processes import demo_profiles
-from catanc.runtime.worker import worker_command
+from catanc.runtime.worker.command import worker_command
 
 ROOT = Path(__file__).resolve().parent.parent
 APPS = ("nav2d", "vr_illixr")

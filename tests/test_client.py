@@ -40,19 +40,11 @@ from catanc.runtime.protocol import (
     Stop,
     trigger_datagram,
 )
-from catanc.runtime.worker import (
-    RunRecord,
-    burn_parallel,
-    check_profile,
-    format_modes,
-    parse_args,
-    parse_modes,
-    read_records,
-    worker_command,
-    worker_groups,
-    workload_worker_command,
-    write_records,
-)
+from catanc.runtime.worker.burn import burn_parallel
+from catanc.runtime.worker.command import worker_command, worker_groups, workload_worker_command
+from catanc.runtime.worker.draws import check_profile, format_modes, parse_modes
+from catanc.runtime.worker.options import parse_args
+from catanc.runtime.worker.records import RunRecord, read_records, write_records
 from tests.support.fake_enforcer import TIMEOUT_S, FakeEnforcer
 from tests.support.pythons import find_python
 

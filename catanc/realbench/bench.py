@@ -1,7 +1,7 @@
 """``catanc bench``: one real run per policy, measured from the workers' timestamps.
 
 Per policy, in a temporary folder: one synthetic worker process per scheduled node
-(:func:`catanc.runtime.worker.workload_worker_command`: it burns what the spec's workload
+(:func:`catanc.runtime.worker.command.workload_worker_command`: it burns what the spec's workload
 model draws, with ``at_s`` counted from the moment the workers are started, shared by all
 of them, and records every run); then
 
@@ -59,7 +59,8 @@ from catanc.runtime.sched import (
     set_affinity,
     set_fifo,
 )
-from catanc.runtime.worker import RunRecord, read_records, worker_groups, workload_worker_command
+from catanc.runtime.worker.command import worker_groups, workload_worker_command
+from catanc.runtime.worker.records import RunRecord, read_records
 from catanc.sim.metrics import PolicyResult
 from catanc.sim.simulate import CATAN_POLICIES, Setup, policy_spec, reported_chains, static_profile
 from catanc.spec.language import Spec

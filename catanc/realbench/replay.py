@@ -1,7 +1,7 @@
 """Measured runs -> the simulator's metrics: replay every run's timestamps through its dataflow.
 
 Each worker records every run as ``(node, start, end, cpu)`` on CLOCK_MONOTONIC
-(:class:`catanc.runtime.worker.RunRecord`).  :func:`replay` puts the runs inside the measured
+(:class:`catanc.runtime.worker.records.RunRecord`).  :func:`replay` puts the runs inside the measured
 window in time order through :class:`catanc.sim.dataflow.Dataflow`, as the simulator
 does with its simulated runs: a run *reads* its inputs' latest outputs when it starts and
 *produces* when it ends, and every unscheduled node with a rate ticks on its own clock from
@@ -22,7 +22,7 @@ from collections.abc import Iterable, Mapping, Sequence
 import numpy as np
 
 from catanc.control.schedule import RuntimeSchedule
-from catanc.runtime.worker import RunRecord
+from catanc.runtime.worker.records import RunRecord
 from catanc.sim.dataflow import Dataflow, Origins
 from catanc.sim.metrics import PolicyResult, chain_result, node_result
 from catanc.spec.language import Spec

@@ -27,7 +27,8 @@ from pathlib import Path
 
 from catanc.errors import UsageError
 from catanc.runtime.protocol import SOCKET_ENV
-from catanc.runtime.worker import Profile, worker_command, worker_groups
+from catanc.runtime.worker.command import worker_command, worker_groups
+from catanc.runtime.worker.draws import Profile
 from catanc.spec.language import ModalCompute, Spec
 
 STOP_GRACE_S = 2.0

@@ -37,7 +37,7 @@ from catanc.realbench.replay import measured_result, replay, utilisation
 from catanc.runtime import protocol
 from catanc.runtime.protocol import Address
 from catanc.runtime.sched import read_policy
-from catanc.runtime.worker import RunRecord
+from catanc.runtime.worker.records import RunRecord
 from catanc.sim.simulate import Setup, prepare, reported_chains, simulate_policies, workload_sampler
 from catanc.spec.language import Spec
 from tests.support.linux import WAIT_S, as_user, nobody_ids, poll

@@ -2,7 +2,7 @@
 
 Each test compiles a small spec of its own into its folder and starts the enforcer as ``python -m
 catanc run`` would (with ``--socket`` and ``--log`` in the test's folders), then starts node
-processes that talk to it through :mod:`catanc.client`: :func:`catanc.runtime.worker.worker_command`
+processes that talk to it through :mod:`catanc.client`: :func:`catanc.runtime.worker.command.worker_command`
 workers, or :data:`LINGERING_NODE` where a thread must outlive the run so that the test can see what
 the enforcer left it with.  The specs whose rates are checked have runs of 8-36 ms and rates of
 18-50 Hz, so the ~0.1-0.3 ms a trigger and a done message cost stay a few percent of a period.
@@ -42,7 +42,8 @@ from catanc.core.priorities import ENFORCER_FIFO, RUNNING_FIFO, SHARED_FIFO, UNS
 from catanc.errors import ExitCode
 from catanc.runtime.log import read_log
 from catanc.runtime.watchdog import WATCHDOG_PRIORITY
-from catanc.runtime.worker import Profile, worker_command
+from catanc.runtime.worker.command import worker_command
+from catanc.runtime.worker.draws import Profile
 from tests.support.enforcer_runs import ENFORCER_MAIN, EnforcerRun, Event, cmdline, compile_table, kill_groups, of_kind
 from tests.support.linux import (
     WAIT_S,
@@ -65,7 +66,7 @@ MINE = frozenset(os.sched_getaffinity(0))  # what the node processes started her
 LINGERING_NODE = """\
 import sys, time
 from catanc.client import ClientError, Node
-from catanc.runtime.worker import burn
+from catanc.runtime.worker.burn import burn
 
 name, compute_ms, socket_path = sys.argv[1], float(sys.argv[2]), sys.argv[3]
 try:
@@ -971,7 +972,7 @@ def test_a_multi_threaded_node_runs_on_its_threads_and_is_planned_with_its_one_t
 SPAWNING_NODE = """\
 import sys, threading, time
 from catanc.client import Node
-from catanc.runtime.worker import burn
+from catanc.runtime.worker.burn import burn
 
 import os
 name, socket_path = sys.argv[1], sys.argv[2]

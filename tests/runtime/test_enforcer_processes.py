@@ -46,7 +46,7 @@ from catanc.core.priorities import RUNNING_FIFO, SHARED_FIFO, UNSCHEDULED_FIFO
 from catanc.errors import ExitCode
 from catanc.runtime.protocol import SOCKET_ENV
 from catanc.runtime.watchdog import WATCHDOG_PRIORITY
-from catanc.runtime.worker import worker_command
+from catanc.runtime.worker.command import worker_command
 from tests.support.enforcer_runs import ENFORCER_MAIN, EnforcerRun, Event, cmdline, compile_table, kill_groups, of_kind
 from tests.support.linux import (
     BOTH_CPUS,

@@ -191,7 +191,7 @@ def test_3000_registrations_of_one_thread_neither_spin_nor_outlive_the_duration(
 FORGING_NODE = """\
 import mmap, struct, sys, time
 from catanc.client import Node
-from catanc.runtime.worker import burn
+from catanc.runtime.worker.burn import burn
 with Node("map", socket_path=sys.argv[1]) as node:
     for trigger in node:
         burn(8.0)
