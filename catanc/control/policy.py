@@ -8,7 +8,8 @@ their hand-offs are :mod:`catanc.control.flights`'s; the schedule they run is
 
 - **Walking a shared core's period** (:class:`CoreCursor`): its boundaries are each slot's
   switch (``switch_ms`` before the slice) and the end of the last slice; a new schedule takes
-  effect at the next period's start; a core that fell a whole period behind resumes from now.
+  effect at the next period's start; a core that slept through whole periods (idle, or
+  suspended) counts them, so its phase and its every-``runs``-periods triggers stay in place.
 - **Slot ownership and stealing** (:func:`switch_at`): at a slot's switch its subchain is
   raised, unless a subchain of higher priority on the core is late (triggered, not done, past
   its planned latency), which then takes the slot (on a core with stealing, the default);
@@ -28,6 +29,7 @@ their hand-offs are :mod:`catanc.control.flights`'s; the schedule they run is
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping, Set
 from dataclasses import dataclass, field
 from typing import Literal, NamedTuple
@@ -78,16 +80,16 @@ class CoreCursor:
 
     def advance(self, latest: CoreSchedule | None, now_ms: float) -> None:
         """Past the next boundary; after the period's end, into the next period with ``latest`` (the core's schedule
-        now; None keeps this one).  A core a whole period behind (suspended, say) resumes from ``now_ms``."""
+        now; None keeps this one).  Whole periods slept through (an idle core sleeps until its next head
+        trigger) are counted and skipped: the period containing ``now_ms`` is the next one, on the same grid."""
         if not self.at_end:
             self.position += 1
         else:
-            start = self.start_ms + self.schedule.period_ms
-            behind = now_ms - start
-            if behind > self.schedule.period_ms:
-                start += behind
-            self.start_ms = start
-            self.index += 1
+            period = self.schedule.period_ms
+            start = self.start_ms + period
+            skipped = max(0, math.floor((now_ms - start) / period))
+            self.start_ms = start + skipped * period
+            self.index += 1 + skipped
             self.position = 0
             if latest is not None:
                 self.schedule = latest

@@ -50,13 +50,33 @@ def test_a_cursor_walks_the_period_and_takes_a_new_schedule_at_the_next_one() ->
     assert cursor.next_period_ms() == 30.0
 
 
-def test_a_cursor_a_whole_period_behind_resumes_from_now() -> None:
+def test_a_cursor_periods_behind_counts_the_periods_it_slept_through() -> None:
     cursor = CoreCursor(CORE, 0.0, position=2)
-    cursor.advance(None, 25.0)  # period 1 was due at 10 ms; 15 ms late is more than T = 10
-    assert cursor.start_ms == 25.0
+    cursor.advance(None, 25.0)  # period 1 was due at 10 ms; at 25 ms period 2 (from 20 ms) is the current one
+    assert (cursor.index, cursor.start_ms, cursor.due_ms()) == (2, 20.0, 20.0)
     cursor = CoreCursor(CORE, 0.0, position=2)
-    cursor.advance(None, 19.0)  # 9 ms late: the period keeps its place
-    assert cursor.start_ms == 10.0
+    cursor.advance(None, 19.0)  # 9 ms late: period 1 keeps its place
+    assert (cursor.index, cursor.start_ms) == (1, 10.0)
+    cursor = CoreCursor(CORE, 0.0, position=2)
+    cursor.advance(None, 30.0)  # exactly at period 3's start
+    assert (cursor.index, cursor.start_ms) == (3, 30.0)
+
+
+def test_an_idle_core_woken_at_its_next_trigger_triggers_every_runs_periods() -> None:
+    # b (runs = 3) alone on an idle core: the enforcer sleeps from each trigger to the next, 30 ms on.
+    alone = CoreSchedule(0, 10.0, 0.5, (Slot("b", 0.5, 3.0),))
+    rules = slot_rules(alone, RUNS)
+    cursor = CoreCursor(alone, 0.0)
+    fired = []
+    wake = 0.0
+    for _ in range(4):
+        while cursor.due_ms() <= wake:  # what the enforcer does on waking: every boundary due by now
+            rule = rules[cursor.position]
+            if rule.subchain is not None and needs_wake(rule, cursor.index, active=False):
+                fired.append(cursor.due_ms())
+            cursor.advance(None, wake)
+        wake += 30.0
+    assert fired == [0.0, 30.0, 60.0, 90.0]
 
 
 def test_a_slot_goes_to_its_subchain_and_triggers_it_every_runs_periods() -> None:
