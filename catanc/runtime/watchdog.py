@@ -30,8 +30,15 @@ Design:
   every one of its threads has run to its exit, and a SCHED_OTHER thread of the enforcer (its main
   thread, the re-optimizer) gets no CPU while app threads spin at SCHED_FIFO on every CPU: up to
   ~0.95 s with the kernel's default real-time throttling, forever without it.
-- A thread's identity is its tid and its start time (``/proc/<tid>/task/<tid>/stat`` field 22),
-  so a tid the kernel reused for another thread after the app thread exited is left alone.
+- A thread's identity is a pidfd of that thread (``PIDFD_THREAD``, Linux 6.9), opened when its
+  line arrives and readable once it exits, so a tid the kernel reused for another thread after
+  the app thread exited is left alone; before 6.9, its tid and start time (``/proc/<tid>/task/<tid>/stat``
+  field 22).
+- No path under ``/proc`` is looked up at SCHED_FIFO: the enforcer's ``stat`` and ``status`` are
+  opened before the watchdog raises itself, then only read.  Looking up a dead process's
+  ``/proc`` entry invalidates its dentries (``d_invalidate``), which spins until the task
+  releasing them finishes; a real-time watchdog that preempted that task on its CPU spins for
+  ever (seen: 6 minutes at FIFO 10, 100% of a CPU, after a test's enforcer was killed).
 - After restoring on a death it waits (at most :data:`DEATH_WAIT_S`) for the enforcer to be fully
   gone and restores once more, in case a dying enforcer thread's last system call raced with it.
 """
@@ -62,6 +69,7 @@ DEATH_WAIT_S = 2.0
 
 SIGKILL_BIT = 1 << (signal.SIGKILL - 1)
 PF_EXITING = 0x4  # task flag (``/proc/<pid>/stat`` field 9): the task is in do_exit()
+PIDFD_THREAD = os.O_EXCL  # pidfd_open(2)'s flag for a pidfd of one thread, not of its process (Linux 6.9)
 
 
 # --------------------------------------------------------------------------- shared with catanc.runtime.sched
@@ -103,7 +111,7 @@ CLEAN_LINE = b"C\n"
 
 
 class _Entry:
-    __slots__ = ("cpus", "policy", "priority", "start_time", "tid")
+    __slots__ = ("cpus", "pidfd", "policy", "priority", "start_time", "tid")
 
     def __init__(self, tid: int, start_time: int | None, policy: int, priority: int, cpus: frozenset[int]) -> None:
         self.tid = tid
@@ -111,6 +119,22 @@ class _Entry:
         self.policy = policy
         self.priority = priority
         self.cpus = cpus
+        self.pidfd: int | None = None  # the thread's pidfd (see _thread_pidfd)
+
+
+def _thread_pidfd(tid: int) -> int | None:
+    """A pidfd of thread ``tid``, readable once it exits; None where the kernel has no thread pidfds (before 6.9)
+    or no descriptor is left.  Raises ``ProcessLookupError`` if the thread is gone."""
+    try:
+        return os.pidfd_open(tid, PIDFD_THREAD)
+    except ProcessLookupError:
+        raise
+    except OSError:
+        return None
+
+
+def _exited(pidfd: int) -> bool:
+    return bool(select.select([pidfd], [], [], 0)[0])
 
 
 def _parse(line: str) -> _Entry | None:
@@ -129,7 +153,10 @@ def _parse(line: str) -> _Entry | None:
 
 def _restore(entry: _Entry) -> str | None:
     """Put one thread back (policy first: that stops it hogging a CPU); ``"gone"``, an error, or ``None``."""
-    if entry.start_time is not None and thread_start_time(entry.tid) != entry.start_time:
+    if entry.pidfd is not None:
+        if _exited(entry.pidfd):
+            return "gone"
+    elif entry.start_time is not None and thread_start_time(entry.tid) != entry.start_time:
         return "gone"
     try:
         os.sched_setscheduler(entry.tid, entry.policy, os.sched_param(entry.priority))
@@ -155,12 +182,28 @@ def _restore_all(table: dict[int, _Entry]) -> tuple[int, int, list[str]]:
     return restored, gone, failed
 
 
-def _dying(pid: int) -> bool:
-    """Whether process ``pid`` is gone or on its way out (SIGKILL pending, exiting, zombie)."""
+def _open_proc_files(pid: int) -> tuple[int, int] | None:
+    """Process ``pid``'s ``/proc`` ``stat`` and ``status``, opened (at SCHED_OTHER: see the module's notes)."""
+    opened: list[int] = []
     try:
-        stat = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-        status = Path(f"/proc/{pid}/status").read_text()
+        for name in ("stat", "status"):
+            opened.append(os.open(f"/proc/{pid}/{name}", os.O_RDONLY | os.O_CLOEXEC))
     except OSError:
+        for fd in opened:
+            os.close(fd)
+        return None
+    return opened[0], opened[1]
+
+
+def _dying(files: tuple[int, int] | None) -> bool:
+    """Whether the process whose ``stat`` and ``status`` ``files`` holds open is gone or on its way out
+    (SIGKILL pending, exiting, zombie).  Reads through open descriptors only, never a path lookup."""
+    if files is None:
+        return True
+    try:
+        stat = os.pread(files[0], 4096, 0).decode("ascii", "replace").rsplit(")", 1)[1].split()
+        status = os.pread(files[1], 8192, 0).decode("ascii", "replace")
+    except (OSError, IndexError):
         return True
     if stat[0] in "ZXx" or int(stat[9 - 3]) & PF_EXITING:
         return True
@@ -213,6 +256,7 @@ def main(argv: list[str]) -> int:
         pidfd = None
     if os.getppid() != parent:
         return 0  # the enforcer died before it could tell us anything
+    parent_files = _open_proc_files(parent)  # before the watchdog is real-time: no /proc lookups after
     priority = _raise_priority(wanted)
     with contextlib.suppress(OSError):  # any CPU this process may use, not just the enforcer's
         os.sched_setaffinity(0, range(os.cpu_count() or 1))
@@ -238,8 +282,16 @@ def main(argv: list[str]) -> int:
             if text.strip() == "C":
                 return True
             entry = _parse(text)
-            if entry is not None:
-                table[entry.tid] = entry
+            if entry is None:
+                continue
+            old = table.pop(entry.tid, None)
+            if old is not None and old.pidfd is not None:
+                os.close(old.pidfd)
+            try:
+                entry.pidfd = _thread_pidfd(entry.tid)
+            except ProcessLookupError:
+                continue  # gone before it was changed: nothing to put back
+            table[entry.tid] = entry
         return False
 
     why = ""
@@ -253,7 +305,7 @@ def main(argv: list[str]) -> int:
             why = "closed its pipe"
         elif pidfd is not None and pidfd in ready:
             why = "exited"
-        elif (pidfd is None and os.getppid() != parent) or _dying(parent):
+        elif (pidfd is None and os.getppid() != parent) or _dying(parent_files):
             why = "was killed"
     # Lines written just before the end may still wait in the pipe.
     _read_available(0, buffer)

@@ -1,0 +1,73 @@
+"""The watchdog process on the real kernel, traced: it never looks a path up in /proc at SCHED_FIFO.
+
+Looking up a dead process's ``/proc`` entry makes the kernel invalidate its dentries, and that
+spins until the task releasing them (its reaper) finishes; a real-time watchdog that preempted
+the reaper on its CPU spun for 6 minutes at FIFO 10 in a full test run.  The trace (strace's
+``openat`` and ``sched_setscheduler``) shows every path the watchdog opens and when it became
+real-time, so the test fails on any ``/proc`` lookup after that, whatever the kernel's timing.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from catanc.runtime.watchdog import WATCHDOG_PRIORITY
+
+REALTIME_PRIORITY = WATCHDOG_PRIORITY
+REALTIME_TOOLS = ("strace",)
+pytestmark = pytest.mark.usefixtures("real_kernel")
+
+# The enforcer's part, cut to the bone: start a watchdog, tell it two app processes' originals and
+# raise them (one exits before the end), then die without saying goodbye.
+ENFORCER = """
+import os, subprocess, sys, time
+from catanc.runtime.sched import ThreadPolicy
+from catanc.runtime.watchdog import Watchdog
+
+watchdog = Watchdog().start()
+assert watchdog.priority > 0, watchdog.priority
+here = ThreadPolicy(os.SCHED_OTHER, 0, frozenset(os.sched_getaffinity(0)))
+app = int(sys.argv[1])  # started by the test: strace -ff would wait for it
+brief = subprocess.Popen(["sleep", "0.3"], start_new_session=True)
+for pid in (app, brief.pid):
+    watchdog.remember(pid, here)
+    os.sched_setscheduler(pid, os.SCHED_FIFO, os.sched_param(1))
+brief.wait()
+time.sleep(0.1)
+os._exit(0)
+"""
+
+
+def traces(prefix: Path) -> dict[int, str]:
+    return {int(path.name.rsplit(".", 1)[1]): path.read_text() for path in prefix.parent.glob(prefix.name + ".*")}
+
+
+def test_the_watchdog_restores_without_a_proc_lookup_at_sched_fifo(tmp_path: Path) -> None:
+    prefix = tmp_path / "trace"
+    command = ["strace", "-ff", "-qq", "-e", "trace=openat,sched_setscheduler", "-o", str(prefix)]
+    app = subprocess.Popen(["sleep", "60"], start_new_session=True)
+    try:
+        command += [sys.executable, "-c", ENFORCER, str(app.pid)]
+        done = subprocess.run(command, capture_output=True, text=True, timeout=60, check=False)
+        assert done.returncode == 0, done.stderr
+        assert os.sched_getscheduler(app.pid) == os.SCHED_OTHER  # the watchdog put it back
+    finally:
+        app.kill()
+        app.wait()
+    # strace -ff follows the watchdog until it exits, so its report is complete now.
+    assert "catanc watchdog: the enforcer" in done.stderr, done.stderr
+    assert "put 1 back, 1 had exited" in done.stderr, done.stderr
+    raised = "sched_setscheduler(0, SCHED_FIFO"  # only the watchdog makes itself real-time
+    watchdogs = [text for text in traces(prefix).values() if raised in text]
+    assert len(watchdogs) == 1, sorted(traces(prefix))
+    before, realtime = watchdogs[0].split(raised, 1)
+    lookups = re.findall(r'openat\([^,]*, "(/proc/[^"]*)"', realtime)
+    assert lookups == [], f"the watchdog looked up {lookups} at SCHED_FIFO"
+    # The premise: before it was real-time, it did open the enforcer's /proc files (to read them later).
+    assert re.search(r'openat\([^,]*, "/proc/\d+/status"', before), before
