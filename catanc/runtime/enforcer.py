@@ -57,7 +57,7 @@ from catanc.runtime.planning import PlannerProcess
 from catanc.runtime.replanning import Replanning
 from catanc.runtime.ring import RingReader
 from catanc.runtime.runs import Reader, RunBook
-from catanc.runtime.sched import Restorer, allowed_cpus, name_thread
+from catanc.runtime.sched import Restorer, allowed_cpus, at_sched_other, name_thread
 from catanc.runtime.status import status_rows
 
 Start = Literal["bootstrap", "spec"]
@@ -337,7 +337,8 @@ class Enforcer:
                         while os.read(self._wake_r, 64):
                             pass
                     while self.attaching:
-                        self.nodes.attach(*self.attaching.pop(0))
+                        with at_sched_other():
+                            self.nodes.attach(*self.attaching.pop(0))
                 if watchdog is not None and watchdog in ready:
                     self._watchdog_died()
             if now >= self.next_housekeeping_ms:
@@ -432,7 +433,8 @@ class Enforcer:
 
     def _hello(self, hello: protocol.Hello, received: Received) -> None:
         try:
-            registered = self.nodes.hello(hello, received, self.sock)
+            with at_sched_other():  # it looks the peer's pid up in /proc
+                registered = self.nodes.hello(hello, received, self.sock)
         except SchedError as exc:  # the watchdog's pipe broke: it is gone
             self._watchdog_died(str(exc))
             return

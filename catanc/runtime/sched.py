@@ -22,10 +22,11 @@ import atexit
 import contextlib
 import os
 import resource
+import select
 import signal
 import sys
 import threading
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType, TracebackType
@@ -133,10 +134,47 @@ def name_thread(name: str) -> None:
 
 def threads_of(pid: int) -> list[int]:
     """Every thread id of process ``pid`` (empty if it is gone)."""
+    if exited(pid):  # a dead process's /proc entry is not looked up (see at_sched_other)
+        return []
     try:
         return sorted(int(entry.name) for entry in Path(f"/proc/{pid}/task").iterdir())
     except OSError:
         return []
+
+
+def exited(pid: int) -> bool:
+    """Whether process ``pid`` has exited (a zombie too) or is gone, asked through a pidfd, not ``/proc``."""
+    try:
+        pidfd = os.pidfd_open(pid)
+    except ProcessLookupError:
+        return True
+    except OSError:  # no pidfds here (before Linux 5.3), or no descriptor left: say alive, look it up
+        return False
+    try:
+        return bool(select.select([pidfd], [], [], 0)[0])
+    finally:
+        os.close(pidfd)
+
+
+@contextlib.contextmanager
+def at_sched_other() -> Iterator[None]:
+    """Run the block with the calling thread at SCHED_OTHER if it is real-time, then put it back.
+
+    For ``/proc`` path lookups of other processes: looking up a process that just died makes the
+    kernel invalidate its dentries, which waits for the task releasing them; a real-time thread that
+    preempted that task on its CPU waits for ever (catanc.runtime.watchdog's notes).  At SCHED_OTHER
+    the releasing task gets the CPU.  Two system calls each way: for rare events (registrations).
+    """
+    policy = os.sched_getscheduler(0)
+    if policy & ~SCHED_RESET_ON_FORK not in (os.SCHED_FIFO, os.SCHED_RR):
+        yield
+        return
+    param = os.sched_getparam(0)
+    os.sched_setscheduler(0, os.SCHED_OTHER | (policy & SCHED_RESET_ON_FORK), os.sched_param(0))
+    try:
+        yield
+    finally:
+        os.sched_setscheduler(0, policy, param)
 
 
 def allowed_cpus() -> frozenset[int]:

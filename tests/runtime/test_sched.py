@@ -42,7 +42,9 @@ from catanc.runtime.sched import (
     ThreadPolicy,
     allowed_cpus,
     apply_policy,
+    at_sched_other,
     check_fifo_allowed,
+    exited,
     privilege_facts,
     read_policy,
     set_affinity,
@@ -316,6 +318,52 @@ def test_read_policy_reads_each_thread(spawn: Spawner) -> None:
     for index, expected in enumerate(MIXED_SCHED):
         assert app.sched(index) == expected  # the premise: the threads differ
         assert read_policy(app.tids[index]) == ThreadPolicy(expected.policy, expected.priority, expected.cpus)
+
+
+def test_exited_is_false_while_a_process_runs_and_true_once_it_is_a_zombie_or_reaped() -> None:
+    child = subprocess.Popen([sys.executable, "-c", "import sys; sys.stdin.read()"], stdin=subprocess.PIPE)
+    assert not exited(child.pid)
+    assert child.stdin is not None
+    child.stdin.close()
+    os.waitid(os.P_PID, child.pid, os.WEXITED | os.WNOWAIT)  # it has exited; not reaped yet: a zombie
+    assert exited(child.pid)
+    assert child.wait() == 0
+    assert exited(child.pid)
+
+
+@pytest.mark.usefixtures("real_kernel")
+def test_at_sched_other_lowers_a_real_time_thread_for_the_block_only() -> None:
+    seen: list[tuple[int, int]] = []
+    failures: list[BaseException] = []
+
+    def thread() -> None:
+        def now() -> tuple[int, int]:
+            return os.sched_getscheduler(0), os.sched_getparam(0).sched_priority
+
+        try:
+            reset = os.SCHED_RESET_ON_FORK
+            os.sched_setscheduler(0, os.SCHED_FIFO | reset, os.sched_param(1))
+            with at_sched_other():
+                seen.append(now())
+            seen.append(now())
+            with pytest.raises(KeyError), at_sched_other():
+                raise KeyError("in the block")
+            seen.append(now())
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+            with at_sched_other():
+                seen.append(now())
+        except BaseException as exc:  # handed to the test's thread
+            failures.append(exc)
+        finally:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+
+    worker = threading.Thread(target=thread)
+    worker.start()
+    worker.join(WAIT_S)
+    assert failures == []
+    fifo = (os.SCHED_FIFO | os.SCHED_RESET_ON_FORK, 1)
+    other = (os.SCHED_OTHER | os.SCHED_RESET_ON_FORK, 0)
+    assert seen == [other, fifo, fifo, (os.SCHED_OTHER, 0)]
 
 
 @pytest.mark.usefixtures("real_kernel")
