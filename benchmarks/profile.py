@@ -27,7 +27,8 @@ from pathlib import Path
 from catanc.core.load import load_spec
 from catanc.runtime.log import read_log
 from catanc.runtime.measure import percentile
-from catanc.runtime.profile import MeasurementsError, profile_spec
+from catanc.runtime.profile import profile_spec
+from catanc.runtime.samples import MeasurementsError
 
 ROOT = Path(__file__).parents[1]
 

@@ -17,15 +17,14 @@ from catanc.core.load import parse_spec
 from catanc.errors import ExitCode
 from catanc.runtime.profile import (
     MIN_SAMPLES,
-    MeasurementsError,
     deviations,
     find_modes,
     format_ms,
     profile_spec,
     propose,
-    read_measurements,
     round_shares,
 )
+from catanc.runtime.samples import MeasurementsError, read_measurements
 from tests.support.run_logs import SPEC, every_node, log_text
 
 # --------------------------------------------------------------------------- known samples, known answers
