@@ -1,6 +1,6 @@
 """Compute profiles from measurements: what ``catanc profile`` proposes for a spec, from a ``catanc run`` log.
 
-Pure: :func:`~catanc.runtime.samples.read_measurements` turns a log's text into each node's
+Pure: :func:`~catanc.runtime.samples.read_samples` turns a log's text into each node's
 compute samples, :func:`propose` turns those into a proposal per scheduled node of a spec, :func:`deviations`
 says where a spec is more than a tolerance off, and :func:`spec_edits` says which values of
 the spec's text to rewrite (:mod:`catanc.spec.profile_edit` rewrites them).
@@ -53,7 +53,7 @@ from dataclasses import dataclass, field
 from catanc.errors import CatancError, FieldPath
 from catanc.runtime.log import BATCHED
 from catanc.runtime.measure import MIN_PLANNING_MS, percentile, split_modes
-from catanc.runtime.samples import Measurements, MeasurementsError, Sample, read_measurements
+from catanc.runtime.samples import LogSamples, MeasurementsError, Sample, read_samples
 from catanc.spec.language import ModalCompute, Spec
 from catanc.spec.profile_edit import Edit
 from catanc.spec.speedup import threads_and_speedup
@@ -185,7 +185,7 @@ class Proposal:
         return self.ms
 
 
-def propose(spec: Spec, measured: Measurements) -> dict[str, Proposal]:
+def propose(spec: Spec, measured: LogSamples) -> dict[str, Proposal]:
     """A proposal per scheduled node of ``spec``; :class:`MeasurementsError` naming every node with too few samples."""
     q = spec.runtime.percentile
     proposals: dict[str, Proposal] = {}
@@ -440,7 +440,7 @@ def profile_spec(spec_text: str, spec_file: str, log_text: str, log_file: str, *
     from catanc.spec.profile_edit import apply_edits  # noqa: PLC0415
 
     spec, _ = check_text(spec_text, spec_file)
-    measured = read_measurements(log_text, log_file)
+    measured = read_samples(log_text, log_file)
     proposals = propose(spec, measured)
     source = spec.source
     if source is None:  # pragma: no cover - check_text always keeps the source map
@@ -461,7 +461,7 @@ def profile_spec(spec_text: str, spec_file: str, log_text: str, log_file: str, *
     )
 
 
-def summary_lines(spec: Spec, proposals: Mapping[str, Proposal], measured: Measurements) -> tuple[str, ...]:
+def summary_lines(spec: Spec, proposals: Mapping[str, Proposal], measured: LogSamples) -> tuple[str, ...]:
     """Per node: samples, threads, the spec's planning figure and the measured one, how far off; then notes."""
     kind = "observed (own timers)" if measured.observed else "enforced"
     lines = [f"{measured.file}: {measured.length_s:.1f} s {kind}, p{spec.runtime.percentile:g} per node:"]

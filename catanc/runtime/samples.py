@@ -1,6 +1,6 @@
 """A ``catanc run`` log's compute samples, node by node: what ``catanc profile`` measures from.
 
-Pure: :func:`read_measurements` turns a log's text into :class:`Measurements`.  The log must be
+Pure: :func:`read_samples` turns a log's text into :class:`LogSamples`.  The log must be
 this catanc's format (:data:`~catanc.runtime.log.LOG_FORMAT`) and end with the enforcer's
 ``stop`` (a killed run's log is truncated); anything else is a :class:`MeasurementsError` naming
 the file and line.
@@ -39,7 +39,7 @@ class Sample:
 
 
 @dataclass(frozen=True)
-class Measurements:
+class LogSamples:
     """Each node's compute samples from one log."""
 
     file: str
@@ -49,7 +49,7 @@ class Measurements:
     observed: bool = False  # a ``catanc run --observe`` log: the nodes ran on their own timers
 
 
-def read_measurements(text: str, file: str) -> Measurements:
+def read_samples(text: str, file: str) -> LogSamples:
     """The compute samples of a ``catanc run`` log's text; :class:`MeasurementsError` naming ``file`` and the line."""
     samples: dict[str, list[Sample]] = {}
     first_line: dict[str, int] = {}
@@ -98,7 +98,7 @@ def read_measurements(text: str, file: str) -> Measurements:
             f"{file}:{len(lines)}: truncated: the log ends without the enforcer's stop event "
             f"(the run was killed {length:.1f} s in?); profile a run that ended (--duration, Ctrl-C or SIGTERM)"
         )
-    return Measurements(file, {k: tuple(v) for k, v in samples.items()}, first_line, length, observed)
+    return LogSamples(file, {k: tuple(v) for k, v in samples.items()}, first_line, length, observed)
 
 
 def _number(value: object) -> float | None:

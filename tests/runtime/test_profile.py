@@ -24,7 +24,7 @@ from catanc.runtime.profile import (
     propose,
     round_shares,
 )
-from catanc.runtime.samples import MeasurementsError, read_measurements
+from catanc.runtime.samples import MeasurementsError, read_samples
 from tests.support.run_logs import SPEC, every_node, log_text
 
 # --------------------------------------------------------------------------- known samples, known answers
@@ -32,7 +32,7 @@ from tests.support.run_logs import SPEC, every_node, log_text
 
 def test_the_p95_of_1_to_100_is_95_05() -> None:
     """Worked by hand: h = 99 * 0.95 = 94.05, x[94] = 95, x[95] = 96: 95 + 0.05 * 1 = 95.05."""
-    measured = read_measurements(log_text(*every_node(cam=[float(i) for i in range(100, 0, -1)])), "run.jsonl")
+    measured = read_samples(log_text(*every_node(cam=[float(i) for i in range(100, 0, -1)])), "run.jsonl")
     proposal = propose(parse_spec(SPEC), measured)["cam"]
     assert proposal.ms == 95.05
     assert proposal.modes == ()
@@ -42,13 +42,13 @@ def test_the_p95_of_1_to_100_is_95_05() -> None:
 def test_the_spec_percentile_is_the_one_proposed() -> None:
     """runtime.percentile 50 on 1..100: h = 49.5, 50 + 0.5 = 50.5."""
     spec = parse_spec(SPEC + "runtime: {percentile: 50}\n")
-    measured = read_measurements(log_text(*every_node(cam=[float(i) for i in range(1, 101)])), "run.jsonl")
+    measured = read_samples(log_text(*every_node(cam=[float(i) for i in range(1, 101)])), "run.jsonl")
     assert propose(spec, measured)["cam"].ms == 50.5
 
 
 def test_two_clusters_are_two_modes_with_their_shares_and_p95s() -> None:
     """80 runs at 1 ms, 20 at 12 ms: modes 0.8 x 1 and 0.2 x 12; planned 0.8 + 2.4 = 3.2 ms."""
-    measured = read_measurements(log_text(*every_node(det=[1.0] * 80 + [12.0] * 20)), "run.jsonl")
+    measured = read_samples(log_text(*every_node(det=[1.0] * 80 + [12.0] * 20)), "run.jsonl")
     proposal = propose(parse_spec(SPEC), measured)["det"]
     assert [(m.share, m.ms, m.count) for m in proposal.modes] == [(0.8, 1.0, 80), (0.2, 12.0, 20)]
     assert proposal.planning_ms == pytest.approx(3.2)
@@ -58,21 +58,21 @@ def test_stray_samples_between_two_modes_do_not_hide_them() -> None:
     """80 runs at 1 ms, 20 at 12, strays at 2, 3.5 and 6 ms.  Worked by hand: the runtime's boundary between the
     modes' p95s (1 and 12) is sqrt(12) = 3.46, so 2 goes low (81 samples: p95 x[76] = 1) and 3.5, 6 high
     (22 samples: p95 between x[19] = x[20] = 12); shares 81/103 = 0.786 and 22/103 = 0.214 round to 0.79 and 0.21."""
-    measured = read_measurements(log_text(*every_node(det=[1.0] * 80 + [12.0] * 20 + [2.0, 3.5, 6.0])), "run.jsonl")
+    measured = read_samples(log_text(*every_node(det=[1.0] * 80 + [12.0] * 20 + [2.0, 3.5, 6.0])), "run.jsonl")
     proposal = propose(parse_spec(SPEC), measured)["det"]
     assert [(m.share, m.ms, m.count) for m in proposal.modes] == [(0.79, 1.0, 81), (0.21, 12.0, 22)]
 
 
 def test_a_rare_spike_is_no_mode() -> None:
     """2 of 100 runs at 50 ms: under 5% of the samples, so no mode; the p95 (x[94] = x[95] = 1) is 1."""
-    measured = read_measurements(log_text(*every_node(cam=[1.0] * 98 + [50.0] * 2)), "run.jsonl")
+    measured = read_samples(log_text(*every_node(cam=[1.0] * 98 + [50.0] * 2)), "run.jsonl")
     proposal = propose(parse_spec(SPEC), measured)["cam"]
     assert proposal.modes == ()
     assert proposal.ms == 1.0
 
 
 def test_a_gap_under_twice_is_no_mode() -> None:
-    measured = read_measurements(log_text(*every_node(cam=[1.0] * 50 + [1.9] * 50)), "run.jsonl")
+    measured = read_samples(log_text(*every_node(cam=[1.0] * 50 + [1.9] * 50)), "run.jsonl")
     assert propose(parse_spec(SPEC), measured)["cam"].modes == ()
 
 
@@ -82,7 +82,7 @@ def test_speedup_is_the_ratio_of_one_thread_to_two_thread_p95s() -> None:
     threads = [1] * 20 + [2] * 20
     walls: list[float | None] = [*([10.0] * 20), *([5.5] * 20)]
     batches = [*every_node()[:2], ("plan", ms, threads, walls)]
-    proposal = propose(parse_spec(SPEC), read_measurements(log_text(*batches), "run.jsonl"))["plan"]
+    proposal = propose(parse_spec(SPEC), read_samples(log_text(*batches), "run.jsonl"))["plan"]
     assert proposal.speedups == (1.0, 1.82)
     assert proposal.ms == 10.0  # from the one-thread runs only
     assert proposal.threads == {1: 20, 2: 20}
@@ -90,7 +90,7 @@ def test_speedup_is_the_ratio_of_one_thread_to_two_thread_p95s() -> None:
 
 def test_without_one_thread_runs_no_speedup_is_measured() -> None:
     batches = [*every_node()[:2], ("plan", [9.0] * 20, [2] * 20, [6.0] * 20)]
-    proposal = propose(parse_spec(SPEC), read_measurements(log_text(*batches), "run.jsonl"))["plan"]
+    proposal = propose(parse_spec(SPEC), read_samples(log_text(*batches), "run.jsonl"))["plan"]
     assert proposal.speedups == (1.0, None)
     assert proposal.ms == 9.0
     assert any("one-thread runs" in note for note in proposal.notes)
@@ -98,7 +98,7 @@ def test_without_one_thread_runs_no_speedup_is_measured() -> None:
 
 def test_deviations_name_the_nodes_beyond_the_tolerance() -> None:
     """cam measured 5.5 ms for 5: +10%; plan 13 for 10: +30%."""
-    measured = read_measurements(log_text(*every_node(cam=[5.5] * 20, plan=[13.0] * 20)), "run.jsonl")
+    measured = read_samples(log_text(*every_node(cam=[5.5] * 20, plan=[13.0] * 20)), "run.jsonl")
     spec = parse_spec(SPEC, "demo.yaml")
     proposals = propose(spec, measured)
     assert deviations(spec, proposals, 0.15) == [
@@ -167,7 +167,7 @@ def test_what_the_kernel_counted_is_reported_beside_the_proposal() -> None:
     batches = every_node()
     batches[0] = ("cam", ms, None, own)
     spec = parse_spec(SPEC, "demo.yaml")
-    measured = read_measurements(log_text(*batches, kernels={"cam": kernel}), "run.jsonl")
+    measured = read_samples(log_text(*batches, kernels={"cam": kernel}), "run.jsonl")
     proposals = propose(spec, measured)
     kernel_check = proposals["cam"].kernel
     assert kernel_check is not None
@@ -185,7 +185,7 @@ def test_what_the_kernel_counted_is_reported_beside_the_proposal() -> None:
 
 def error_of(text: str) -> str:
     with pytest.raises(MeasurementsError) as caught:
-        propose(parse_spec(SPEC, "demo.yaml"), read_measurements(text, "run.jsonl"))
+        propose(parse_spec(SPEC, "demo.yaml"), read_samples(text, "run.jsonl"))
     assert caught.value.exit_code == ExitCode.BAD_INPUT
     return str(caught.value)
 
