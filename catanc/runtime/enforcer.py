@@ -47,10 +47,11 @@ from catanc.errors import CatancError, ExitCode, PrivilegeError, SchedError
 from catanc.runtime import protocol
 from catanc.runtime.cores import SharedCores
 from catanc.runtime.costs import Costs
+from catanc.runtime.cpu_clocks import OpenCpuClocks
 from catanc.runtime.endpoints import Endpoint, EnforcerSocket, Received, Registry, decode_or_none
 from catanc.runtime.levels import Levels
 from catanc.runtime.log import LOG_FORMAT, Notes, RunLog
-from catanc.runtime.measure import Measurements, OpenCpuClocks
+from catanc.runtime.measure import Measurements
 from catanc.runtime.nodes import NodeThreads, Wiring
 from catanc.runtime.own_threads import OwnThreads
 from catanc.runtime.planning import PlannerProcess

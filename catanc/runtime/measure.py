@@ -25,10 +25,8 @@ re-optimiser thread reads :meth:`~Measurements.estimates` or the status
 reads :meth:`~Measurements.snapshot`.  A :class:`ComputeWindow` on its own is
 *not* thread-safe; share windows only through a :class:`Measurements`.
 
-Cross-checking with the kernel: :func:`parse_schedstat` and :class:`CpuClock`
-read a thread's cumulative on-CPU time from ``/proc/<pid>/task/<tid>/schedstat``;
-:func:`cpu_ms` turns two readings into milliseconds, and :func:`reconcile`
-decides between a client's own figure and the kernel's.
+Cross-checking with the kernel: :mod:`catanc.runtime.cpu_clocks` reads a thread's on-CPU
+time; :func:`reconcile` decides between a client's own figure and the kernel's.
 """
 
 from __future__ import annotations
@@ -36,12 +34,10 @@ from __future__ import annotations
 import bisect
 import itertools
 import math
-import os
 import threading
 from collections import deque
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from catanc.errors import UsageError, did_you_mean
@@ -65,8 +61,6 @@ outside the callback it times (waking on the trigger, reporting, waking the next
 the kernel counts for the head's thread.  Measured with the Python client on the 2-core development VM: 0.08-0.45
 ms per run (benchmarks/RESULTS.md, issue 32).  It is not the node's compute: the plan budgets it as the hop
 delay, the trigger (or the previous node's end) to the node's start (:mod:`catanc.runtime.costs`)."""
-
-NS_PER_MS = 1_000_000
 
 
 # --------------------------------------------------------------------------- the numbers
@@ -399,89 +393,7 @@ class Measurements:
             return {name: window.snapshot(name) for name, window in self._windows.items()}
 
 
-# --------------------------------------------------------------------------- the kernel's figure
-
-
-def schedstat_path(pid: int, tid: int, proc: Path = Path("/proc")) -> Path:
-    return proc / str(pid) / "task" / str(tid) / "schedstat"
-
-
-def parse_schedstat(text: str) -> int:
-    """The first field of a ``schedstat`` line: nanoseconds the thread has run on a CPU.
-
-    (The other two: ns spent runnable waiting for a CPU, and the number of time slices.)
-    Raises ``ValueError`` if the text is not such a line.
-    """
-    fields = text.split()
-    if len(fields) < 1 or not fields[0].isdigit():
-        raise ValueError(f"not a schedstat line: {text!r}")
-    return int(fields[0])
-
-
-@dataclass(frozen=True)
-class CpuClock:
-    """A thread's cumulative on-CPU time, as the kernel counts it (``/proc/<pid>/task/<tid>/schedstat``).
-
-    Needs a kernel with ``CONFIG_SCHED_INFO`` (``schedstat`` files exist).  :meth:`read_ns`
-    raises ``OSError`` (``FileNotFoundError`` once the thread has exited) or ``ValueError``.
-    """
-
-    pid: int
-    tid: int
-    proc: Path = Path("/proc")
-
-    @property
-    def path(self) -> Path:
-        return schedstat_path(self.pid, self.tid, self.proc)
-
-    def read_ns(self) -> int:
-        return parse_schedstat(self.path.read_text(encoding="ascii"))
-
-
-class OpenCpuClocks:
-    """Threads' :class:`CpuClock` readings through descriptors kept open, one per thread.
-
-    Opening and closing ``schedstat`` per reading cost ~30 us on the test VM, a ``pread``
-    on an open descriptor ~2 us.  A descriptor stays bound to its thread: once the thread
-    exits, reading it raises ``OSError`` (and the descriptor is closed), even if the
-    thread's id is reused.  Not thread-safe: the caller serialises readings.
-    """
-
-    def __init__(self, proc: Path = Path("/proc")) -> None:
-        self.proc = proc
-        self._fds: dict[int, int] = {}
-
-    def read_ns(self, pid: int, tid: int) -> int:
-        """Like ``CpuClock(pid, tid).read_ns()``: ``OSError`` once the thread has exited, or ``ValueError``."""
-        fd = self._fds.get(tid)
-        if fd is None:
-            fd = os.open(schedstat_path(pid, tid, self.proc), os.O_RDONLY | os.O_CLOEXEC)
-            self._fds[tid] = fd
-        try:
-            return parse_schedstat(os.pread(fd, 128, 0).decode("ascii"))
-        except (OSError, ValueError):
-            self.forget(tid)
-            raise
-
-    def forget(self, tid: int) -> None:
-        """Close ``tid``'s descriptor, if open (its thread is gone or no longer a node's)."""
-        fd = self._fds.pop(tid, None)
-        if fd is not None:
-            os.close(fd)
-
-    def close(self) -> None:
-        for tid in list(self._fds):
-            self.forget(tid)
-
-
-def cpu_ms(before_ns: int, after_ns: int) -> float:
-    """Compute time between two readings of one thread's :class:`CpuClock`, in ms.
-
-    Raises ``ValueError`` if the counter went backwards (the tid now names another thread).
-    """
-    if after_ns < before_ns:
-        raise ValueError(f"on-CPU time went backwards ({before_ns} ns -> {after_ns} ns): not the same thread")
-    return (after_ns - before_ns) / NS_PER_MS
+# --------------------------------------------------------------------------- the kernel's figure against the client's
 
 
 def reconcile(

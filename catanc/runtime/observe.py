@@ -25,8 +25,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from types import FrameType
 
+from catanc.runtime.cpu_clocks import NS_PER_MS, OpenCpuClocks
 from catanc.runtime.log import LOG_FORMAT, RunLog
-from catanc.runtime.measure import NS_PER_MS, OpenCpuClocks
 from catanc.runtime.sched import threads_of
 
 POLL_MS = 1.0

@@ -37,8 +37,9 @@ from typing import NamedTuple
 from catanc.control.flights import Flight, Flights, Started
 from catanc.control.policy import lost_after_ms
 from catanc.control.schedule import SubchainRun, is_late
+from catanc.runtime.cpu_clocks import cpu_ms
 from catanc.runtime.endpoints import Endpoint
-from catanc.runtime.measure import cpu_ms, reconcile
+from catanc.runtime.measure import reconcile
 from catanc.runtime.ring import Entry, RingReader
 from catanc.spec.speedup import threads_and_speedup
 

@@ -22,21 +22,17 @@ from hypothesis.stateful import RuleBasedStateMachine, invariant, rule
 from catanc.core.load import load_spec, parse_spec
 from catanc.errors import UsageError
 from catanc.planning.replan import Replanner
+from catanc.runtime.cpu_clocks import CpuClock, OpenCpuClocks, cpu_ms, parse_schedstat, schedstat_path
 from catanc.runtime.measure import (
     MIN_PLANNING_MS,
     ComputeWindow,
-    CpuClock,
     Measurements,
     ModeStat,
-    OpenCpuClocks,
     assign_mode,
-    cpu_ms,
     estimate,
     mode_boundaries,
-    parse_schedstat,
     percentile,
     reconcile,
-    schedstat_path,
     split_modes,
     valid_sample,
 )
