@@ -3,7 +3,7 @@
 Before any plan is right, a profile needs measurements (``catanc profile``).  Observing
 changes nothing about the app: no SCHED_FIFO, no affinity, no trigger.  It reads each
 observed node's threads' CPU time from the kernel (``/proc/<pid>/task/<tid>/schedstat``,
-:class:`~catanc.runtime.measure.OpenCpuClocks`) every :data:`POLL_MS` and cuts it into runs
+:class:`~catanc.runtime.cpu_clocks.OpenCpuClocks`) every :data:`POLL_MS` and cuts it into runs
 (:class:`Bursts`): a run is CPU used between two polls that found the node idle (its CPU
 time did not move over a whole poll interval).  Each run is logged as a ``compute`` sample
 in the JSON-lines log :func:`catanc.runtime.log.RunLog` writes for ``catanc run``, whose
