@@ -76,6 +76,30 @@ class OpenCpuClocks:
             self.forget(tid)
             raise
 
+    def open(self, pid: int, tid: int) -> bool:
+        """Open thread ``tid``'s descriptor afresh (closing one it had); False if the thread is gone."""
+        self.forget(tid)
+        try:
+            self._fds[tid] = os.open(schedstat_path(pid, tid, self.proc), os.O_RDONLY | os.O_CLOEXEC)
+        except OSError:
+            return False
+        return True
+
+    def read_opened_ns(self, tid: int) -> int | None:
+        """Like :meth:`read_ns` for a thread given to :meth:`open`, None for any other: no path is looked up.
+
+        For a real-time caller: looking up a thread that just died in ``/proc`` can stall it
+        (:func:`catanc.runtime.sched.at_sched_other`).
+        """
+        fd = self._fds.get(tid)
+        if fd is None:
+            return None
+        try:
+            return parse_schedstat(os.pread(fd, 128, 0).decode("ascii"))
+        except (OSError, ValueError):
+            self.forget(tid)
+            raise
+
     def forget(self, tid: int) -> None:
         """Close ``tid``'s descriptor, if open (its thread is gone or no longer a node's)."""
         fd = self._fds.pop(tid, None)

@@ -338,8 +338,11 @@ class Enforcer:
                         while os.read(self._wake_r, 64):
                             pass
                     while self.attaching:
+                        node, pid, tids = self.attaching.pop(0)
                         with at_sched_other():
-                            self.nodes.attach(*self.attaching.pop(0))
+                            self.nodes.attach(node, pid, tids)
+                            for tid in tids:
+                                self.cpu_clocks.open(pid, tid)
                 if watchdog is not None and watchdog in ready:
                     self._watchdog_died()
             if now >= self.next_housekeeping_ms:
@@ -411,8 +414,8 @@ class Enforcer:
 
     def _kernel_ns(self, endpoint: Endpoint) -> int | None:
         """``endpoint``'s thread CPU time so far (ns), from the kernel; None if unreadable."""
-        try:
-            return self.cpu_clocks.read_ns(endpoint.pid, endpoint.tid)
+        try:  # opened at registration, at SCHED_OTHER: the loop looks nothing up in /proc
+            return self.cpu_clocks.read_opened_ns(endpoint.tid)
         except (OSError, ValueError):
             return None
 
@@ -436,11 +439,10 @@ class Enforcer:
         try:
             with at_sched_other():  # it looks the peer's pid up in /proc
                 registered = self.nodes.hello(hello, received, self.sock)
+                if registered is not None:
+                    self.cpu_clocks.open(hello.pid, hello.tid)
         except SchedError as exc:  # the watchdog's pipe broke: it is gone
             self._watchdog_died(str(exc))
-            return
-        if registered is not None:
-            self.cpu_clocks.forget(hello.tid)
 
     def _set_cores(self, message: protocol.SetCores, received: Received) -> None:
         credentials = received.credentials

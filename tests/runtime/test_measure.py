@@ -514,6 +514,23 @@ def test_open_cpu_clocks_read_again_on_each_call_and_fail_once_the_thread_is_gon
     clocks.close()
 
 
+def test_open_cpu_clocks_read_opened_threads_only(tmp_path: Path) -> None:
+    """The enforcer's loop reads only what registration opened: an unopened thread is no path lookup but None."""
+    clocks = OpenCpuClocks(proc=tmp_path)
+    path = schedstat_path(12, 34, tmp_path)
+    path.parent.mkdir(parents=True)
+    path.write_text("2500000 999 3\n", encoding="ascii")
+    assert clocks.read_opened_ns(34) is None
+    assert clocks.open(12, 34)
+    path.unlink()  # were it looked up again, it would be missing
+    assert clocks.read_opened_ns(34) == 2_500_000
+    assert not clocks.open(12, 35)  # no such thread
+    assert clocks.read_opened_ns(35) is None
+    assert not clocks.open(12, 34)  # reopened: gone now, and its old descriptor is closed
+    assert clocks.read_opened_ns(34) is None
+    clocks.close()
+
+
 def test_cpu_ms() -> None:
     assert cpu_ms(1_000_000, 3_500_000) == 2.5
     assert cpu_ms(7, 7) == 0.0
