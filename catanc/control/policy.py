@@ -16,8 +16,10 @@ their hand-offs are :mod:`catanc.control.flights`'s; the schedule they run is
   slot-aligned heads are triggered at their slot every ``runs`` periods; at the end of the last
   slice everything is lowered.
 - **Which boundaries need the enforcer awake** (:func:`needs_wake`): one that triggers a head,
-  or where a subchain of the core is running or raised; across an idle stretch nothing can
-  change, and the owner it would raise is raised when its head is next triggered.
+  or where a subchain of the core has a run in flight; across an idle stretch nothing can
+  change (threads still raised for a run that ended sleep), the owner it would raise is raised
+  when its head is next triggered, and the boundaries slept through are caught up, in order, at
+  the next wake-up.
 - **Clocks** (:func:`next_clock_ms`): dedicated subchains (and batch ones) every period, never
   bunching up after a delay.
 - **Re-solve cadence** (:class:`Cadence`): the first re-solve after ``first_solve_after_s``,
@@ -174,9 +176,9 @@ def switch_at(
 def needs_wake(rule: SlotRule, period_index: int, *, active: bool) -> bool:
     """Whether the enforcer must be awake at a boundary with ``rule`` in period ``period_index``.
 
-    ``active``: some subchain of the core has a run in flight or threads raised.  An idle core
-    (neither) changes nothing at a boundary unless a head is triggered there: its owner's
-    threads have no work, and they are put at the owner's level when its head is triggered.
+    ``active``: some subchain of the core has a run in flight.  An idle core changes nothing
+    at a boundary unless a head is triggered there: every thread on it sleeps (those raised
+    for a run that ended too), and they are put at their levels when a head is next triggered.
     """
     return active or (rule.every is not None and period_index % rule.every == 0)
 

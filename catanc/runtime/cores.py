@@ -114,8 +114,9 @@ class SharedCores:
             if cursor.due > now_ms:
                 continue
             woke = True
+            planned = core.wake_ms  # earlier boundaries were slept through: caught up now, not switch latencies
             while cursor.due <= now_ms:
-                self._boundary(core_id, core, now_ms)
+                self._boundary(core_id, core, now_ms, sample=cursor.due >= planned)
                 schedule = cursor.schedule
                 cursor.advance(self._latest.get(core_id), now_ms)
                 if cursor.schedule is not schedule:
@@ -128,7 +129,7 @@ class SharedCores:
     def _late(self, name: str) -> bool:
         return self.book.late(name, self._now, self.runs[name])
 
-    def _boundary(self, core_id: int, core: _Core, now_ms: float) -> None:
+    def _boundary(self, core_id: int, core: _Core, now_ms: float, *, sample: bool) -> None:
         cursor = core.cursor
         position = cursor.position
         rule = core.rules[position]
@@ -155,7 +156,7 @@ class SharedCores:
             slot = cursor.schedule.slots[position]
             raised_until = slot.start_ms + slot.length_ms + cursor.start_ms if owner == trigger else None
             self.trigger(self.runs[trigger], now_ms, raised_until, at_slot=True)
-        if trigger is not None or levels.calls != calls:
+        if sample and (trigger is not None or levels.calls != calls):
             switches = self.costs.switches.get(core_id)
             if switches is None:
                 switches = self.costs.switches[core_id] = deque(maxlen=SAMPLES)
@@ -196,15 +197,24 @@ class SharedCores:
 
     def _wake(self, core_id: int, core: _Core) -> float:
         """When ``core`` next needs the loop: its next boundary, or on an idle core the next head trigger
-        (:func:`~catanc.control.policy.needs_wake` with nothing active: a boundary whose rule triggers now)."""
+        (:func:`~catanc.control.policy.needs_wake` with nothing active: a boundary whose rule triggers now).
+
+        Threads raised for a run that has ended do not keep the core awake: they are put back at
+        their resting level now, as the next boundary would (asleep, nothing changes for them), and
+        raised again when their subchain's head is next triggered in its slot.  The boundaries slept
+        through are caught up, in order, at the next wake-up.
+        """
         cursor = core.cursor
-        if self.levels.raised.get(core_id):
-            return cursor.due
         states = self.book.states
         for name in core.names:
             state = states.get(name)
             if state is not None and (state.in_flight or state.pending is not None):
                 return cursor.due
+        if self.levels.raised.get(core_id):  # after this wake-up's switch: it is not delayed by this
+            self._raised_from.pop(core_id, None)
+            gone = self.levels.lower_on(core_id)
+            if gone:
+                self.gone(gone)
         schedule = cursor.schedule
         rules = core.rules
         same = self._latest.get(core_id) is schedule  # else a new schedule starts next period: wake then

@@ -85,3 +85,24 @@ def test_a_late_subchain_of_higher_priority_takes_the_slot() -> None:
     assert sorted(levels.raised[0]) == [11]
     assert book.state("a").steals == 1
     assert math.isfinite(cores.wake_ms)
+
+
+def test_threads_raised_for_a_run_that_ended_are_lowered_at_once_and_the_core_sleeps() -> None:
+    cores, book, levels, triggered = made()
+    cores.run_due(0.0)
+    book.states["a"].in_flight.clear()
+    cores.run_due(2.5)
+    book.states["b"].in_flight.clear()
+    cores.run_due(6.0)
+    cores.run_due(10.0)  # period 1: a triggered and raised, b not due
+    assert cores.wake_ms == 12.5
+    book.states["a"].in_flight.clear()  # a's run ended (its ring read by the housekeeping)
+    cores.rewake()
+    assert cores.wake_ms == 20.0  # nothing changes on the core until a's next trigger
+    assert not levels.raised.get(0)  # a's thread, asleep, is put back at once, not at b's switch
+    samples = len(cores.costs.switches[0])
+    cores.run_due(20.0)  # b's switch and the period's end caught up in order, then a's switch
+    assert triggered[-1] == (20.0, "a")
+    assert cores.raised[0] == "a"
+    assert sorted(levels.raised[0]) == [11]
+    assert len(cores.costs.switches[0]) == samples + 1  # the caught-up boundaries are not switch latencies
