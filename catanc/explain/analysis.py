@@ -19,7 +19,8 @@ every derived number with :mod:`catanc.core.metrics`:
 5. warnings: the plan's own, bounds with less than :data:`NEAR_SATURATION`
    headroom (and by how much compute may grow on their cores before they are
    missed, at this schedule: :mod:`catanc.explain.headroom`), subchains
-   starved at the minimum slice;
+   starved at the minimum slice, executor nodes that wait for their thread
+   longer than their period (:mod:`catanc.explain.executors`);
 6. the spec's baseline under the same model (:mod:`catanc.planning.baseline`).
 """
 
@@ -34,6 +35,7 @@ from catanc.core.metrics import Timing, evaluate_chain
 from catanc.core.problem import Executor, Problem, Subchain
 from catanc.errors import Diagnostic
 from catanc.explain.enforceable import short_slots
+from catanc.explain.executors import longest_wait, lost_triggers
 from catanc.explain.headroom import NEAR_SATURATION, Headroom, plan_headrooms
 from catanc.planning.baseline import BaselineEvaluation, BaselineGap, TermValue, evaluate_baseline, objective_terms
 from catanc.planning.order import slot_starts
@@ -159,6 +161,7 @@ def explain_plan(spec: Spec, problem: Problem, plan: Plan, machine: MachineUse |
             *(spec_warning(diagnostic) for diagnostic in problem.warnings),
             *plan.warnings,
             *_warnings(plan, problem, spec.schedule, headrooms),
+            *(wait.warning for wait in lost_triggers(plan, problem)),
             *([] if machine is not None else [found.warning for found in short_slots(plan, spec.schedule)]),
         ),
         baseline=evaluate_baseline(spec, problem, plan.cores),
@@ -192,23 +195,14 @@ def executor_note(executor: Executor, plan: Plan, problem: Problem) -> str:
         how = f"in subchain {subs[0]} on {where}: its period covers their compute added up"
         return f"Executor {executor.name} runs {nodes} in one thread (never at once): {how}."
     how = f"subchains {', '.join(subs)} share {where}, one slot after the other"
-    period = next((core.period_ms for core in plan.shared_cores if core.core in cores), None)
-    if period is None:
+    wait = longest_wait(executor, plan, problem)
+    if wait is None:
         return f"Executor {executor.name} runs {nodes} in one thread (never at once): {how}."
-    share = math.fsum(plan.subchains[name].fraction * problem.subchain(name).compute_ms for name in subs) / period
-    compute = {
-        node: c
-        for name in subs
-        for node, c in zip(problem.subchain(name).nodes, problem.subchain(name).node_compute_ms, strict=True)
-    }
-    waits = {node: math.fsum(compute[other] for other in executor.nodes if other != node) for node in executor.nodes}
-    node = max(executor.nodes, key=lambda n: (waits[n], -executor.nodes.index(n)))
-    behind = ", ".join(other for other in executor.nodes if other != node)
-    wall = waits[node] / min(share, 1.0)
     return (
         f"Executor {executor.name} runs {nodes} in one thread (never at once): {how}; a run may wait for "
-        f"the others' to end, about {wall:.1f} ms for {node} behind {behind} ({waits[node]:.3g} ms of compute at "
-        f"the executor's {share:.0%} of the core), which the plan's latencies do not count."
+        f"the others' to end, about {wait.wait_ms:.1f} ms for {wait.node} behind {wait.behind} "
+        f"({wait.compute_ms:.3g} ms of compute at the executor's {wait.share:.0%} of the core), which the plan's "
+        "latencies do not count."
     )
 
 
