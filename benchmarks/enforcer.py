@@ -38,7 +38,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -47,6 +46,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from benchmarks.wake_cost import build_c_loop, c_loop
 from catanc.artifacts.runtime_table import PlanPayload, load_table
 from catanc.runtime.log import read_log
 from catanc.runtime.processes import demo_profiles
@@ -62,18 +62,6 @@ def switches_per_s(plan: PlanPayload | None) -> float:
     if plan is None:
         raise SystemExit("benchmarks.enforcer: the runtime table has no plan")
     return float(sum(1000.0 * (len(core["order"]) + 1) / core["period_ms"] for core in plan["cores"]))
-
-
-def wake_cost(binary: Path, rate_hz: float, seconds: float, cpu: int) -> tuple[float, str]:
-    """CPU per wake-up (us) of the C loop at ``rate_hz``, SCHED_FIFO 4 on ``cpu``; and its line of output."""
-    out = subprocess.run(
-        [str(binary), repr(rate_hz), repr(seconds), str(ENFORCER_FIFO), str(cpu)],
-        capture_output=True,
-        text=True,
-        check=True,
-        timeout=seconds + 30,
-    ).stdout.strip()
-    return float(out.split(":", 1)[1].split()[0]), out
 
 
 def process_cpu_ns(pid: int) -> int:
@@ -129,7 +117,7 @@ def measure(app: str, duration_s: float, binary: Path, tree: Tree) -> dict[str, 
     rate = switches_per_s(table.plan)
     cpu = sorted(os.sched_getaffinity(0))[0]  # the plan's core 0: the enforcer's loop runs there
     load_before = load()
-    per_wake_us, floor_line = wake_cost(binary, rate, 4.0, cpu)
+    per_wake_us, floor_line = c_loop(binary, rate, 4.0, cpu)
     floor_cores = rate * per_wake_us / 1e6
     env = tree.env
     with tempfile.TemporaryDirectory() as folder:
@@ -223,12 +211,8 @@ def main() -> None:
     )
     parser.add_argument("--json", action="store_true")
     options = parser.parse_args()
-    compiler = shutil.which("cc") or shutil.which("gcc")
-    if compiler is None:
-        sys.exit("benchmarks.enforcer: needs a C compiler (cc) for benchmarks/wake_cost.c, the floor")
     with tempfile.TemporaryDirectory() as folder:
-        binary = Path(folder) / "wake_cost"
-        subprocess.run([compiler, "-O2", str(ROOT / "benchmarks" / "wake_cost.c"), "-o", str(binary)], check=True)
+        binary = build_c_loop(Path(folder), "benchmarks.enforcer")
         neutral = Path(folder) / "neutral"
         neutral.mkdir()
         trees = [Tree(path, neutral) for path in options.tree or [ROOT]]

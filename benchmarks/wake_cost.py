@@ -90,11 +90,26 @@ def _loop(rate_hz: float, seconds: float, cpu: int, *, switch: bool) -> float:
         os.waitpid(target, 0)
 
 
-def c_loop(binary: Path, rate_hz: float, seconds: float, cpu: int) -> float:
+def build_c_loop(folder: Path, program: str) -> Path:
+    """``benchmarks/wake_cost.c`` compiled into ``folder``; exits naming ``program`` without a C compiler."""
+    compiler = shutil.which("cc") or shutil.which("gcc")
+    if compiler is None:
+        sys.exit(f"{program}: needs a C compiler (cc) for benchmarks/wake_cost.c, the floor")
+    binary = folder / "wake_cost"
+    subprocess.run([compiler, "-O2", str(ROOT / "benchmarks" / "wake_cost.c"), "-o", str(binary)], check=True)
+    return binary
+
+
+def c_loop(binary: Path, rate_hz: float, seconds: float, cpu: int) -> tuple[float, str]:
+    """CPU per wake-up (us) of the C loop at ``rate_hz``, SCHED_FIFO 4 on ``cpu``; and its line of output."""
     out = subprocess.run(
-        [str(binary), f"{rate_hz}", f"{seconds}", f"{FIFO}", f"{cpu}"], capture_output=True, text=True, check=True
-    ).stdout
-    return float(out.split("wake_cost: ")[1].split(" us")[0])
+        [str(binary), repr(rate_hz), repr(seconds), str(FIFO), str(cpu)],
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=seconds + 30,
+    ).stdout.strip()
+    return float(out.split(":", 1)[1].split()[0]), out
 
 
 def busy(cpu: int) -> subprocess.Popen[bytes]:
@@ -111,12 +126,8 @@ def main() -> None:
     args = parser.parse_args()
     if os.geteuid() != 0:
         sys.exit("benchmarks.wake_cost: needs root (SCHED_FIFO)")
-    compiler = shutil.which("cc") or shutil.which("gcc")
-    if compiler is None:
-        sys.exit("benchmarks.wake_cost: needs a C compiler (cc) for benchmarks/wake_cost.c")
     with tempfile.TemporaryDirectory() as folder:
-        binary = Path(folder) / "wake_cost"
-        subprocess.run([compiler, "-O2", str(ROOT / "benchmarks" / "wake_cost.c"), "-o", str(binary)], check=True)
+        binary = build_c_loop(Path(folder), "benchmarks.wake_cost")
         print(f"load average {os.getloadavg()}; {args.rate:g} wake-ups a second, {args.seconds:g} s a loop")
         print("| where | C | Python, wake only | Python, a switch | ratios to C |")
         print("|---|---|---|---|---|")
@@ -124,7 +135,7 @@ def main() -> None:
             hog = busy(args.cpu) if beside else None
             try:
                 time.sleep(0.2 if beside else 0.0)
-                c = c_loop(binary, args.rate, args.seconds, args.cpu)
+                c = c_loop(binary, args.rate, args.seconds, args.cpu)[0]
                 wake = python_loop(args.rate, args.seconds, args.cpu, switch=False)
                 switch = python_loop(args.rate, args.seconds, args.cpu, switch=True)
             finally:
