@@ -156,6 +156,19 @@ def exited(pid: int) -> bool:
         os.close(pidfd)
 
 
+def _lower_self() -> tuple[int, os.sched_param] | None:
+    """Put the calling thread at SCHED_OTHER if it is real-time: its policy and parameter before, else None."""
+    try:
+        policy = os.sched_getscheduler(0)
+        if policy & ~SCHED_RESET_ON_FORK not in (os.SCHED_FIFO, os.SCHED_RR):
+            return None
+        param = os.sched_getparam(0)
+        os.sched_setscheduler(0, os.SCHED_OTHER | (policy & SCHED_RESET_ON_FORK), os.sched_param(0))
+    except OSError:
+        return None
+    return policy, param
+
+
 @contextlib.contextmanager
 def at_sched_other() -> Iterator[None]:
     """Run the block with the calling thread at SCHED_OTHER if it is real-time, then put it back.
@@ -165,16 +178,12 @@ def at_sched_other() -> Iterator[None]:
     preempted that task on its CPU waits for ever (catanc.runtime.watchdog's notes).  At SCHED_OTHER
     the releasing task gets the CPU.  Two system calls each way: for rare events (registrations).
     """
-    policy = os.sched_getscheduler(0)
-    if policy & ~SCHED_RESET_ON_FORK not in (os.SCHED_FIFO, os.SCHED_RR):
-        yield
-        return
-    param = os.sched_getparam(0)
-    os.sched_setscheduler(0, os.SCHED_OTHER | (policy & SCHED_RESET_ON_FORK), os.sched_param(0))
+    lowered = _lower_self()
     try:
         yield
     finally:
-        os.sched_setscheduler(0, policy, param)
+        if lowered is not None:
+            os.sched_setscheduler(0, *lowered)
 
 
 def allowed_cpus() -> frozenset[int]:
@@ -405,25 +414,44 @@ class Restorer:
     def restore_all(self) -> RestoreReport:
         """Put every remembered thread back (vanished ones are skipped and forgotten); never raises.
 
-        Idempotent: calling it again puts back threads changed again since.
+        At SCHED_OTHER: each thread is looked up in ``/proc`` (its start time), which must not happen
+        at SCHED_FIFO (:func:`at_sched_other`; ``catanc bench``'s raised driver spun in the kernel for
+        16 minutes restoring its exited workers).  A real-time caller is lowered for it, and raised
+        again after unless it was one of the threads put back.  Idempotent: calling it again puts back
+        threads changed again since.
         """
         restored: list[int] = []
         gone: list[int] = []
         failed: list[tuple[int, str]] = []
         with self._lock:
-            for tid, entry in list(self._threads.items()):
-                try:
-                    if entry.start_time is not None and thread_start_time(tid) != entry.start_time:
-                        raise ThreadGone(tid, "restore it")
-                    apply_policy(tid, entry.original)
-                except ThreadGone:
-                    gone.append(tid)
-                    del self._threads[tid]
-                except Exception as exc:  # never raises: restore every thread it can
-                    failed.append((tid, (str(exc).splitlines() or [type(exc).__name__])[0]))
-                else:
-                    restored.append(tid)
+            lowered = _lower_self()
+            try:
+                self._restore(list(self._threads.items()), restored, gone, failed)
+            finally:
+                if lowered is not None and threading.get_native_id() not in restored:
+                    with contextlib.suppress(OSError):
+                        os.sched_setscheduler(0, *lowered)
         return RestoreReport(tuple(restored), tuple(gone), tuple(failed))
+
+    def _restore(
+        self,
+        threads: list[tuple[int, Remembered]],
+        restored: list[int],
+        gone: list[int],
+        failed: list[tuple[int, str]],
+    ) -> None:
+        for tid, entry in threads:
+            try:
+                if entry.start_time is not None and thread_start_time(tid) != entry.start_time:
+                    raise ThreadGone(tid, "restore it")
+                apply_policy(tid, entry.original)
+            except ThreadGone:
+                gone.append(tid)
+                del self._threads[tid]
+            except Exception as exc:  # never raises: restore every thread it can
+                failed.append((tid, (str(exc).splitlines() or [type(exc).__name__])[0]))
+            else:
+                restored.append(tid)
 
     # ----------------------------------------------------------------------- the safety net
 

@@ -36,6 +36,7 @@ from typing import IO, Any
 import pytest
 
 from catanc.errors import CatancError, ExitCode, PrivilegeError
+from catanc.runtime import sched as sched_module
 from catanc.runtime.sched import (
     Restorer,
     ThreadGone,
@@ -715,3 +716,44 @@ def test_rlimit_rtprio_allows_up_to_its_value(nobody: tuple[int, int]) -> None:
     refused = run_probe(as_user(*nobody, rtprio=4), 5)
     assert refused.returncode == ExitCode.NO_PRIVILEGE, refused.stderr
     assert "RLIMIT_RTPRIO is 4 (needs 5)" in refused.stderr
+
+
+@pytest.mark.usefixtures("real_kernel")
+def test_restore_all_looks_threads_up_in_proc_only_below_sched_fifo(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A raised caller remembered last (bench's driver) is put back first; the others are looked up at
+    SCHED_OTHER: a /proc lookup of an exited thread at SCHED_FIFO can spin in the kernel for good."""
+    tids: list[int] = []
+    started, release = threading.Event(), threading.Event()
+
+    def sleeper() -> None:
+        tids.append(threading.get_native_id())
+        started.set()
+        release.wait(WAIT_S)
+
+    thread = threading.Thread(target=sleeper, daemon=True)
+    thread.start()
+    policies: list[int] = []
+    real_start_time = sched_module.thread_start_time
+
+    def start_time(tid: int) -> int | None:
+        policies.append(os.sched_getscheduler(0))
+        return real_start_time(tid)
+
+    try:
+        assert started.wait(WAIT_S)
+        restorer = Restorer()
+        restorer.remember(tids[0])
+        set_fifo(tids[0], 1)  # it sleeps: nothing runs at SCHED_FIFO
+        restorer.remember(threading.get_native_id())  # at SCHED_OTHER, remembered last
+        with realtime(2):
+            monkeypatch.setattr(sched_module, "thread_start_time", start_time)
+            report = restorer.restore_all()
+            after = os.sched_getscheduler(0)
+    finally:
+        set_other(tids[0])
+        release.set()
+        thread.join(WAIT_S)
+    assert sorted(report.restored) == sorted([tids[0], threading.get_native_id()])
+    assert after == os.SCHED_OTHER  # the caller is back at its original
+    assert len(policies) == 2
+    assert os.SCHED_FIFO not in policies
