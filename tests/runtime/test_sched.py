@@ -36,7 +36,6 @@ from typing import IO, Any
 import pytest
 
 from catanc.errors import CatancError, ExitCode, PrivilegeError
-from catanc.runtime import sched as sched_module
 from catanc.runtime.sched import (
     Restorer,
     ThreadGone,
@@ -52,7 +51,7 @@ from catanc.runtime.sched import (
     set_fifo,
     set_other,
 )
-from catanc.runtime.watchdog import WATCHDOG_PRIORITY
+from catanc.runtime.watchdog import WATCHDOG_PRIORITY, thread_start_time
 from tests.support.linux import as_user, cpu_set, poll, stat_fields
 
 WAIT_S = 10.0  # the longest any single wait in here may take
@@ -287,6 +286,27 @@ def realtime(priority: int) -> Iterator[None]:
         os.sched_setscheduler(0, policy, param)
 
 
+@contextlib.contextmanager
+def sleeping_thread() -> Iterator[int]:
+    """A thread of this process that sleeps until the block ends (then it exits): its tid."""
+    tids: list[int] = []
+    started, release = threading.Event(), threading.Event()
+
+    def sleeper() -> None:
+        tids.append(threading.get_native_id())
+        started.set()
+        release.wait(WAIT_S)
+
+    thread = threading.Thread(target=sleeper, daemon=True)
+    thread.start()
+    try:
+        assert started.wait(WAIT_S)
+        yield tids[0]
+    finally:
+        release.set()
+        thread.join(WAIT_S)
+
+
 # --------------------------------------------------------------------------- what the machine allows
 
 
@@ -462,91 +482,55 @@ def test_remember_records_the_original_once_and_restore_all_can_be_repeated(spaw
 
 @pytest.mark.usefixtures("real_kernel")
 def test_restore_all_skips_and_forgets_a_thread_that_exited() -> None:
-    tids: list[int] = []
-    started, release = threading.Event(), threading.Event()
-
-    def sleeper() -> None:
-        tids.append(threading.get_native_id())
-        started.set()
-        release.wait(WAIT_S)
-
-    thread = threading.Thread(target=sleeper, daemon=True)
-    thread.start()
-    try:
-        assert started.wait(WAIT_S)
+    with sleeping_thread() as tid:
         restorer = Restorer()
-        assert restorer.remember(tids[0]).policy == os.SCHED_OTHER
-        set_fifo(tids[0], 1)  # it sleeps: nothing runs at SCHED_FIFO
-    finally:
-        release.set()
-        thread.join(WAIT_S)
-    gone(tids[0])
+        assert restorer.remember(tid).policy == os.SCHED_OTHER
+        set_fifo(tid, 1)  # it sleeps: nothing runs at SCHED_FIFO
+    gone(tid)
     report = restorer.restore_all()
-    assert report.gone == (tids[0],)
+    assert report.gone == (tid,)
     assert report.ok
     assert not report.restored
     assert restorer.restore_all() == type(report)()  # forgotten
     with pytest.raises(ThreadGone):
-        restorer.remember(tids[0])
+        restorer.remember(tid)
 
 
 @pytest.mark.usefixtures("real_kernel")
 def test_restore_all_leaves_alone_a_thread_whose_tid_now_names_another(monkeypatch: pytest.MonkeyPatch) -> None:
     """A thread is its tid and its start time: a reused tid is not put back as if it were the old thread."""
-    tids: list[int] = []
-    started, release = threading.Event(), threading.Event()
-
-    def sleeper() -> None:
-        tids.append(threading.get_native_id())
-        started.set()
-        release.wait(WAIT_S)
-
-    thread = threading.Thread(target=sleeper, daemon=True)
-    thread.start()
-    try:
-        assert started.wait(WAIT_S)
-        restorer = Restorer()
-        restorer.remember(tids[0])
-        set_fifo(tids[0], 1)  # it sleeps: nothing runs at SCHED_FIFO
-        monkeypatch.setattr("catanc.runtime.sched.thread_start_time", lambda _tid: -1)
-        report = restorer.restore_all()
-        assert report.gone == (tids[0],)
-        assert sched_of(os.getpid(), tids[0]).policy == os.SCHED_FIFO
-    finally:
-        set_other(tids[0])
-        release.set()
-        thread.join(WAIT_S)
+    with sleeping_thread() as tid:
+        try:
+            restorer = Restorer()
+            restorer.remember(tid)
+            set_fifo(tid, 1)  # it sleeps: nothing runs at SCHED_FIFO
+            monkeypatch.setattr("catanc.runtime.sched.thread_start_time", lambda _tid: -1)
+            report = restorer.restore_all()
+            assert report.gone == (tid,)
+            assert sched_of(os.getpid(), tid).policy == os.SCHED_FIFO
+        finally:
+            set_other(tid)
 
 
 @pytest.mark.usefixtures("real_kernel")
 def test_a_signal_restores_at_once_then_runs_the_handler_that_was_there() -> None:
-    tids: list[int] = []
-    started, release = threading.Event(), threading.Event()
     received: list[int] = []
-
-    def sleeper() -> None:
-        tids.append(threading.get_native_id())
-        started.set()
-        release.wait(WAIT_S)
-
-    thread = threading.Thread(target=sleeper, daemon=True)
-    thread.start()
     before = signal.signal(signal.SIGHUP, lambda signum, _frame: received.append(signum))
     try:
-        assert started.wait(WAIT_S)
-        with Restorer() as restorer:
-            restorer.remember(tids[0])
-            set_fifo(tids[0], 1)  # it sleeps: nothing runs at SCHED_FIFO
-            signal.raise_signal(signal.SIGHUP)
-            assert received == [signal.SIGHUP]  # chained, and the process goes on
-            assert sched_of(os.getpid(), tids[0]) == Sched(os.SCHED_OTHER, 0, frozenset(os.sched_getaffinity(0)))
-        signal.raise_signal(signal.SIGHUP)  # the handler that was there is back
-        assert received == [signal.SIGHUP, signal.SIGHUP]
+        with sleeping_thread() as tid:
+            try:
+                with Restorer() as restorer:
+                    restorer.remember(tid)
+                    set_fifo(tid, 1)  # it sleeps: nothing runs at SCHED_FIFO
+                    signal.raise_signal(signal.SIGHUP)
+                    assert received == [signal.SIGHUP]  # chained, and the process goes on
+                    assert sched_of(os.getpid(), tid) == Sched(os.SCHED_OTHER, 0, frozenset(os.sched_getaffinity(0)))
+                signal.raise_signal(signal.SIGHUP)  # the handler that was there is back
+                assert received == [signal.SIGHUP, signal.SIGHUP]
+            finally:
+                set_other(tid)
     finally:
         signal.signal(signal.SIGHUP, before)
-        set_other(tids[0])
-        release.set()
-        thread.join(WAIT_S)
 
 
 def test_install_leaves_the_signal_handlers_as_they_were() -> None:
@@ -722,38 +706,25 @@ def test_rlimit_rtprio_allows_up_to_its_value(nobody: tuple[int, int]) -> None:
 def test_restore_all_looks_threads_up_in_proc_only_below_sched_fifo(monkeypatch: pytest.MonkeyPatch) -> None:
     """A raised caller remembered last (bench's driver) is put back first; the others are looked up at
     SCHED_OTHER: a /proc lookup of an exited thread at SCHED_FIFO can spin in the kernel for good."""
-    tids: list[int] = []
-    started, release = threading.Event(), threading.Event()
-
-    def sleeper() -> None:
-        tids.append(threading.get_native_id())
-        started.set()
-        release.wait(WAIT_S)
-
-    thread = threading.Thread(target=sleeper, daemon=True)
-    thread.start()
     policies: list[int] = []
-    real_start_time = sched_module.thread_start_time
 
     def start_time(tid: int) -> int | None:
         policies.append(os.sched_getscheduler(0))
-        return real_start_time(tid)
+        return thread_start_time(tid)
 
-    try:
-        assert started.wait(WAIT_S)
-        restorer = Restorer()
-        restorer.remember(tids[0])
-        set_fifo(tids[0], 1)  # it sleeps: nothing runs at SCHED_FIFO
-        restorer.remember(threading.get_native_id())  # at SCHED_OTHER, remembered last
-        with realtime(2):
-            monkeypatch.setattr(sched_module, "thread_start_time", start_time)
-            report = restorer.restore_all()
-            after = os.sched_getscheduler(0)
-    finally:
-        set_other(tids[0])
-        release.set()
-        thread.join(WAIT_S)
-    assert sorted(report.restored) == sorted([tids[0], threading.get_native_id()])
+    with sleeping_thread() as tid:
+        try:
+            restorer = Restorer()
+            restorer.remember(tid)
+            set_fifo(tid, 1)  # it sleeps: nothing runs at SCHED_FIFO
+            restorer.remember(threading.get_native_id())  # at SCHED_OTHER, remembered last
+            with realtime(2):
+                monkeypatch.setattr("catanc.runtime.sched.thread_start_time", start_time)
+                report = restorer.restore_all()
+                after = os.sched_getscheduler(0)
+        finally:
+            set_other(tid)
+    assert sorted(report.restored) == sorted([tid, threading.get_native_id()])
     assert after == os.SCHED_OTHER  # the caller is back at its original
     assert len(policies) == 2
     assert os.SCHED_FIFO not in policies
