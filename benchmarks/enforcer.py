@@ -46,7 +46,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from benchmarks.wake_cost import build_c_loop, c_loop
+from benchmarks.wake_cost import build_c_loop, c_loop, c_loop_argv, parsed_per_wake_us
 from catanc.artifacts.runtime_table import PlanPayload, load_table
 from catanc.runtime.log import read_log
 from catanc.runtime.processes import demo_profiles
@@ -54,7 +54,6 @@ from catanc.runtime.worker.command import worker_command
 
 ROOT = Path(__file__).resolve().parent.parent
 APPS = ("nav2d", "vr_illixr")
-ENFORCER_FIFO = 4
 
 
 def switches_per_s(plan: PlanPayload | None) -> float:
@@ -142,15 +141,11 @@ def measure(app: str, duration_s: float, binary: Path, tree: Tree) -> dict[str, 
         time.sleep(max(began + duration_s / 3 - time.monotonic(), 0.0))
         first, first_at = process_cpu_ns(enforcer.pid), time.monotonic()
         # The floor again, beside the app (same core, same level): a wake-up costs more in a busy core's caches.
-        loaded = subprocess.Popen(
-            [str(binary), repr(rate), repr(duration_s / 3), str(ENFORCER_FIFO), str(cpu)],
-            stdout=subprocess.PIPE,
-            text=True,
-        )
+        loaded = subprocess.Popen(c_loop_argv(binary, rate, duration_s / 3, cpu), stdout=subprocess.PIPE, text=True)
         time.sleep(duration_s / 3)
         second, second_at = process_cpu_ns(enforcer.pid), time.monotonic()
         loaded_line = loaded.communicate(timeout=30)[0].strip()
-        loaded_us = float(loaded_line.split(":", 1)[1].split()[0])
+        loaded_us = parsed_per_wake_us(loaded_line)
         _, status, usage = os.wait4(enforcer.pid, 0)
         wall = time.monotonic() - began
         for worker in workers:

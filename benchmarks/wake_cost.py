@@ -34,8 +34,9 @@ import tempfile
 import time
 from pathlib import Path
 
+from catanc.core.priorities import ENFORCER_FIFO
+
 ROOT = Path(__file__).resolve().parent.parent
-FIFO = 4
 TRIGGER = b"catanc1 trigger LM 123456 1"
 
 
@@ -68,7 +69,7 @@ def _loop(rate_hz: float, seconds: float, cpu: int, *, switch: bool) -> float:
     wake_r, _wake_w = os.pipe()
     fds = [receiver.fileno(), wake_r]
     low, high = os.sched_param(1), os.sched_param(2)
-    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(FIFO))
+    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(ENFORCER_FIFO))
     try:
         period_ns = int(1e9 / rate_hz)
         wakes = int(rate_hz * seconds)
@@ -100,16 +101,22 @@ def build_c_loop(folder: Path, program: str) -> Path:
     return binary
 
 
+def c_loop_argv(binary: Path, rate_hz: float, seconds: float, cpu: int) -> list[str]:
+    """The C loop's command line: ``rate_hz`` wake-ups a second for ``seconds``, SCHED_FIFO 4 on ``cpu``."""
+    return [str(binary), repr(rate_hz), repr(seconds), str(ENFORCER_FIFO), str(cpu)]
+
+
+def parsed_per_wake_us(line: str) -> float:
+    """The CPU per wake-up (us) in the C loop's line of output."""
+    return float(line.split(":", 1)[1].split(maxsplit=1)[0])
+
+
 def c_loop(binary: Path, rate_hz: float, seconds: float, cpu: int) -> tuple[float, str]:
     """CPU per wake-up (us) of the C loop at ``rate_hz``, SCHED_FIFO 4 on ``cpu``; and its line of output."""
     out = subprocess.run(
-        [str(binary), repr(rate_hz), repr(seconds), str(FIFO), str(cpu)],
-        capture_output=True,
-        text=True,
-        check=True,
-        timeout=seconds + 30,
+        c_loop_argv(binary, rate_hz, seconds, cpu), capture_output=True, text=True, check=True, timeout=seconds + 30
     ).stdout.strip()
-    return float(out.split(":", 1)[1].split()[0]), out
+    return parsed_per_wake_us(out), out
 
 
 def busy(cpu: int) -> subprocess.Popen[bytes]:
