@@ -426,32 +426,23 @@ class Restorer:
         with self._lock:
             lowered = _lower_self()
             try:
-                self._restore(list(self._threads.items()), restored, gone, failed)
+                for tid, entry in list(self._threads.items()):
+                    try:
+                        if entry.start_time is not None and thread_start_time(tid) != entry.start_time:
+                            raise ThreadGone(tid, "restore it")
+                        apply_policy(tid, entry.original)
+                    except ThreadGone:
+                        gone.append(tid)
+                        del self._threads[tid]
+                    except Exception as exc:  # never raises: restore every thread it can
+                        failed.append((tid, (str(exc).splitlines() or [type(exc).__name__])[0]))
+                    else:
+                        restored.append(tid)
             finally:
                 if lowered is not None and threading.get_native_id() not in restored:
                     with contextlib.suppress(OSError):
                         os.sched_setscheduler(0, *lowered)
         return RestoreReport(tuple(restored), tuple(gone), tuple(failed))
-
-    def _restore(
-        self,
-        threads: list[tuple[int, Remembered]],
-        restored: list[int],
-        gone: list[int],
-        failed: list[tuple[int, str]],
-    ) -> None:
-        for tid, entry in threads:
-            try:
-                if entry.start_time is not None and thread_start_time(tid) != entry.start_time:
-                    raise ThreadGone(tid, "restore it")
-                apply_policy(tid, entry.original)
-            except ThreadGone:
-                gone.append(tid)
-                del self._threads[tid]
-            except Exception as exc:  # never raises: restore every thread it can
-                failed.append((tid, (str(exc).splitlines() or [type(exc).__name__])[0]))
-            else:
-                restored.append(tid)
 
     # ----------------------------------------------------------------------- the safety net
 
