@@ -22,7 +22,6 @@ import atexit
 import contextlib
 import os
 import resource
-import select
 import signal
 import sys
 import threading
@@ -33,7 +32,7 @@ from types import FrameType, TracebackType
 from typing import Any, Self, TypeVar
 
 from catanc.errors import PrivilegeError, SchedError
-from catanc.runtime.watchdog import Watchdog, thread_start_time
+from catanc.runtime.watchdog import Watchdog, pidfd_exited, thread_start_time
 
 SCHED_DEADLINE = 6  # not in the os module; os.sched_setscheduler cannot set it back
 SCHED_RESET_ON_FORK = getattr(os, "SCHED_RESET_ON_FORK", 0x40000000)
@@ -151,7 +150,7 @@ def exited(pid: int) -> bool:
     except OSError:  # no pidfds here (before Linux 5.3), or no descriptor left: say alive, look it up
         return False
     try:
-        return bool(select.select([pidfd], [], [], 0)[0])
+        return pidfd_exited(pidfd)
     finally:
         os.close(pidfd)
 

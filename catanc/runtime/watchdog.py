@@ -98,6 +98,11 @@ def thread_start_time(tid: int) -> int | None:
     return int(fields[22 - 3])
 
 
+def pidfd_exited(pidfd: int) -> bool:
+    """Whether the process or thread ``pidfd`` refers to has exited (a pidfd is readable from then on)."""
+    return bool(select.select([pidfd], [], [], 0)[0])
+
+
 def format_line(tid: int, start_time: int | None, policy: int, priority: int, cpus: frozenset[int]) -> bytes:
     """The protocol's ``T`` line for one thread."""
     start = "-" if start_time is None else str(start_time)
@@ -133,10 +138,6 @@ def _thread_pidfd(tid: int) -> int | None:
         return None
 
 
-def _exited(pidfd: int) -> bool:
-    return bool(select.select([pidfd], [], [], 0)[0])
-
-
 def _parse(line: str) -> _Entry | None:
     words = line.split()
     if len(words) != 6 or words[0] != "T":
@@ -154,7 +155,7 @@ def _parse(line: str) -> _Entry | None:
 def _restore(entry: _Entry) -> str | None:
     """Put one thread back (policy first: that stops it hogging a CPU); ``"gone"``, an error, or ``None``."""
     if entry.pidfd is not None:
-        if _exited(entry.pidfd):
+        if pidfd_exited(entry.pidfd):
             return "gone"
     elif entry.start_time is not None and thread_start_time(entry.tid) != entry.start_time:
         return "gone"
