@@ -26,7 +26,7 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class ExecutorWait:
-    """The longest wait for an executor's thread: ``node``'s, behind the executor's other nodes."""
+    """How long a run of ``node`` may wait for its executor's thread, behind the executor's other nodes."""
 
     executor: Executor
     node: str
