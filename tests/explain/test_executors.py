@@ -15,6 +15,7 @@ import pytest
 import yaml
 
 from catanc.core.build import build_problem
+from catanc.core.problem import Problem
 from catanc.explain.analysis import explain_plan
 from catanc.explain.executors import executor_waits, lost_triggers
 from catanc.planning.planner import plan_problem
@@ -37,7 +38,7 @@ PAIR: dict[str, Any] = {
 DURATION_S = 20.0
 
 
-def planned(spec: Spec, cores: int) -> tuple[Plan, Any]:
+def planned(spec: Spec, cores: int) -> tuple[Plan, Problem]:
     problem = build_problem(spec)
     return plan_problem(problem, spec.schedule, cores), problem
 
