@@ -19,8 +19,8 @@ every derived number with :mod:`catanc.core.metrics`:
 5. warnings: the plan's own, bounds with less than :data:`NEAR_SATURATION`
    headroom (and by how much compute may grow on their cores before they are
    missed, at this schedule: :mod:`catanc.explain.headroom`), subchains
-   starved at the minimum slice, executor nodes that wait for their thread
-   longer than their period (:mod:`catanc.explain.executors`);
+   starved at the minimum slice, executor nodes predicted to lose triggers while
+   another node holds their thread (:mod:`catanc.explain.executors`);
 6. the spec's baseline under the same model (:mod:`catanc.planning.baseline`).
 """
 
@@ -35,7 +35,7 @@ from catanc.core.metrics import Timing, evaluate_chain
 from catanc.core.problem import Executor, Problem, Subchain
 from catanc.errors import Diagnostic
 from catanc.explain.enforceable import short_slots
-from catanc.explain.executors import longest_wait, lost_triggers
+from catanc.explain.executors import executor_turns, rate_losses
 from catanc.explain.headroom import NEAR_SATURATION, Headroom, plan_headrooms
 from catanc.planning.baseline import BaselineEvaluation, BaselineGap, TermValue, evaluate_baseline, objective_terms
 from catanc.planning.order import slot_starts
@@ -161,7 +161,7 @@ def explain_plan(spec: Spec, problem: Problem, plan: Plan, machine: MachineUse |
             *(spec_warning(diagnostic) for diagnostic in problem.warnings),
             *plan.warnings,
             *_warnings(plan, problem, spec.schedule, headrooms),
-            *(wait.warning for wait in lost_triggers(plan, problem)),
+            *(turns.warning(rate) for turns, rate in rate_losses(plan, problem)),
             *([] if machine is not None else [found.warning for found in short_slots(plan, spec.schedule)]),
         ),
         baseline=evaluate_baseline(spec, problem, plan.cores),
@@ -182,10 +182,9 @@ def spec_warning(diagnostic: Diagnostic) -> str:
 def executor_note(executor: Executor, plan: Plan, problem: Problem) -> str:
     """Where an executor's nodes run: one thread, so one core set and never at once.
 
-    Across subchains on a shared core, a run can wait for the other nodes' runs to end: their
-    compute, in wall time at about the executor's share of the core (its subchains' slices over
-    ``T``; it may also take idle time of other slots).  The slot model's latencies do not count
-    that wait, so the note says how long it can be.
+    Across subchains on a shared core, a run can wait for the other nodes' runs to end
+    (:mod:`catanc.explain.executors`): the note says how long, at most, for the node that waits
+    longest.  The slot model's latencies do not count that wait.
     """
     nodes = ", ".join(executor.nodes)
     subs = executor.subchains
@@ -195,14 +194,15 @@ def executor_note(executor: Executor, plan: Plan, problem: Problem) -> str:
         how = f"in subchain {subs[0]} on {where}: its period covers their compute added up"
         return f"Executor {executor.name} runs {nodes} in one thread (never at once): {how}."
     how = f"subchains {', '.join(subs)} share {where}, one slot after the other"
-    wait = longest_wait(executor, plan, problem)
-    if wait is None:
+    turns = executor_turns(executor, plan, problem)
+    if turns is None:
         return f"Executor {executor.name} runs {nodes} in one thread (never at once): {how}."
+    rate = max(turns.rates, key=lambda rate: rate.longest_wait_ms)
     return (
         f"Executor {executor.name} runs {nodes} in one thread (never at once): {how}; a run may wait for "
-        f"the others' to end, about {wait.wait_ms:.1f} ms for {wait.node} behind {wait.behind} "
-        f"({wait.compute_ms:.3g} ms of compute at the executor's {wait.share:.0%} of the core), which the plan's "
-        "latencies do not count."
+        f"the others' to end, up to about {rate.longest_wait_ms:.1f} ms for {rate.node} behind {rate.blocked_by} "
+        f"({turns.compute_ms[rate.blocked_by]:.3g} ms of compute at the {turns.share:.0%} of a core the others "
+        "leave), which the plan's latencies do not count."
     )
 
 

@@ -1,102 +1,80 @@
-"""How long a run may wait for an executor's thread, where the executor's nodes span several subchains.
+"""What an executor's one thread does to its nodes' rates, where its nodes span several subchains.
 
 Nodes of one single-threaded executor never run at once (catan-model.md section 6): a run that
 finds the thread busy waits for the run on it to end.  Across subchains on a shared core the slot
-model plans each subchain as if its threads were its own, so the wait is in neither its latency
-nor its rate.  The wait of a node's run is the others' compute in wall time, at about the
-executor's share of the core (its subchains' slices over ``T``; it may take other slots' idle
-time too).  A node whose wait is longer than its own subchain's period loses the triggers that
-come meanwhile (a head still busy is not triggered again): it runs below its planned rate.  nav2d
-is the example: GL may wait ~408 ms behind GM on one core, 20 times its 20 ms period; simulated,
-GL runs at 40, 37 and 27 Hz of its planned 50 on 1, 2 and 3 cores, and at 49-50 Hz without the
-executor.
+model plans each subchain as if its threads were its own, so neither the wait nor the triggers
+lost meanwhile are in its latency or rate.  :mod:`catanc.core.executor_thread` predicts both from
+the plan; this module feeds it a plan's periods, compute times and the share of a core the thread
+gets (what the core's other subchains leave).  nav2d is the example: GM's 150 ms run holds the
+thread ~265 ms on one core, so GL, planned at 50 Hz, runs at about 34 Hz (simulated: 38 Hz;
+49-50 Hz without the executor).
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+from catanc.core.executor_thread import Member, MemberRate, member_rates, thread_share, utilisation
 from catanc.core.problem import Executor, Problem
 
 if TYPE_CHECKING:
     from catanc.planning.types import Plan
 
+LOSS_WORTH_A_WARNING = 0.01
+"""A member predicted to lose more than this share of its planned triggers gets a warning."""
+
 
 @dataclass(frozen=True)
-class ExecutorWait:
-    """How long a run of ``node`` may wait for its executor's thread, behind the executor's other nodes."""
+class ExecutorTurns:
+    """An executor's thread across subchains of a plan: its share of a core and each node's predicted rate."""
 
     executor: Executor
-    node: str
-    subchain: str  # the node's
-    compute_ms: float  # the other nodes' compute
-    share: float  # the executor's share of its core (slices over T)
-    period_ms: float  # the node's subchain's planned period
+    share: float  # of a core, while one of its runs holds the thread
+    rates: tuple[MemberRate, ...]  # in the executor's node order
+    compute_ms: dict[str, float]  # each node's run
 
-    @property
-    def wait_ms(self) -> float:
-        return self.compute_ms / min(self.share, 1.0)
-
-    @property
-    def behind(self) -> str:
-        return ", ".join(other for other in self.executor.nodes if other != self.node)
-
-    @property
-    def loses_triggers(self) -> bool:
-        return self.wait_ms > self.period_ms
-
-    @property
-    def warning(self) -> str:
+    def warning(self, rate: MemberRate) -> str:
         return (
-            f"executor {self.executor.name}: a run of {self.node} may wait about {self.wait_ms:.1f} ms for "
-            f"{self.behind} to end, longer than {self.subchain}'s planned period ({self.period_ms:.3f} ms): "
-            f"its triggers meanwhile are lost and it runs below its planned rate (the planner does not yet "
-            "plan an executor's thread across subchains)"
+            f"executor {self.executor.name}: {rate.node} runs at about {rate.rate_hz:.1f} Hz of its planned "
+            f"{rate.planned_hz:.1f} Hz: a run of {rate.blocked_by} holds their thread about "
+            f"{rate.longest_wait_ms:.1f} ms ({self.compute_ms[rate.blocked_by]:.3g} ms of compute at the "
+            f"{self.share:.0%} of a core the others leave) and {rate.node}'s triggers meanwhile are lost "
+            "(the planner does not yet plan an executor's thread across subchains)"
         )
 
 
-def executor_waits(executor: Executor, plan: Plan, problem: Problem) -> list[ExecutorWait]:
-    """How long each node of ``executor`` may wait for its thread, in the executor's node order; empty unless
-    its nodes span two or more subchains on a shared core."""
+def executor_turns(executor: Executor, plan: Plan, problem: Problem) -> ExecutorTurns | None:
+    """The thread's turns under ``plan``; None unless the executor's nodes span two or more shared subchains."""
     subs = executor.subchains
     if len(subs) < 2:
-        return []
+        return None
     cores = {core for name in subs for core in plan.subchains[name].cores}
     period = next((core.period_ms for core in plan.shared_cores if core.core in cores), None)
     if period is None:
-        return []
-    share = math.fsum(plan.subchains[name].fraction * problem.subchain(name).compute_ms for name in subs) / period
-    compute, owner = {}, {}
+        return None
+    own = sum(plan.subchains[name].fraction * problem.subchain(name).compute_ms for name in subs) / period
+    others = sum(
+        utilisation(problem.subchain(name).compute_ms, sub.period_ms)
+        for name, sub in plan.subchains.items()
+        if name not in subs and cores & set(sub.cores)
+    )
+    share = thread_share(own, others, len(cores))
+    members: dict[str, Member] = {}
     for name in subs:
         sub = problem.subchain(name)
-        for node, c in zip(sub.nodes, sub.node_compute_ms, strict=True):
-            compute[node], owner[node] = c, name
-    return [
-        ExecutorWait(
-            executor,
-            node,
-            owner[node],
-            math.fsum(compute[other] for other in executor.nodes if other != node),
-            share,
-            plan.subchains[owner[node]].period_ms,
-        )
-        for node in executor.nodes
-    ]
+        for node, compute in zip(sub.nodes, sub.node_compute_ms, strict=True):
+            if node in executor.nodes:
+                members[node] = Member(node, plan.subchains[name].period_ms, compute)
+    ordered = [members[node] for node in executor.nodes]
+    return ExecutorTurns(executor, share, tuple(member_rates(ordered, share)), {m.node: m.compute_ms for m in ordered})
 
 
-def longest_wait(executor: Executor, plan: Plan, problem: Problem) -> ExecutorWait | None:
-    """The longest wait a node of ``executor`` may have for its thread (the first such node on a tie)."""
-    waits = executor_waits(executor, plan, problem)
-    return max(waits, key=lambda wait: wait.wait_ms) if waits else None
-
-
-def lost_triggers(plan: Plan, problem: Problem) -> list[ExecutorWait]:
-    """Every node of an executor whose wait for the thread is longer than its subchain's period."""
-    return [
-        wait
-        for executor in problem.executors
-        for wait in executor_waits(executor, plan, problem)
-        if wait.loses_triggers
-    ]
+def rate_losses(plan: Plan, problem: Problem) -> list[tuple[ExecutorTurns, MemberRate]]:
+    """Every executor node predicted to lose more than :data:`LOSS_WORTH_A_WARNING` of its planned rate."""
+    losses = []
+    for executor in problem.executors:
+        turns = executor_turns(executor, plan, problem)
+        if turns is not None:
+            losses += [(turns, rate) for rate in turns.rates if rate.lost_share > LOSS_WORTH_A_WARNING]
+    return losses
