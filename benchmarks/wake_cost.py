@@ -3,7 +3,7 @@
     python -m benchmarks.wake_cost                      # 800 Hz, 5 s a loop, CPU 0
     python -m benchmarks.wake_cost --rate 400 --seconds 10 --cpu 1
 
-Three loops, each at SCHED_FIFO 4 pinned to one CPU, waking at ``--rate`` on an absolute
+Four loops, each at SCHED_FIFO 4 pinned to one CPU, waking at ``--rate`` on an absolute
 CLOCK_MONOTONIC grid, one after the other, alone and then beside a process that keeps that CPU
 busy (at SCHED_OTHER, as an app's threads between slices):
 
@@ -13,7 +13,10 @@ busy (at SCHED_OTHER, as an app's threads between slices):
   loop waits on) until the due time, then nothing;
 - **Python, a switch**: the same, then what the least slot switch does: two ``sched_setscheduler``
   calls on another process's thread (the previous owner lowered, the next one raised) and one
-  trigger datagram sent (and drained).
+  trigger datagram sent (and drained);
+- **numba, a switch**: the same switch compiled (numba's nopython mode calling libc's ``ppoll``,
+  ``sched_setscheduler``, ``send`` and ``recv`` through ctypes, as a compiled hot loop of the
+  enforcer would): what a switch costs without the interpreter (needs the ``sim`` extra).
 
 Each loop's CPU is its thread's CPU time (``CLOCK_THREAD_CPUTIME_ID``) over its wake-ups.  A loop
 that does no more than this is the least any Python event loop can cost per wake-up: the ratio to
@@ -23,6 +26,7 @@ the C floor bounds what a Python enforcer can reach.
 from __future__ import annotations
 
 import argparse
+import ctypes
 import os
 import select
 import shutil
@@ -32,22 +36,25 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from catanc.core.priorities import ENFORCER_FIFO
+from catanc.extras import require
 
 ROOT = Path(__file__).resolve().parent.parent
 TRIGGER = b"catanc1 trigger LM 123456 1"
 
 
-def python_loop(rate_hz: float, seconds: float, cpu: int, *, switch: bool) -> float:
-    """CPU per wake-up (us) of a Python loop, in a child process so that its priority dies with it."""
+def python_loop(rate_hz: float, seconds: float, cpu: int, *, switch: bool, compiled: bool = False) -> float:
+    """CPU per wake-up (us) of a Python (or numba) loop, in a child process so that its priority dies with it."""
     read_end, write_end = os.pipe()
     child = os.fork()
     if child == 0:  # pragma: no cover - the measuring child
         os.close(read_end)
         try:
-            per_wake = _loop(rate_hz, seconds, cpu, switch=switch)
+            per_wake = _loop(rate_hz, seconds, cpu, switch=switch, compiled=compiled)
             os.write(write_end, f"{per_wake}".encode())
         finally:
             os._exit(0)
@@ -58,7 +65,7 @@ def python_loop(rate_hz: float, seconds: float, cpu: int, *, switch: bool) -> fl
     return float(text)
 
 
-def _loop(rate_hz: float, seconds: float, cpu: int, *, switch: bool) -> float:
+def _loop(rate_hz: float, seconds: float, cpu: int, *, switch: bool, compiled: bool) -> float:
     os.sched_setaffinity(0, {cpu})
     target = os.fork()  # a sleeping process whose priority the switches change
     if target == 0:  # pragma: no cover
@@ -69,10 +76,15 @@ def _loop(rate_hz: float, seconds: float, cpu: int, *, switch: bool) -> float:
     wake_r, _wake_w = os.pipe()
     fds = [receiver.fileno(), wake_r]
     low, high = os.sched_param(1), os.sched_param(2)
+    period_ns = int(1e9 / rate_hz)
+    wakes = int(rate_hz * seconds)
+    compiled_loop = _compiled_switches(target, sender.fileno(), fds) if compiled else None
     os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(ENFORCER_FIFO))
     try:
-        period_ns = int(1e9 / rate_hz)
-        wakes = int(rate_hz * seconds)
+        if compiled_loop is not None:
+            started = time.thread_time_ns()
+            compiled_loop(wakes, period_ns)
+            return (time.thread_time_ns() - started) / wakes / 1000.0
         due = time.monotonic_ns() + period_ns
         started = time.thread_time_ns()
         for _ in range(wakes):
@@ -89,6 +101,61 @@ def _loop(rate_hz: float, seconds: float, cpu: int, *, switch: bool) -> float:
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
         os.kill(target, signal.SIGKILL)
         os.waitpid(target, 0)
+
+
+def _compiled_switches(target: int, sender: int, fds: list[int]) -> Callable[[int, int], None]:
+    """The Python switch loop compiled by numba, its system calls made through libc; warmed up (compiled) here."""
+    require("numba", "benchmarks.wake_cost's compiled loop")
+    import numba  # noqa: PLC0415 (the sim extra: only this loop needs it)
+    import numpy as np  # noqa: PLC0415
+
+    libc = ctypes.CDLL(None, use_errno=True)
+    signatures: dict[str, tuple[type, list[type]]] = {
+        "clock_gettime": (ctypes.c_int, [ctypes.c_int, ctypes.c_void_p]),
+        "ppoll": (ctypes.c_int, [ctypes.c_void_p, ctypes.c_ulong, ctypes.c_void_p, ctypes.c_void_p]),
+        "sched_setscheduler": (ctypes.c_int, [ctypes.c_int, ctypes.c_int, ctypes.c_void_p]),
+        "send": (ctypes.c_ssize_t, [ctypes.c_int, ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int]),
+        "recv": (ctypes.c_ssize_t, [ctypes.c_int, ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int]),
+    }
+    for name, (restype, argtypes) in signatures.items():
+        getattr(libc, name).restype, getattr(libc, name).argtypes = restype, argtypes
+    clock_gettime, ppoll, setscheduler = libc.clock_gettime, libc.ppoll, libc.sched_setscheduler
+    send, recv = libc.send, libc.recv
+    polled = np.zeros(2 * len(fds), dtype=np.int32)  # struct pollfd: int fd; short events, revents
+    polled[0::2] = fds
+    polled.view(np.int16)[2::4] = select.POLLIN
+    times = np.zeros(2, dtype=np.int64)  # a struct timespec
+    param = np.zeros(1, dtype=np.int32)  # a struct sched_param
+    message = np.frombuffer(TRIGGER, dtype=np.uint8).copy()
+    drained = np.zeros(64, dtype=np.uint8)
+    receiver, count, fifo, nonblocking = fds[0], len(fds), os.SCHED_FIFO, socket.MSG_DONTWAIT
+    monotonic = time.CLOCK_MONOTONIC
+
+    @numba.njit(nogil=True)  # type: ignore[untyped-decorator]
+    def run(  # noqa: PLR0917 (numba takes the arrays one by one)
+        wakes: int, period_ns: int, times: Any, param: Any, polled: Any, message: Any, drained: Any
+    ) -> None:
+        # Arrays are arguments: numba freezes the ones a function closes over as read-only constants.
+        clock_gettime(monotonic, times.ctypes.data)
+        due = times[0] * 1_000_000_000 + times[1] + period_ns
+        for _ in range(wakes):
+            clock_gettime(monotonic, times.ctypes.data)
+            rest = max(due - (times[0] * 1_000_000_000 + times[1]), 0)
+            times[0], times[1] = rest // 1_000_000_000, rest % 1_000_000_000
+            ppoll(polled.ctypes.data, count, times.ctypes.data, 0)
+            param[0] = 2
+            setscheduler(target, fifo, param.ctypes.data)
+            param[0] = 1
+            setscheduler(target, fifo, param.ctypes.data)
+            send(sender, message.ctypes.data, message.size, nonblocking)
+            recv(receiver, drained.ctypes.data, drained.size, nonblocking)
+            due += period_ns
+
+    def switches(wakes: int, period_ns: int) -> None:
+        run(wakes, period_ns, times, param, polled, message, drained)
+
+    switches(2, 1_000_000)  # compiled now, outside the measured loop
+    return switches
 
 
 def build_c_loop(folder: Path, program: str) -> Path:
@@ -136,8 +203,8 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as folder:
         binary = build_c_loop(Path(folder), "benchmarks.wake_cost")
         print(f"load average {os.getloadavg()}; {args.rate:g} wake-ups a second, {args.seconds:g} s a loop")
-        print("| where | C | Python, wake only | Python, a switch | ratios to C |")
-        print("|---|---|---|---|---|")
+        print("| where | C | Python, wake only | Python, a switch | numba, a switch | ratios to C |")
+        print("|---|---|---|---|---|---|")
         for beside in (False, True):
             hog = busy(args.cpu) if beside else None
             try:
@@ -145,13 +212,15 @@ def main() -> None:
                 c = c_loop(binary, args.rate, args.seconds, args.cpu)[0]
                 wake = python_loop(args.rate, args.seconds, args.cpu, switch=False)
                 switch = python_loop(args.rate, args.seconds, args.cpu, switch=True)
+                compiled = python_loop(args.rate, args.seconds, args.cpu, switch=True, compiled=True)
             finally:
                 if hog is not None:
                     hog.kill()
                     hog.wait()
             where = "beside a busy process" if beside else "alone"
             print(
-                f"| {where} | {c:.1f} us | {wake:.1f} us | {switch:.1f} us | {wake / c:.2f}x / {switch / c:.2f}x |",
+                f"| {where} | {c:.1f} us | {wake:.1f} us | {switch:.1f} us | {compiled:.1f} us "
+                f"| {wake / c:.2f}x / {switch / c:.2f}x / {compiled / c:.2f}x |",
                 flush=True,
             )
 
