@@ -27,8 +27,10 @@ the simulator in the tests.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
+
+from catanc.core.problem import Executor, Problem
 
 
 @dataclass(frozen=True)
@@ -94,3 +96,75 @@ def member_rates(members: Sequence[Member], share: float) -> list[MemberRate]:
 def utilisation(compute_ms: float, period_ms: float) -> float:
     """A subchain's busy share of a core: one run's compute every period."""
     return compute_ms / period_ms if math.isfinite(period_ms) else 0.0
+
+
+# --------------------------------------------------------------------------- on a planned problem
+
+
+@dataclass(frozen=True)
+class CoreGroup:
+    """Shared subchains on one set of cores: the core group an executor's subchains sit in."""
+
+    subchains: tuple[str, ...]
+    cores: int
+
+
+@dataclass(frozen=True)
+class ExecutorTurns:
+    """An executor's thread under a plan's periods: its share of a core and each node's predicted rate."""
+
+    executor: Executor
+    share: float  # of a core, while one of its runs holds the thread
+    rates: tuple[MemberRate, ...]  # in the executor's node order
+    compute_ms: dict[str, float]  # each node's run
+
+
+def executor_turns(
+    problem: Problem, executor: Executor, periods: Mapping[str, float], groups: Iterable[CoreGroup]
+) -> ExecutorTurns | None:
+    """The thread's turns at ``periods`` (per subchain, ms); None unless the executor's nodes span two or
+    more subchains of one core group in ``groups``.
+
+    The share is what the group's other subchains leave (it is never below the executor's own
+    slices, which fit beside the others' utilisation in every plan).
+    """
+    subs = executor.subchains
+    if len(subs) < 2:
+        return None
+    group = next((group for group in groups if subs[0] in group.subchains), None)
+    if group is None or not set(subs) <= set(group.subchains):
+        return None
+    others = math.fsum(
+        utilisation(problem.subchain(name).compute_ms, periods[name]) for name in group.subchains if name not in subs
+    )
+    share = thread_share(0.0, others, group.cores)
+    members: dict[str, Member] = {}
+    for name in subs:
+        sub = problem.subchain(name)
+        for node, compute in zip(sub.nodes, sub.node_compute_ms, strict=True):
+            if node in executor.nodes:
+                members[node] = Member(node, periods[name], compute)
+    ordered = [members[node] for node in executor.nodes]
+    return ExecutorTurns(
+        executor, share, tuple(member_rates(ordered, share)), {member.node: member.compute_ms for member in ordered}
+    )
+
+
+def periods_as_run(problem: Problem, periods: Mapping[str, float], groups: Iterable[CoreGroup]) -> dict[str, float]:
+    """Each subchain's period as it runs: where an executor's node heads a subchain and loses triggers
+    to the others' runs, one over its predicted rate; every other period as planned.
+
+    A node that does not head its subchain waits instead (its head loses the triggers, which the
+    model does not count): its subchain keeps its planned period.
+    """
+    groups = list(groups)
+    result = dict(periods)
+    for executor in problem.executors:
+        turns = executor_turns(problem, executor, periods, groups)
+        if turns is None:
+            continue
+        for rate in turns.rates:
+            sub = next(sub for sub in problem.subchains if rate.node in sub.nodes)
+            if sub.nodes[0] == rate.node and rate.rate_hz < rate.planned_hz:
+                result[sub.name] = 1000.0 / rate.rate_hz if rate.rate_hz > 0.0 else math.inf
+    return result

@@ -35,7 +35,7 @@ from catanc.core.metrics import Timing, evaluate_chain
 from catanc.core.problem import Executor, Problem, Subchain
 from catanc.errors import Diagnostic
 from catanc.explain.enforceable import short_slots
-from catanc.explain.executors import executor_turns, rate_losses
+from catanc.explain.executors import plan_turns, rate_losses, warning
 from catanc.explain.headroom import NEAR_SATURATION, Headroom, plan_headrooms
 from catanc.planning.baseline import BaselineEvaluation, BaselineGap, TermValue, evaluate_baseline, objective_terms
 from catanc.planning.order import slot_starts
@@ -161,7 +161,7 @@ def explain_plan(spec: Spec, problem: Problem, plan: Plan, machine: MachineUse |
             *(spec_warning(diagnostic) for diagnostic in problem.warnings),
             *plan.warnings,
             *_warnings(plan, problem, spec.schedule, headrooms),
-            *(turns.warning(rate) for turns, rate in rate_losses(plan, problem)),
+            *(warning(turns, rate) for turns, rate in rate_losses(plan, problem)),
             *([] if machine is not None else [found.warning for found in short_slots(plan, spec.schedule)]),
         ),
         baseline=evaluate_baseline(spec, problem, plan.cores),
@@ -194,7 +194,7 @@ def executor_note(executor: Executor, plan: Plan, problem: Problem) -> str:
         how = f"in subchain {subs[0]} on {where}: its period covers their compute added up"
         return f"Executor {executor.name} runs {nodes} in one thread (never at once): {how}."
     how = f"subchains {', '.join(subs)} share {where}, one slot after the other"
-    turns = executor_turns(executor, plan, problem)
+    turns = plan_turns(executor, plan, problem)
     if turns is None:
         return f"Executor {executor.name} runs {nodes} in one thread (never at once): {how}."
     rate = max(turns.rates, key=lambda rate: rate.longest_wait_ms)

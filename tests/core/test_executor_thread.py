@@ -10,7 +10,10 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from catanc.core.executor_thread import Member, member_rates, span_ms, thread_share
+from catanc.core.build import build_problem
+from catanc.core.executor_thread import CoreGroup, Member, member_rates, periods_as_run, span_ms, thread_share
+from catanc.core.problem import Problem
+from tests.support.strategies import spec_of
 
 GL = Member("GL", period_ms=20.0, compute_ms=3.2)
 GM = Member("GM", period_ms=724.0, compute_ms=150.0)
@@ -89,3 +92,40 @@ def test_no_trigger_is_lost_while_every_other_span_is_within_two_periods(found: 
 def test_a_share_outside_a_core_is_refused(share: float) -> None:
     with pytest.raises(ValueError, match="share of a core"):
         member_rates([GL, GM], share)
+
+
+def three_on_a_core(*, a_heads: bool) -> Problem:
+    """a (1 ms) and b (30 ms) in one executor, o (2 ms) beside them; a heads its subchain or follows x."""
+    return build_problem(
+        spec_of(
+            {
+                "catan": 1,
+                "app": "three",
+                "nodes": {name: {"compute_ms": ms} for name, ms in (("x", 0.5), ("a", 1.0), ("b", 30.0), ("o", 2.0))},
+                "edges": [["x", "a"]],
+                "subchains": {"short": ["a"] if a_heads else ["x", "a"], "long": ["b"], "other": ["o"]}
+                | ({"lead": ["x"]} if a_heads else {}),
+                "objective": [{"node": "a", "weight": 1.0}],
+                "executors": {"worker": ["a", "b"]},
+            }
+        )
+    )
+
+
+def test_periods_as_run_worked_by_hand() -> None:
+    problem = three_on_a_core(a_heads=True)
+    periods = {"short": 5.0, "long": 100.0, "other": 10.0, "lead": 5.0}
+    group = CoreGroup(("short", "long", "other", "lead"), cores=1)
+    # The others leave 1 - 2/10 - 0.5/5 = 0.7 of the core: b's run holds the thread 30 / 0.7 ms, which
+    # meets 30 / 0.7 / 5 = 8.57 of a's triggers; a loses 6.57 of them per run of b, b runs every 100 ms.
+    lost = (30.0 / 0.7 / 5.0 - 2.0) / 100.0
+    assert periods_as_run(problem, periods, [group]) == pytest.approx(periods | {"short": 1.0 / (1.0 / 5.0 - lost)})
+    # Apart, on cores of their own (not one group), the executor's nodes are not modelled here.
+    apart = [CoreGroup(("short",), 1), CoreGroup(("long", "other", "lead"), 1)]
+    assert periods_as_run(problem, periods, apart) == periods
+
+
+def test_a_node_that_does_not_head_its_subchain_keeps_its_period() -> None:
+    problem = three_on_a_core(a_heads=False)
+    periods = {"short": 5.0, "long": 100.0, "other": 10.0}
+    assert periods_as_run(problem, periods, [CoreGroup(("short", "long", "other"), 1)]) == periods

@@ -18,7 +18,7 @@ import yaml
 from catanc.core.build import build_problem
 from catanc.core.problem import Problem
 from catanc.explain.analysis import explain_plan
-from catanc.explain.executors import executor_turns, rate_losses
+from catanc.explain.executors import plan_turns, rate_losses, warning
 from catanc.planning.planner import plan_problem
 from catanc.planning.types import Plan
 from catanc.sim.simulate import Setup, simulate
@@ -80,7 +80,7 @@ def test_a_pair_that_fits_its_periods_is_predicted_and_runs_at_its_planned_rates
     spec = spec_of(PAIR)
     plan, problem = planned(spec, 1)
     assert (plan.subchains["first"].fraction, plan.subchains["second"].fraction) == (1.0, 1.0)
-    turns = executor_turns(problem.executors[0], plan, problem)
+    turns = plan_turns(problem.executors[0], plan, problem)
     assert turns is not None
     assert turns.share == 1.0  # nothing else on the core
     a, b = turns.rates
@@ -110,7 +110,7 @@ def test_nav2d_gl_runs_at_about_its_predicted_rate_behind_gm(cores: int) -> None
     losses = rate_losses(plan, problem)
     assert [(rate.node, rate.blocked_by) for _, rate in losses] == [("GL", "GM")]
     turns, rate = losses[0]
-    assert turns.warning(rate) in explain_plan(spec, problem, plan).warnings
+    assert warning(turns, rate) in explain_plan(spec, problem, plan).warnings
     planned_hz = 1000.0 / plan.subchains["GL"].period_ms
     assert rate.planned_hz == pytest.approx(planned_hz)
     # The share is a floor (the others leave more while GM runs than their planned utilisation):
