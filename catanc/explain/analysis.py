@@ -35,7 +35,7 @@ from catanc.core.metrics import Timing, evaluate_chain
 from catanc.core.problem import Executor, Problem, Subchain
 from catanc.errors import Diagnostic
 from catanc.explain.enforceable import short_slots
-from catanc.explain.executors import plan_turns, rate_losses, warning
+from catanc.explain.executors import objective_as_run, plan_turns, rate_losses, warning
 from catanc.explain.headroom import NEAR_SATURATION, Headroom, plan_headrooms
 from catanc.planning.baseline import BaselineEvaluation, BaselineGap, TermValue, evaluate_baseline, objective_terms
 from catanc.planning.order import slot_starts
@@ -198,12 +198,19 @@ def executor_note(executor: Executor, plan: Plan, problem: Problem) -> str:
     if turns is None:
         return f"Executor {executor.name} runs {nodes} in one thread (never at once): {how}."
     rate = max(turns.rates, key=lambda rate: rate.longest_wait_ms)
-    return (
+    note = (
         f"Executor {executor.name} runs {nodes} in one thread (never at once): {how}; a run may wait for "
         f"the others' to end, up to about {rate.longest_wait_ms:.1f} ms for {rate.node} behind {rate.blocked_by} "
         f"({turns.compute_ms[rate.blocked_by]:.3g} ms of compute at the {turns.share:.0%} of a core the others "
         "leave), which the plan's latencies do not count."
     )
+    as_run = objective_as_run(plan, problem)
+    if as_run > plan.objective * (1 + 1e-9):
+        note += (
+            f" With the triggers its nodes lose counted, the objective as run is about {as_run:.3f} ms, "
+            f"{as_run / plan.objective - 1:.1%} above the plan's."
+        )
+    return note
 
 
 def allocation_text(allocation: Allocation) -> str:

@@ -13,7 +13,8 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from catanc.core.executor_thread import CoreGroup, ExecutorTurns, MemberRate, executor_turns
+from catanc.core.executor_thread import CoreGroup, ExecutorTurns, MemberRate, executor_turns, periods_as_run
+from catanc.core.metrics import Timing, objective
 from catanc.core.problem import Executor, Problem
 
 if TYPE_CHECKING:
@@ -36,6 +37,14 @@ def plan_turns(executor: Executor, plan: Plan, problem: Problem) -> ExecutorTurn
     """The thread's turns under ``plan``; None unless the executor's nodes span two or more shared subchains."""
     periods = {name: sub.period_ms for name, sub in plan.subchains.items()}
     return executor_turns(problem, executor, periods, core_groups(plan))
+
+
+def objective_as_run(plan: Plan, problem: Problem) -> float:
+    """The plan's objective with each executor node's predicted rate in place of its planned one."""
+    periods = {name: sub.period_ms for name, sub in plan.subchains.items()}
+    as_run = periods_as_run(problem, periods, core_groups(plan))
+    timings = {name: Timing(as_run[name], sub.latency_ms) for name, sub in plan.subchains.items()}
+    return objective(problem, timings)
 
 
 def warning(turns: ExecutorTurns, rate: MemberRate) -> str:

@@ -16,9 +16,10 @@ import pytest
 import yaml
 
 from catanc.core.build import build_problem
+from catanc.core.executor_thread import CoreGroup
 from catanc.core.problem import Problem
 from catanc.explain.analysis import explain_plan
-from catanc.explain.executors import plan_turns, rate_losses, warning
+from catanc.explain.executors import core_groups, objective_as_run, plan_turns, rate_losses, warning
 from catanc.planning.planner import plan_problem
 from catanc.planning.types import Plan
 from catanc.sim.simulate import Setup, simulate
@@ -118,3 +119,25 @@ def test_nav2d_gl_runs_at_about_its_predicted_rate_behind_gm(cores: int) -> None
     assert simulated_hz(spec, cores, "GL") == pytest.approx(rate.rate_hz, rel=0.15)
     # The same plan without the executor: GL keeps its rate, so the loss is the thread's.
     assert simulated_hz(nav2d(executor=False), cores, "GL") > 0.95 * planned_hz
+
+
+@pytest.mark.parametrize(("long_ms", "short_period_ms"), [(30.0, None), (30.0, 5.0)])
+def test_the_objective_as_run_counts_lost_triggers(long_ms: float, short_period_ms: float | None) -> None:
+    spec = long_and_short(long_ms, short_period_ms)
+    plan, problem = planned(spec, 1)
+    short, long = plan.subchains["short"].period_ms, plan.subchains["long"].period_ms
+    # Worked from the formula (nothing else on the core: the thread gets all of it while b runs):
+    # a keeps 1/p_a - (1/p_b) (c_b / p_a - 2) runs a millisecond.
+    rate_a = 1.0 / short - (1.0 / long) * (long_ms / short - 2.0)
+    assert objective_as_run(plan, problem) == pytest.approx(1.0 / rate_a + 0.05 * long)
+    assert objective_as_run(plan, problem) > 1.3 * plan.objective
+    # The simulator's periods, weighted as the objective weighs them.
+    result = simulate(Setup(spec, 1, DURATION_S, 0), "catan")
+    simulated = 1000.0 / result.nodes["a"].rate_hz + 0.05 * 1000.0 / result.nodes["b"].rate_hz
+    assert objective_as_run(plan, problem) == pytest.approx(simulated, rel=0.05)
+
+
+def test_a_plan_whose_executor_loses_nothing_runs_as_planned() -> None:
+    plan, problem = planned(spec_of(PAIR), 1)
+    assert objective_as_run(plan, problem) == pytest.approx(plan.objective)
+    assert core_groups(plan) == [CoreGroup(("first", "second"), 1)]
