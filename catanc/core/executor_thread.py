@@ -1,27 +1,31 @@
 """What one executor thread serving several subchains does to their rates (catan-model.md section 6).
 
-A single-threaded executor runs one callback at a time.  Where its nodes head subchains of
-their own on a shared core, a member ``j``'s run holds the thread for its *span*
-``S_j = c_j / s``: its compute at the share ``s`` of a core the thread gets while it runs.  The
-thread runs in its own slots and, at its resting level, in every moment the core's other
-subchains leave free, so ``s`` is what they leave: ``min(1, m - sum_k c_k / p_k)`` over the other
-subchains ``k`` on the ``m`` cores, and never less than its own slices.
+A single-threaded executor runs one callback at a time.  Where its nodes head subchains of their
+own on a shared core group, a member ``j``'s run holds the thread until its compute ``c_j`` is
+done, and a member ``i`` triggered meanwhile waits.  The thread runs in its own slots and, at its
+resting level, in every moment the group's other subchains leave: a share ``s0_i = min(1, m -
+sum_k c_k / p_k)`` of a core over the other subchains ``k`` on the ``m`` cores.  Once ``i``'s
+waiting run is late (its subchain's latency ``l_i`` after its trigger, which comes ``p_i / 2``
+into the run on average: ``d_i = p_i / 2 + l_i``), ``i`` steals the slots of the subchains it
+outranks (catan-model.md section 5) and the thread, the only one ``i`` has, runs in them too: a
+share ``s1_i`` that leaves out only the subchains outranking ``i``.  So the run holds the thread
 
-A member ``i`` triggered every ``p_i`` (its subchain's period) meets each of ``j``'s spans with
-``N`` of its triggers, ``floor`` or ``ceil`` of ``S_j / p_i`` (any phase), ``S_j / p_i`` on average.
-The first starts a run that waits for the thread; the second is kept as the head's one pending
-trigger (catan-model.md section 6: a head whose run is in flight is not triggered again, one
-trigger is held); the rest are lost.  So ``i`` loses ``max(0, S_j / p_i - 2)`` triggers per run of
-``j`` (exactly: ``N >= 2`` whenever ``S_j >= 2 p_i``):
+    S_ij = c_j / s0_i                          if c_j <= s0_i d_i
+    S_ij = d_i + (c_j - s0_i d_i) / s1_i       otherwise
 
-    rate_i = 1 / p_i - sum_{j != i} max(0, S_j / p_i - 2) / p_j
+``i`` meets each such hold with ``N`` of its triggers, ``floor`` or ``ceil`` of ``S_ij / p_i`` (any
+phase).  The first starts a run that waits; the second is kept as the head's one pending trigger
+(a head whose run is in flight is not triggered again, one trigger is held); the rest are lost:
+``max(0, S_ij / p_i - 2)`` per run of ``j`` (exact: ``N >= 2`` whenever ``S_ij >= 2 p_i``):
 
-and a run of ``i`` waits up to ``max_j S_j``.  Spans of two other members are counted as if they
-never meet (the sum): the model is meant for an executor whose long run blocks short ones, as
-nav2d's GM blocks GL.  The share is a floor: the others may leave more than their planned
-utilisation while a run holds the thread (the simulator's nav2d on 1 core: GM's 150 ms take
-~205 ms, not the 265 ms this share gives).  Pure arithmetic, checked against
-the simulator in the tests.
+    rate_i = 1 / p_i - sum_{j != i} max(0, S_ij / p_i - 2) / p_j
+
+A subchain ``k`` that ``i`` outranks loses its slots for ``S_ij - d_i`` per run of ``j``: triggered
+at its slot every ``p_k``, it loses ``max(0, (S_ij - d_i) / p_k - 2)`` triggers per run of ``j`` the
+same way (a batch one loses that share of its time instead).  Holds of two other members are
+counted as if they never meet (the sum): the model is meant for an executor whose long run
+blocks short ones, as nav2d's GM blocks GL.  Checked against the simulator in the tests (nav2d,
+compute times fixed: GL and NC within 7% on 1, 2 and 3 cores).
 """
 
 from __future__ import annotations
@@ -30,16 +34,24 @@ import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
+from catanc.core.metrics import Timing
 from catanc.core.problem import Executor, Problem
 
 
 @dataclass(frozen=True)
 class Member:
-    """A node of the executor that heads a subchain: how often it is triggered and what it computes."""
+    """A node of the executor that heads a subchain: how it is triggered, what it computes, what it gets."""
 
     node: str
     period_ms: float  # its subchain's planned period: one trigger each
     compute_ms: float  # one run's compute (the node's own, not its subchain's)
+    latency_ms: float = 0.0  # its subchain's planned latency: a run waiting longer is late
+    share: float = 1.0  # of a core the thread gets while a run of this member waits
+    stealing_share: float | None = None  # once that run is late and steals (None: no stealing)
+
+    def delay_ms(self) -> float:
+        """When a waiting run of this member starts to steal, from the start of the hold, on average."""
+        return self.period_ms / 2.0 + self.latency_ms
 
 
 @dataclass(frozen=True)
@@ -49,44 +61,62 @@ class MemberRate:
     node: str
     planned_hz: float
     rate_hz: float  # triggers that run; the rest are lost while the thread is busy
-    longest_wait_ms: float  # the longest span of another member: what a run of this one may wait
-    blocked_by: str  # the member with that span
+    longest_wait_ms: float  # the longest hold of another member: what a run of this one may wait
+    blocked_by: str  # the member with that hold
 
     @property
     def lost_share(self) -> float:
         return 1.0 - self.rate_hz / self.planned_hz
 
 
-def thread_share(own_share: float, others_utilisation: float, cores: int) -> float:
-    """The share of a core the thread gets while it runs: what the other subchains leave, at least its slices."""
-    return min(1.0, max(own_share, cores - others_utilisation))
+def thread_share(others_utilisation: float, cores: int) -> float:
+    """The share of a core the thread gets while it runs: what the other subchains leave (one core at most)."""
+    return min(1.0, cores - others_utilisation)
 
 
-def span_ms(member: Member, share: float) -> float:
-    """How long one run of ``member`` holds the thread (wall time) at ``share`` of a core."""
-    return member.compute_ms / share
+def held_ms(blocker: Member, waiter: Member) -> float:
+    """How long one run of ``blocker`` holds the thread (wall time) while a run of ``waiter`` waits."""
+    before, after = waiter.share, waiter.stealing_share
+    delay = waiter.delay_ms()
+    if after is None or after <= before or blocker.compute_ms <= before * delay:
+        return blocker.compute_ms / before
+    return delay + (blocker.compute_ms - before * delay) / after
 
 
-def member_rates(members: Sequence[Member], share: float) -> list[MemberRate]:
+def stealing_ms(blocker: Member, waiter: Member) -> float:
+    """How long ``waiter``'s late run steals slots during one hold of ``blocker`` (0 without stealing)."""
+    if waiter.stealing_share is None or waiter.stealing_share <= waiter.share:
+        return 0.0
+    return max(0.0, held_ms(blocker, waiter) - waiter.delay_ms())
+
+
+def lost_per_hold(hold_ms: float, period_ms: float) -> float:
+    """Triggers every ``period_ms`` lost during one hold: all that meet it but the waiting one and the pending one."""
+    return max(0.0, hold_ms / period_ms - 2.0)
+
+
+def member_rates(members: Sequence[Member]) -> list[MemberRate]:
     """Each member's rate and longest wait when the others' runs hold the thread (in ``members`` order)."""
-    if not 0.0 < share <= 1.0:
-        raise ValueError(f"a thread's share of a core is in (0, 1], not {share}")
     if len(members) < 2:
         raise ValueError("an executor's thread is shared by two members or more")
+    for member in members:
+        for share in (member.share, member.stealing_share):
+            if share is not None and not 0.0 < share <= 1.0:
+                raise ValueError(f"{member.node}: a thread's share of a core is in (0, 1], not {share}")
     rates = []
     for member in members:
         others = [other for other in members if other is not member]
         lost_hz = math.fsum(
-            1000.0 / other.period_ms * max(0.0, span_ms(other, share) / member.period_ms - 2.0) for other in others
+            1000.0 / other.period_ms * lost_per_hold(held_ms(other, member), member.period_ms) for other in others
         )
-        longest = max(others, key=lambda other: span_ms(other, share))
+        longest = max(others, key=lambda other: held_ms(other, member))
         planned = 1000.0 / member.period_ms
         rates.append(
             MemberRate(
                 node=member.node,
                 planned_hz=planned,
                 rate_hz=max(0.0, planned - lost_hz),
-                longest_wait_ms=span_ms(longest, share),
+                longest_wait_ms=held_ms(longest, member),
                 blocked_by=longest.node,
             )
         )
@@ -107,64 +137,99 @@ class CoreGroup:
 
     subchains: tuple[str, ...]
     cores: int
+    priorities: Mapping[str, int]  # stealing priority: higher steals from lower
+    stealing: bool = True
 
 
 @dataclass(frozen=True)
 class ExecutorTurns:
-    """An executor's thread under a plan's periods: its share of a core and each node's predicted rate."""
+    """An executor's thread under a plan's timings: each node's predicted rate, and what its waits steal."""
 
     executor: Executor
-    share: float  # of a core, while one of its runs holds the thread
-    rates: tuple[MemberRate, ...]  # in the executor's node order
-    compute_ms: dict[str, float]  # each node's run
+    members: tuple[Member, ...]  # in the executor's node order
+    rates: tuple[MemberRate, ...]  # the same order
+    stolen_hz: dict[str, float]  # per subchain outside the executor: triggers a second lost to stealing
+    stolen_share: dict[str, float]  # per such subchain: the share of its time its slots are stolen
+
+    def member(self, node: str) -> Member:
+        return next(member for member in self.members if member.node == node)
 
 
 def executor_turns(
-    problem: Problem, executor: Executor, periods: Mapping[str, float], groups: Iterable[CoreGroup]
+    problem: Problem, executor: Executor, timings: Mapping[str, Timing], groups: Iterable[CoreGroup]
 ) -> ExecutorTurns | None:
-    """The thread's turns at ``periods`` (per subchain, ms); None unless the executor's nodes span two or
-    more subchains of one core group in ``groups``.
-
-    The share is what the group's other subchains leave (it is never below the executor's own
-    slices, which fit beside the others' utilisation in every plan).
-    """
+    """The thread's turns at ``timings`` (per subchain); None unless the executor's nodes span two or more
+    subchains of one core group in ``groups``."""
     subs = executor.subchains
     if len(subs) < 2:
         return None
     group = next((group for group in groups if subs[0] in group.subchains), None)
     if group is None or not set(subs) <= set(group.subchains):
         return None
-    others = math.fsum(
-        utilisation(problem.subchain(name).compute_ms, periods[name]) for name in group.subchains if name not in subs
-    )
-    share = thread_share(0.0, others, group.cores)
+    others = [name for name in group.subchains if name not in subs]
+    load = {name: utilisation(problem.subchain(name).compute_ms, timings[name].period_ms) for name in others}
     members: dict[str, Member] = {}
+    outranked: dict[str, list[str]] = {}  # per member: the other subchains its late run steals from
     for name in subs:
         sub = problem.subchain(name)
+        rank = group.priorities[name]
+        above = [other for other in others if group.priorities[other] > rank]
+        outranked_here = [other for other in others if group.priorities[other] < rank] if group.stealing else []
         for node, compute in zip(sub.nodes, sub.node_compute_ms, strict=True):
             if node in executor.nodes:
-                members[node] = Member(node, periods[name], compute)
-    ordered = [members[node] for node in executor.nodes]
-    return ExecutorTurns(
-        executor, share, tuple(member_rates(ordered, share)), {member.node: member.compute_ms for member in ordered}
-    )
+                members[node] = Member(
+                    node,
+                    timings[name].period_ms,
+                    compute,
+                    timings[name].latency_ms,
+                    share=thread_share(math.fsum(load.values()), group.cores),
+                    stealing_share=thread_share(math.fsum(load[other] for other in above), group.cores)
+                    if outranked_here
+                    else None,
+                )
+                outranked[node] = outranked_here
+    ordered = tuple(members[node] for node in executor.nodes)
+    stolen_hz: dict[str, float] = {}
+    stolen_share: dict[str, float] = {}
+    for waiter in ordered:
+        for blocker in ordered:
+            if blocker is waiter:
+                continue
+            steal = stealing_ms(blocker, waiter)
+            runs = 1000.0 / blocker.period_ms
+            for name in outranked[waiter.node]:
+                lost = runs * lost_per_hold(steal, timings[name].period_ms)
+                stolen_hz[name] = stolen_hz.get(name, 0.0) + lost
+                stolen_share[name] = stolen_share.get(name, 0.0) + runs * steal / 1000.0
+    return ExecutorTurns(executor, ordered, tuple(member_rates(ordered)), stolen_hz, stolen_share)
 
 
-def periods_as_run(problem: Problem, periods: Mapping[str, float], groups: Iterable[CoreGroup]) -> dict[str, float]:
-    """Each subchain's period as it runs: where an executor's node heads a subchain and loses triggers
-    to the others' runs, one over its predicted rate; every other period as planned.
+def periods_as_run(problem: Problem, timings: Mapping[str, Timing], groups: Iterable[CoreGroup]) -> dict[str, float]:
+    """Each subchain's period as it runs: where an executor's node heads a subchain, one over its predicted
+    rate; where an executor's late run steals a subchain's slots, one over what it keeps; else as planned.
 
     A node that does not head its subchain waits instead (its head loses the triggers, which the
     model does not count): its subchain keeps its planned period.
     """
     groups = list(groups)
-    result = dict(periods)
+    result = {name: timing.period_ms for name, timing in timings.items()}
     for executor in problem.executors:
-        turns = executor_turns(problem, executor, periods, groups)
+        turns = executor_turns(problem, executor, timings, groups)
         if turns is None:
             continue
         for rate in turns.rates:
             sub = next(sub for sub in problem.subchains if rate.node in sub.nodes)
             if sub.nodes[0] == rate.node and rate.rate_hz < rate.planned_hz:
-                result[sub.name] = 1000.0 / rate.rate_hz if rate.rate_hz > 0.0 else math.inf
+                result[sub.name] = _period(rate.rate_hz)
+        for name, lost_hz in turns.stolen_hz.items():
+            planned = timings[name].period_ms
+            share = turns.stolen_share[name]
+            if problem.subchain(name).batch:  # it runs whenever it has its slots: it loses time, not triggers
+                result[name] = planned / (1.0 - share) if share < 1.0 else math.inf
+            elif lost_hz > 0.0:
+                result[name] = _period(1000.0 / planned - lost_hz)
     return result
+
+
+def _period(rate_hz: float) -> float:
+    return 1000.0 / rate_hz if rate_hz > 0.0 else math.inf

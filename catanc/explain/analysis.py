@@ -35,7 +35,7 @@ from catanc.core.metrics import Timing, evaluate_chain
 from catanc.core.problem import Executor, Problem, Subchain
 from catanc.errors import Diagnostic
 from catanc.explain.enforceable import short_slots
-from catanc.explain.executors import objective_as_run, plan_turns, rate_losses, warning
+from catanc.explain.executors import objective_as_run, plan_turns, rate_warnings
 from catanc.explain.headroom import NEAR_SATURATION, Headroom, plan_headrooms
 from catanc.planning.baseline import BaselineEvaluation, BaselineGap, TermValue, evaluate_baseline, objective_terms
 from catanc.planning.order import slot_starts
@@ -161,12 +161,14 @@ def explain_plan(spec: Spec, problem: Problem, plan: Plan, machine: MachineUse |
             *(spec_warning(diagnostic) for diagnostic in problem.warnings),
             *plan.warnings,
             *_warnings(plan, problem, spec.schedule, headrooms),
-            *(warning(turns, rate) for turns, rate in rate_losses(plan, problem)),
+            *rate_warnings(plan, problem, stealing=spec.schedule.stealing),
             *([] if machine is not None else [found.warning for found in short_slots(plan, spec.schedule)]),
         ),
         baseline=evaluate_baseline(spec, problem, plan.cores),
         allocation=allocation_note(plan),
-        executors=tuple(executor_note(executor, plan, problem) for executor in problem.executors),
+        executors=tuple(
+            executor_note(executor, plan, problem, stealing=spec.schedule.stealing) for executor in problem.executors
+        ),
         machine=machine.sentence() if machine is not None else None,
         unscheduled=tuple(name for name, node in spec.nodes.items() if not node.scheduled),
     )
@@ -179,7 +181,7 @@ def spec_warning(diagnostic: Diagnostic) -> str:
     return f"{what}{diagnostic.message}{line}"
 
 
-def executor_note(executor: Executor, plan: Plan, problem: Problem) -> str:
+def executor_note(executor: Executor, plan: Plan, problem: Problem, *, stealing: bool) -> str:
     """Where an executor's nodes run: one thread, so one core set and never at once.
 
     Across subchains on a shared core, a run can wait for the other nodes' runs to end
@@ -194,20 +196,20 @@ def executor_note(executor: Executor, plan: Plan, problem: Problem) -> str:
         how = f"in subchain {subs[0]} on {where}: its period covers their compute added up"
         return f"Executor {executor.name} runs {nodes} in one thread (never at once): {how}."
     how = f"subchains {', '.join(subs)} share {where}, one slot after the other"
-    turns = plan_turns(executor, plan, problem)
+    turns = plan_turns(executor, plan, problem, stealing=stealing)
     if turns is None:
         return f"Executor {executor.name} runs {nodes} in one thread (never at once): {how}."
     rate = max(turns.rates, key=lambda rate: rate.longest_wait_ms)
     note = (
         f"Executor {executor.name} runs {nodes} in one thread (never at once): {how}; a run may wait for "
         f"the others' to end, up to about {rate.longest_wait_ms:.1f} ms for {rate.node} behind {rate.blocked_by} "
-        f"({turns.compute_ms[rate.blocked_by]:.3g} ms of compute at the {turns.share:.0%} of a core the others "
-        "leave), which the plan's latencies do not count."
+        f"({turns.member(rate.blocked_by).compute_ms:.3g} ms of compute, at what the other subchains leave of the "
+        "core), which the plan's latencies do not count."
     )
-    as_run = objective_as_run(plan, problem)
+    as_run = objective_as_run(plan, problem, stealing=stealing)
     if as_run > plan.objective * (1 + 1e-9):
         note += (
-            f" With the triggers its nodes lose counted, the objective as run is about {as_run:.3f} ms, "
+            f" With the triggers lost to it counted, the objective as run is about {as_run:.3f} ms, "
             f"{as_run / plan.objective - 1:.1%} above the plan's."
         )
     return note

@@ -1,12 +1,13 @@
-"""What an executor's one thread does to its nodes' rates under a plan, where its nodes span several subchains.
+"""What an executor's one thread does to the rates under a plan, where its nodes span several subchains.
 
 Nodes of one single-threaded executor never run at once (catan-model.md section 6): a run that
-finds the thread busy waits for the run on it to end.  Across subchains on a shared core the slot
-model plans each subchain as if its threads were its own, so neither the wait nor the triggers
-lost meanwhile are in its latency or rate.  :mod:`catanc.core.executor_thread` predicts both; this
-module feeds it a plan's periods and core groups.  nav2d is the example: GM's 150 ms run holds the
-thread ~265 ms on one core, so GL, planned at 50 Hz, runs at about 34 Hz (simulated: 38 Hz;
-49-50 Hz without the executor).
+finds the thread busy waits for the run on it to end, and once late it steals the slots of the
+subchains its own outranks, for the thread to run in.  The slot model plans each subchain as if
+its threads were its own, so neither the wait, nor the triggers lost meanwhile, nor the stolen
+slots are in its latencies or rates.  :mod:`catanc.core.executor_thread` predicts them; this module
+feeds it a plan's timings and core groups.  nav2d is the example: on one core GM's 150 ms run holds
+the thread ~197 ms, so GL, planned at 50 Hz, runs at about 39 Hz, and NC, whose slots GL takes
+meanwhile, at about 106 Hz of 134 (simulated: 38 and 104.5 Hz).
 """
 
 from __future__ import annotations
@@ -21,47 +22,67 @@ if TYPE_CHECKING:
     from catanc.planning.types import Plan
 
 LOSS_WORTH_A_WARNING = 0.01
-"""A member predicted to lose more than this share of its planned triggers gets a warning."""
+"""A subchain predicted to lose more than this share of its planned rate gets a warning."""
 
 
-def core_groups(plan: Plan) -> list[CoreGroup]:
+def core_groups(plan: Plan, *, stealing: bool) -> list[CoreGroup]:
     """The plan's shared subchains grouped by the cores they share."""
     by_cores: dict[tuple[int, ...], list[str]] = {}
     for sub in plan.subchains.values():
         if sub.shared:
             by_cores.setdefault(sub.cores, []).append(sub.name)
-    return [CoreGroup(tuple(names), len(cores)) for cores, names in by_cores.items()]
+    return [
+        CoreGroup(tuple(names), len(cores), {name: plan.subchains[name].priority for name in names}, stealing)
+        for cores, names in by_cores.items()
+    ]
 
 
-def plan_turns(executor: Executor, plan: Plan, problem: Problem) -> ExecutorTurns | None:
+def plan_timings(plan: Plan) -> dict[str, Timing]:
+    return {name: Timing(sub.period_ms, sub.latency_ms) for name, sub in plan.subchains.items()}
+
+
+def plan_turns(executor: Executor, plan: Plan, problem: Problem, *, stealing: bool) -> ExecutorTurns | None:
     """The thread's turns under ``plan``; None unless the executor's nodes span two or more shared subchains."""
-    periods = {name: sub.period_ms for name, sub in plan.subchains.items()}
-    return executor_turns(problem, executor, periods, core_groups(plan))
+    return executor_turns(problem, executor, plan_timings(plan), core_groups(plan, stealing=stealing))
 
 
-def objective_as_run(plan: Plan, problem: Problem) -> float:
-    """The plan's objective with each executor node's predicted rate in place of its planned one."""
-    periods = {name: sub.period_ms for name, sub in plan.subchains.items()}
-    as_run = periods_as_run(problem, periods, core_groups(plan))
-    timings = {name: Timing(as_run[name], sub.latency_ms) for name, sub in plan.subchains.items()}
-    return objective(problem, timings)
+def objective_as_run(plan: Plan, problem: Problem, *, stealing: bool) -> float:
+    """The plan's objective with the periods the executors' turns leave (:func:`periods_as_run`)."""
+    timings = plan_timings(plan)
+    as_run = periods_as_run(problem, timings, core_groups(plan, stealing=stealing))
+    return objective(problem, {name: Timing(as_run[name], timing.latency_ms) for name, timing in timings.items()})
 
 
-def warning(turns: ExecutorTurns, rate: MemberRate) -> str:
+def member_warning(turns: ExecutorTurns, rate: MemberRate) -> str:
+    blocker = turns.member(rate.blocked_by)
     return (
         f"executor {turns.executor.name}: {rate.node} runs at about {rate.rate_hz:.1f} Hz of its planned "
-        f"{rate.planned_hz:.1f} Hz: a run of {rate.blocked_by} holds their thread about "
-        f"{rate.longest_wait_ms:.1f} ms ({turns.compute_ms[rate.blocked_by]:.3g} ms of compute at the "
-        f"{turns.share:.0%} of a core the others leave) and {rate.node}'s triggers meanwhile are lost "
+        f"{rate.planned_hz:.1f} Hz: a run of {rate.blocked_by} ({blocker.compute_ms:.3g} ms of compute) holds "
+        f"their thread about {rate.longest_wait_ms:.1f} ms and {rate.node}'s triggers meanwhile are lost "
         "(the planner does not yet plan an executor's thread across subchains)"
     )
 
 
-def rate_losses(plan: Plan, problem: Problem) -> list[tuple[ExecutorTurns, MemberRate]]:
-    """Every executor node predicted to lose more than :data:`LOSS_WORTH_A_WARNING` of its planned rate."""
-    losses = []
+def stolen_warning(turns: ExecutorTurns, subchain: str, planned_hz: float, lost_hz: float) -> str:
+    waiting = [rate for rate in turns.rates if rate.lost_share > 0.0]
+    who = " and ".join(f"{rate.node}'s run, waiting for {rate.blocked_by}'s," for rate in waiting) or "a waiting run"
+    return (
+        f"executor {turns.executor.name}: subchain {subchain} runs at about {planned_hz - lost_hz:.1f} Hz of its "
+        f"planned {planned_hz:.1f} Hz: {who} is late and takes {subchain}'s slots for their thread "
+        "(the planner does not yet plan an executor's thread across subchains)"
+    )
+
+
+def rate_warnings(plan: Plan, problem: Problem, *, stealing: bool) -> list[str]:
+    """A warning per subchain predicted to lose more than :data:`LOSS_WORTH_A_WARNING` of its planned rate."""
+    warnings = []
     for executor in problem.executors:
-        turns = plan_turns(executor, plan, problem)
-        if turns is not None:
-            losses += [(turns, rate) for rate in turns.rates if rate.lost_share > LOSS_WORTH_A_WARNING]
-    return losses
+        turns = plan_turns(executor, plan, problem, stealing=stealing)
+        if turns is None:
+            continue
+        warnings += [member_warning(turns, rate) for rate in turns.rates if rate.lost_share > LOSS_WORTH_A_WARNING]
+        for name, lost_hz in turns.stolen_hz.items():
+            planned_hz = 1000.0 / plan.subchains[name].period_ms
+            if lost_hz > LOSS_WORTH_A_WARNING * planned_hz:
+                warnings.append(stolen_warning(turns, name, planned_hz, lost_hz))
+    return warnings
