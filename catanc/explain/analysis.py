@@ -35,6 +35,7 @@ from catanc.core.metrics import Timing, evaluate_chain
 from catanc.core.problem import Executor, Problem, Subchain
 from catanc.errors import Diagnostic
 from catanc.explain.enforceable import short_slots
+from catanc.explain.executor_caps import cap_offer
 from catanc.explain.executors import objective_as_run, plan_turns, rate_warnings
 from catanc.explain.headroom import NEAR_SATURATION, Headroom, plan_headrooms
 from catanc.planning.baseline import BaselineEvaluation, BaselineGap, TermValue, evaluate_baseline, objective_terms
@@ -166,9 +167,7 @@ def explain_plan(spec: Spec, problem: Problem, plan: Plan, machine: MachineUse |
         ),
         baseline=evaluate_baseline(spec, problem, plan.cores),
         allocation=allocation_note(plan),
-        executors=tuple(
-            executor_note(executor, plan, problem, stealing=spec.schedule.stealing) for executor in problem.executors
-        ),
+        executors=tuple(executor_note(executor, spec, problem, plan) for executor in problem.executors),
         machine=machine.sentence() if machine is not None else None,
         unscheduled=tuple(name for name, node in spec.nodes.items() if not node.scheduled),
     )
@@ -181,12 +180,13 @@ def spec_warning(diagnostic: Diagnostic) -> str:
     return f"{what}{diagnostic.message}{line}"
 
 
-def executor_note(executor: Executor, plan: Plan, problem: Problem, *, stealing: bool) -> str:
+def executor_note(executor: Executor, spec: Spec, problem: Problem, plan: Plan) -> str:
     """Where an executor's nodes run: one thread, so one core set and never at once.
 
     Across subchains on a shared core, a run can wait for the other nodes' runs to end
     (:mod:`catanc.explain.executors`): the note says how long, at most, for the node that waits
-    longest.  The slot model's latencies do not count that wait.
+    longest, what the objective becomes with the triggers lost meanwhile, and a rate cap on the
+    long node that would run better, if one does (:mod:`catanc.explain.executor_caps`).
     """
     nodes = ", ".join(executor.nodes)
     subs = executor.subchains
@@ -196,6 +196,7 @@ def executor_note(executor: Executor, plan: Plan, problem: Problem, *, stealing:
         how = f"in subchain {subs[0]} on {where}: its period covers their compute added up"
         return f"Executor {executor.name} runs {nodes} in one thread (never at once): {how}."
     how = f"subchains {', '.join(subs)} share {where}, one slot after the other"
+    stealing = spec.schedule.stealing
     turns = plan_turns(executor, plan, problem, stealing=stealing)
     if turns is None:
         return f"Executor {executor.name} runs {nodes} in one thread (never at once): {how}."
@@ -212,7 +213,8 @@ def executor_note(executor: Executor, plan: Plan, problem: Problem, *, stealing:
             f" With the triggers lost to it counted, the objective as run is about {as_run:.3f} ms, "
             f"{as_run / plan.objective - 1:.1%} above the plan's."
         )
-    return note
+    offer = cap_offer(spec, problem, plan, executor)
+    return note if offer is None else f"{note} {offer.sentence}"
 
 
 def allocation_text(allocation: Allocation) -> str:

@@ -1,0 +1,103 @@
+"""A rate cap on an executor's long node that would make the plan run better: the planner's trade, offered.
+
+The planner does not yet plan an executor's thread across subchains (docs/executor-planning.md):
+it may run a long node (nav2d's GM) often because the slot model sees room for it, while each of
+its runs holds the thread the short nodes (GL) need.  Slowing the long node trades its chains'
+periods against the short nodes' lost triggers.  This module makes that trade the way a user
+would: it adds ``{node: HEAD, max_rate_hz: CAP}`` to the spec for a few caps below the long
+node's planned rate, plans each spec with the planner, scores each plan by its objective as run
+(:func:`~catanc.explain.executors.objective_as_run`), and offers the best cap if it beats the plan
+by more than :data:`WORTH_OFFERING`.  A search over one number with the real planner at each
+point, not an optimum over all plans.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from catanc.core.build import build_problem
+from catanc.core.problem import Executor, Problem
+from catanc.errors import CatancError
+from catanc.explain.executors import objective_as_run, plan_turns
+from catanc.planning.planner import plan_problem
+from catanc.planning.types import Plan
+from catanc.spec.language import RateConstraint, Spec
+
+SLOWER = (1.25, 1.5, 2.0, 2.5, 3.0, 4.0, 6.0, 8.0)
+"""The long node's period times these: the caps tried."""
+
+WORTH_OFFERING = 0.01
+"""A cap is offered when it lowers the objective as run by more than this share."""
+
+
+@dataclass(frozen=True)
+class CapOffer:
+    """Capping ``node`` (the head of the long node's subchain) at ``max_rate_hz``, and what it gives."""
+
+    node: str
+    max_rate_hz: float
+    objective_now: float  # the plan's objective as run
+    objective_capped: float  # the capped plan's
+    rates_hz: dict[str, float]  # the executor's nodes' predicted rates under the capped plan
+
+    @property
+    def sentence(self) -> str:
+        rates = ", ".join(f"{node} about {hz:.1f} Hz" for node, hz in self.rates_hz.items())
+        return (
+            f"Capping {self.node} at {self.max_rate_hz:g} Hz (constraints: - {{node: {self.node}, max_rate_hz: "
+            f"{self.max_rate_hz:g}}}) would lower the objective as run to about {self.objective_capped:.3f} ms "
+            f"({self.objective_capped / self.objective_now - 1:+.1%}): {rates}."
+        )
+
+
+def cap_offer(spec: Spec, problem: Problem, plan: Plan, executor: Executor) -> CapOffer | None:
+    """The best cap on ``executor``'s long node, or None where no cap beats the plan (or nothing loses).
+
+    The caps are tried from the mildest; the search stops once two in a row do worse than the best
+    so far (slowing the long node further only lengthens its chains).
+    """
+    stealing = spec.schedule.stealing
+    turns = plan_turns(executor, plan, problem, stealing=stealing)
+    losing = [] if turns is None else [rate for rate in turns.rates if rate.lost_share > 0.0]
+    if not losing:
+        return None
+    blocker = max(losing, key=lambda rate: rate.planned_hz - rate.rate_hz).blocked_by
+    subchain = next(sub for sub in problem.subchains if blocker in sub.nodes)
+    head, period = subchain.nodes[0], plan.subchains[subchain.name].period_ms
+    now = objective_as_run(plan, problem, stealing=stealing)
+    best: CapOffer | None = None
+    best_value, worse = now, 0
+    for factor in SLOWER:
+        cap = _round(1000.0 / (period * factor))
+        capped = _planned(spec, head, cap, plan.cores)
+        if capped is None:
+            continue
+        value = objective_as_run(capped, problem, stealing=stealing)
+        if value >= best_value:
+            worse += 1
+            if worse == 2:
+                break
+            continue
+        best_value, worse = value, 0
+        if value < now * (1.0 - WORTH_OFFERING):
+            after = plan_turns(executor, capped, problem, stealing=stealing)
+            rates = {rate.node: rate.rate_hz for rate in after.rates} if after is not None else {}
+            best = CapOffer(head, cap, now, value, rates)
+    return best
+
+
+def _planned(spec: Spec, node: str, cap_hz: float, cores: int) -> Plan | None:
+    """The plan of ``spec`` with ``node`` capped at ``cap_hz`` (None where that spec cannot be planned)."""
+    constraints = [*spec.constraints, RateConstraint(node=node, max_rate_hz=cap_hz)]
+    capped = spec.model_copy(update={"constraints": constraints})
+    try:
+        return plan_problem(build_problem(capped), capped.schedule, cores)
+    except CatancError:
+        return None
+
+
+def _round(rate_hz: float) -> float:
+    """Two significant digits: a cap a user would write."""
+    digits = 1 - math.floor(math.log10(rate_hz))
+    return round(rate_hz, digits)
