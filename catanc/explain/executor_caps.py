@@ -4,22 +4,25 @@ The planner does not yet plan an executor's thread across subchains (docs/execut
 it may run a long node (nav2d's GM) often because the slot model sees room for it, while each of
 its runs holds the thread the short nodes (GL) need.  Slowing the long node trades its chains'
 periods against the short nodes' lost triggers.  This module makes that trade the way a user
-would: it adds ``{node: HEAD, max_rate_hz: CAP}`` to the spec for a few caps below the long
-node's planned rate, plans each spec with the planner, scores each plan by its objective as run
-(:func:`~catanc.explain.executors.objective_as_run`), and offers the best cap if it beats the plan
-by more than :data:`WORTH_OFFERING`.  A search over one number with the real planner at each
-point, not an optimum over all plans.
+would: it scores a few caps below the long node's planned rate on this plan (its period
+lengthened, the rest as planned), adds the best as ``{node: HEAD, max_rate_hz: CAP}`` to the spec,
+plans that spec with the planner, and offers the cap if that plan's objective as run
+(:func:`~catanc.explain.executors.objective_as_run`) beats this one's by more than
+:data:`WORTH_OFFERING`.  A screen over one number, confirmed by one planner run: not an optimum
+over all plans.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from catanc.core.build import build_problem
+from catanc.core.executor_thread import periods_as_run
+from catanc.core.metrics import objective
 from catanc.core.problem import Executor, Problem
 from catanc.errors import CatancError
-from catanc.explain.executors import objective_as_run, plan_turns
+from catanc.explain.executors import core_groups, objective_as_run, plan_timings, plan_turns
 from catanc.planning.planner import plan_problem
 from catanc.planning.types import Plan
 from catanc.spec.language import RateConstraint, Spec
@@ -54,8 +57,10 @@ class CapOffer:
 def cap_offer(spec: Spec, problem: Problem, plan: Plan, executor: Executor) -> CapOffer | None:
     """The best cap on ``executor``'s long node, or None where no cap beats the plan (or nothing loses).
 
-    The caps are tried from the mildest; the search stops once two in a row do worse than the best
-    so far (slowing the long node further only lengthens its chains).
+    Each cap is first scored on this plan with only the long node's period lengthened (what
+    the cap changes first; the time it frees for the others is not counted, so the screen only
+    ranks the caps); the best is then planned for real, and offered only if that plan beats this
+    one, as run, by more than :data:`WORTH_OFFERING`.  One planner run per executor that loses.
     """
     stealing = spec.schedule.stealing
     turns = plan_turns(executor, plan, problem, stealing=stealing)
@@ -66,25 +71,25 @@ def cap_offer(spec: Spec, problem: Problem, plan: Plan, executor: Executor) -> C
     subchain = next(sub for sub in problem.subchains if blocker in sub.nodes)
     head, period = subchain.nodes[0], plan.subchains[subchain.name].period_ms
     now = objective_as_run(plan, problem, stealing=stealing)
-    best: CapOffer | None = None
-    best_value, worse = now, 0
-    for factor in SLOWER:
-        cap = _round(1000.0 / (period * factor))
-        capped = _planned(spec, head, cap, plan.cores)
-        if capped is None:
-            continue
-        value = objective_as_run(capped, problem, stealing=stealing)
-        if value >= best_value:
-            worse += 1
-            if worse == 2:
-                break
-            continue
-        best_value, worse = value, 0
-        if value < now * (1.0 - WORTH_OFFERING):
-            after = plan_turns(executor, capped, problem, stealing=stealing)
-            rates = {rate.node: rate.rate_hz for rate in after.rates} if after is not None else {}
-            best = CapOffer(head, cap, now, value, rates)
-    return best
+    groups = core_groups(plan, stealing=stealing)
+    timings = plan_timings(plan)
+
+    def screened(factor: float) -> float:
+        slower = {**timings, subchain.name: replace(timings[subchain.name], period_ms=period * factor)}
+        as_run = periods_as_run(problem, slower, groups)
+        return objective(problem, {name: replace(t, period_ms=as_run[name]) for name, t in slower.items()})
+
+    factor = min(SLOWER, key=screened)  # the screen keeps the rest as planned: it under-rates what a cap frees
+    cap = _round(1000.0 / (period * factor))
+    capped = _planned(spec, head, cap, plan.cores)
+    if capped is None:
+        return None
+    value = objective_as_run(capped, problem, stealing=stealing)
+    if value >= now * (1.0 - WORTH_OFFERING):
+        return None
+    after = plan_turns(executor, capped, problem, stealing=stealing)
+    rates = {rate.node: rate.rate_hz for rate in after.rates} if after is not None else {}
+    return CapOffer(head, cap, now, value, rates)
 
 
 def _planned(spec: Spec, node: str, cap_hz: float, cores: int) -> Plan | None:
