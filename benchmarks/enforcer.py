@@ -3,6 +3,7 @@
     python -m benchmarks.enforcer                     # nav2d and VR, 1 core, 30 s each
     python -m benchmarks.enforcer --duration 10 --app nav2d
     python -m benchmarks.enforcer --tree . --tree /path/to/another/catanc   # two trees, side by side
+    python -m benchmarks.enforcer --workers cpp      # the nodes in C++ (examples/cpp/node.cpp)
     python -m benchmarks.enforcer --json
 
 For each app, in one run:
@@ -13,7 +14,10 @@ For each app, in one run:
   CPU the plan's core 0 runs on), measured just before the enforcer runs, and again beside it
   in the middle third (the app's threads on the same core make every wake-up dearer);
 - ``catanc run`` on the committed 1-core table (``--start spec``) for ``--duration`` seconds, one
-  synthetic worker process per scheduled node started here (their CPU is not counted);
+  synthetic worker process per scheduled node started here (their CPU is not counted): catanc's
+  Python worker, or with ``--workers cpp`` the C++ example node (``examples/cpp/node.cpp``, built
+  here with the system's compiler and ``catanc client --cflags``; a node of several modes burns
+  their mean), as a robot's rclcpp nodes would be: the hop delay is mostly the clients' own;
 - **steady state**: the CPU of every thread of the enforcer's process over the middle third of
   the run (``/proc/<pid>/task/*/schedstat``, exact nanoseconds), in cores and as a ratio to the
   floor (the issue: at most 2x, aim 1.5x);
@@ -37,7 +41,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -51,6 +57,7 @@ from catanc.artifacts.runtime_table import PlanPayload, load_table
 from catanc.runtime.log import read_log
 from catanc.runtime.processes import demo_profiles
 from catanc.runtime.worker.command import worker_command
+from catanc.runtime.worker.draws import Profile
 
 ROOT = Path(__file__).resolve().parent.parent
 APPS = ("nav2d", "vr_illixr")
@@ -61,6 +68,25 @@ def switches_per_s(plan: PlanPayload | None) -> float:
     if plan is None:
         raise SystemExit("benchmarks.enforcer: the runtime table has no plan")
     return float(sum(1000.0 * (len(core["order"]) + 1) / core["period_ms"] for core in plan["cores"]))
+
+
+def mean_ms(profile: Profile) -> float:
+    """A worker profile's mean compute time: its one time, or its modes' weighted mean."""
+    return profile if isinstance(profile, float) else math.fsum(share * ms for share, ms in profile)
+
+
+def build_cpp_node(folder: Path) -> Path:
+    """``examples/cpp/node.cpp`` built with the system's C++ compiler and ``catanc client --cflags``."""
+    compiler = shutil.which("c++") or shutil.which("g++")
+    if compiler is None:
+        sys.exit("benchmarks.enforcer: --workers cpp needs a C++ compiler (c++ or g++)")
+    flags = subprocess.run(
+        [sys.executable, "-m", "catanc", "client", "--cflags"], capture_output=True, text=True, check=True
+    ).stdout.split()
+    binary = folder / "node"
+    source = ROOT / "examples" / "cpp" / "node.cpp"
+    subprocess.run([compiler, "-std=c++17", "-O2", "-pthread", *flags, str(source), "-o", str(binary)], check=True)
+    return binary
 
 
 def process_cpu_ns(pid: int) -> int:
@@ -110,7 +136,7 @@ class Tree:
         return own if own.exists() else ROOT / "out" / app / "cores-1" / "runtime.json"
 
 
-def measure(app: str, duration_s: float, binary: Path, tree: Tree) -> dict[str, Any]:
+def measure(app: str, duration_s: float, binary: Path, tree: Tree, cpp_node: Path | None = None) -> dict[str, Any]:
     table_path = tree.table(app)
     table = load_table(table_path)
     rate = switches_per_s(table.plan)
@@ -131,9 +157,12 @@ def measure(app: str, duration_s: float, binary: Path, tree: Tree) -> dict[str, 
             time.sleep(0.05)
         workers = [
             subprocess.Popen(
-                worker_command({node: profile}, socket_path=sock, python=tree.python),
+                worker_command({node: profile}, socket_path=sock, python=tree.python)
+                if cpp_node is None
+                else [str(cpp_node), f"{node}:{mean_ms(profile)!r}"],
                 start_new_session=True,
-                env=env,
+                stdout=subprocess.DEVNULL,
+                env=env if cpp_node is None else dict(env, CATANC_SOCKET=sock),
                 cwd=tree.cwd,
             )
             for node, profile in demo_profiles(table.spec).items()
@@ -162,6 +191,7 @@ def measure(app: str, duration_s: float, binary: Path, tree: Tree) -> dict[str, 
     return {
         "app": app,
         "tree": str(tree.path),
+        "workers": "python" if cpp_node is None else "cpp",
         "python": tree.python,
         "exit_status": os.waitstatus_to_exitcode(status),
         "wall_s": round(wall, 2),
@@ -204,6 +234,9 @@ def main() -> None:
         action="append",
         help="a catanc source tree to measure (repeat it to compare trees in one run; default: this tree)",
     )
+    parser.add_argument(
+        "--workers", choices=("python", "cpp"), default="python", help="the nodes' processes (default: python)"
+    )
     parser.add_argument("--json", action="store_true")
     options = parser.parse_args()
     with tempfile.TemporaryDirectory() as folder:
@@ -213,13 +246,16 @@ def main() -> None:
         trees = [Tree(path, neutral) for path in options.tree or [ROOT]]
         for tree in trees:
             tree.check()
-        results = [measure(app, options.duration, binary, tree) for app in options.app or APPS for tree in trees]
+        cpp_node = build_cpp_node(Path(folder)) if options.workers == "cpp" else None
+        results = [
+            measure(app, options.duration, binary, tree, cpp_node) for app in options.app or APPS for tree in trees
+        ]
     if options.json:
         sys.stdout.write(json.dumps(results, indent=2, sort_keys=True) + "\n")
         return
     for r in results:
         floor = r["floor"]
-        print(f"{r['app']} (1 core), {r['tree']}: {r['wall_s']} s, exit {r['exit_status']}")
+        print(f"{r['app']} (1 core, {r['workers']} workers), {r['tree']}: {r['wall_s']} s, exit {r['exit_status']}")
         print(f"  load average {r['load_before']} before, {r['load_after']} after")
         per_s, us, cores = floor["switches_per_s"], floor["us_per_wake"], floor["cores"]
         print(f"  floor: {per_s} switches/s x {us} us = {cores:.4f} cores")
