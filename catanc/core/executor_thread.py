@@ -34,7 +34,7 @@ import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
-from catanc.core.metrics import Timing
+from catanc.core.metrics import Timing, objective
 from catanc.core.problem import Executor, Problem
 
 
@@ -229,6 +229,12 @@ def periods_as_run(problem: Problem, timings: Mapping[str, Timing], groups: Iter
             elif lost_hz > 0.0:
                 result[name] = _period(1000.0 / planned - lost_hz)
     return result
+
+
+def as_run_objective(problem: Problem, timings: Mapping[str, Timing], groups: Iterable[CoreGroup]) -> float:
+    """The objective at ``timings`` with each period as it runs (:func:`periods_as_run`), latencies as planned."""
+    as_run = periods_as_run(problem, timings, groups)
+    return objective(problem, {name: Timing(as_run[name], timing.latency_ms) for name, timing in timings.items()})
 
 
 def _period(rate_hz: float) -> float:

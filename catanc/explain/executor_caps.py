@@ -18,8 +18,7 @@ import math
 from dataclasses import dataclass, replace
 
 from catanc.core.build import build_problem
-from catanc.core.executor_thread import periods_as_run
-from catanc.core.metrics import objective
+from catanc.core.executor_thread import as_run_objective
 from catanc.core.problem import Executor, Problem
 from catanc.errors import CatancError
 from catanc.explain.executors import core_groups, objective_as_run, plan_timings, plan_turns
@@ -76,8 +75,7 @@ def cap_offer(spec: Spec, problem: Problem, plan: Plan, executor: Executor) -> C
 
     def screened(factor: float) -> float:
         slower = {**timings, subchain.name: replace(timings[subchain.name], period_ms=period * factor)}
-        as_run = periods_as_run(problem, slower, groups)
-        return objective(problem, {name: replace(t, period_ms=as_run[name]) for name, t in slower.items()})
+        return as_run_objective(problem, slower, groups)
 
     factor = min(SLOWER, key=screened)  # the screen keeps the rest as planned: it under-rates what a cap frees
     cap = _round(1000.0 / (period * factor))

@@ -14,8 +14,8 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from catanc.core.executor_thread import CoreGroup, ExecutorTurns, MemberRate, executor_turns, periods_as_run
-from catanc.core.metrics import Timing, objective
+from catanc.core.executor_thread import CoreGroup, ExecutorTurns, MemberRate, as_run_objective, executor_turns
+from catanc.core.metrics import Timing
 from catanc.core.problem import Executor, Problem
 
 if TYPE_CHECKING:
@@ -47,10 +47,8 @@ def plan_turns(executor: Executor, plan: Plan, problem: Problem, *, stealing: bo
 
 
 def objective_as_run(plan: Plan, problem: Problem, *, stealing: bool) -> float:
-    """The plan's objective with the periods the executors' turns leave (:func:`periods_as_run`)."""
-    timings = plan_timings(plan)
-    as_run = periods_as_run(problem, timings, core_groups(plan, stealing=stealing))
-    return objective(problem, {name: Timing(as_run[name], timing.latency_ms) for name, timing in timings.items()})
+    """The plan's objective with the periods the executors' turns leave (:func:`as_run_objective`)."""
+    return as_run_objective(problem, plan_timings(plan), core_groups(plan, stealing=stealing))
 
 
 def member_warning(turns: ExecutorTurns, rate: MemberRate) -> str:
