@@ -195,6 +195,7 @@ class Enforcer:
         try:
             with EnforcerSocket(self.socket_path) as sock, self.restorer:
                 self.sock = sock
+                self.restorer.before_restore = self.stop
                 if self.log_path is not None:
                     self.notes.log = RunLog(self.log_path)
                 self.own.raise_self(pin=None)
@@ -529,9 +530,12 @@ class Enforcer:
     def _cores_and_cadence(self, now: float) -> None:
         if self.replanning.asked is not None:
             return  # one request at a time
+        cpus = self._usable_cpus()
+        if self.stopping:  # read after the CPUs: a signal's restore (main thread back to its first CPUs) stops first
+            return
         step = self.replanning.step(
             now - self.started_ms,
-            self._usable_cpus(),
+            cpus,
             self.schedule.cores,
             lambda: self.measurements.estimates(measured_only=True),
             lambda: self.replanning.measured_costs(self.costs.summary(self.schedule.cores), self.spec.schedule),

@@ -359,6 +359,7 @@ class Restorer:
     KeyboardInterrupt); a signal whose action was the default one ends the process as it would
     have, after the restore and with the same status; an ignored signal stays ignored.  With a
     watchdog attached, each remembered original is sent to it too, so SIGKILL is covered.
+    :attr:`before_restore`, if set, runs on such a signal before the restore.
     """
 
     def __init__(self, watchdog: Watchdog | None = None) -> None:
@@ -367,6 +368,9 @@ class Restorer:
         self._watchdog: Watchdog | None = None
         self._previous: dict[int, SignalHandler] = {}
         self._installed = False
+        # Called on a signal before the restore: whoever changes threads stops first, so it does
+        # not act on what the restore puts back (the enforcer read its CPU set as shrunk).
+        self.before_restore: Callable[[], None] | None = None
         if watchdog is not None:
             self.attach(watchdog)
 
@@ -480,6 +484,9 @@ class Restorer:
         self.close()
 
     def _on_signal(self, signum: int, frame: FrameType | None) -> None:
+        if self.before_restore is not None:
+            with contextlib.suppress(Exception):  # the restore must happen whatever the callback does
+                self.before_restore()
         self.restore_all()
         previous = self._previous.get(signum, signal.SIG_DFL)
         if callable(previous):

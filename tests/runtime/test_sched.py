@@ -533,6 +533,50 @@ def test_a_signal_restores_at_once_then_runs_the_handler_that_was_there() -> Non
         signal.signal(signal.SIGHUP, before)
 
 
+@pytest.mark.usefixtures("real_kernel")
+def test_a_signal_calls_before_restore_while_the_threads_are_still_changed() -> None:
+    """The enforcer stops its loop first: a loop that ran between the restore and its stop read its
+    CPU set as the main thread's first one and re-planned for fewer cores (CI, 2026-11-28)."""
+    seen: list[int] = []
+    before = signal.signal(signal.SIGHUP, lambda _signum, _frame: None)
+    try:
+        with sleeping_thread() as tid:
+            try:
+                with Restorer() as restorer:
+                    restorer.remember(tid)
+                    set_fifo(tid, 1)  # it sleeps: nothing runs at SCHED_FIFO
+                    restorer.before_restore = lambda: seen.append(sched_of(os.getpid(), tid).policy)
+                    signal.raise_signal(signal.SIGHUP)
+                    assert seen == [os.SCHED_FIFO]  # called once, before the thread was put back
+                    assert sched_of(os.getpid(), tid).policy == os.SCHED_OTHER
+            finally:
+                set_other(tid)
+    finally:
+        signal.signal(signal.SIGHUP, before)
+
+
+@pytest.mark.usefixtures("real_kernel")
+def test_a_failing_before_restore_does_not_stop_the_restore() -> None:
+    before = signal.signal(signal.SIGHUP, lambda _signum, _frame: None)
+    try:
+        with sleeping_thread() as tid:
+            try:
+                with Restorer() as restorer:
+                    restorer.remember(tid)
+                    set_fifo(tid, 1)
+
+                    def broken() -> None:
+                        raise RuntimeError("a callback that fails")
+
+                    restorer.before_restore = broken
+                    signal.raise_signal(signal.SIGHUP)
+                    assert sched_of(os.getpid(), tid).policy == os.SCHED_OTHER
+            finally:
+                set_other(tid)
+    finally:
+        signal.signal(signal.SIGHUP, before)
+
+
 def test_install_leaves_the_signal_handlers_as_they_were() -> None:
     before = {signum: signal.getsignal(signum) for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
     with Restorer() as restorer:
