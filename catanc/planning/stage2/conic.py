@@ -47,11 +47,11 @@ from typing import Any
 import clarabel
 import numpy as np
 import numpy.typing as npt
-import scipy.sparse as sp
 
 from catanc.core.metrics import ChainForm, capped_dedicated, chain_form
 from catanc.core.problem import Problem, Subchain
 from catanc.planning.stage2.base import Layout, LayoutModel, RelaxedSolution, Stage2Model
+from catanc.planning.stage2.sparse import CscMatrix
 from catanc.spec.language import Schedule
 
 __all__ = ["SETTINGS", "ConicStage2", "Stage2Model"]
@@ -193,9 +193,8 @@ class _Program:
         places = [self.place(cone, row) for cone, row, _, _ in rows.entries]
         columns = [column for _, _, column, _ in rows.entries]
         values = [value for _, _, _, value in rows.entries]
-        self.A = sp.csc_matrix((values, (places, columns)), shape=(size, rows.columns))
-        self.A.sum_duplicates()
-        self.P = sp.csc_matrix((rows.columns, rows.columns))
+        self.A = CscMatrix.from_entries((size, rows.columns), places, columns, values)
+        self.P = CscMatrix.zeros((rows.columns, rows.columns))
         self.q = q
         self.cones = [clarabel.NonnegativeConeT(rows.linear)] if rows.linear else []
         self.cones += [clarabel.ExponentialConeT() for _ in range(rows.cones)]
