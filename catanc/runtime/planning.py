@@ -7,22 +7,30 @@ milliseconds), so solving in the enforcer's process would delay every
 trigger and slot switch behind it.  Here the solvers run in a child
 process at SCHED_OTHER that keeps its Replanner (and every Stage II model
 it built) for the whole run: a Stage II re-solve never rebuilds a model.
-The enforcer's process never imports a solver.
+The enforcer's process never imports a solver.  The child is forked while the enforcer's process
+runs one thread (it inherits the spec's language and pydantic, imported already: ~0.2 s of CPU a
+run), else started as a fresh interpreter.
 """
 
 from __future__ import annotations
 
 import contextlib
+import gc
+import os
+import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
+import traceback
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
-from typing import Any, Literal
+from typing import Any, Literal, NoReturn, Protocol
 
 from catanc.control.schedule import RuntimeSchedule
 from catanc.errors import UsageError
+from catanc.runtime.sched import name_thread
 
 Kind = Literal["resolve", "reallocate", "reconfigure"]
 
@@ -49,13 +57,9 @@ class PlannerProcess:
     """The parent's handle: :meth:`ask` sends a request and waits for its answer (releasing the GIL)."""
 
     def __init__(self, spec_data: dict[str, Any], cores: int, *, bootstrap_ms: float | None) -> None:
-        # A fresh interpreter (not a fork of a threaded parent), talking over a socket pair.
         mine, theirs = socket.socketpair()
         try:
-            self._process = subprocess.Popen(
-                [sys.executable, "-c", f"from catanc.runtime.planning import serve_fd; serve_fd({theirs.fileno()})"],
-                pass_fds=[theirs.fileno()],
-            )
+            self._process = _start_child(theirs.fileno())
         except OSError as exc:
             mine.close()
             theirs.close()
@@ -94,6 +98,75 @@ class PlannerProcess:
             self._process.kill()
             self._process.wait()
         self._conn.close()
+
+
+class _Child(Protocol):
+    """What :meth:`PlannerProcess.close` needs of the child (a :class:`subprocess.Popen` has it)."""
+
+    def wait(self, timeout: float | None = None) -> int: ...
+
+    def kill(self) -> None: ...
+
+
+@dataclass
+class _ForkedChild:
+    pid: int
+    returncode: int | None = None
+
+    def wait(self, timeout: float | None = None) -> int:
+        """Its exit status; :class:`subprocess.TimeoutExpired` if it runs ``timeout`` seconds more."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while self.returncode is None:
+            try:
+                pid, status = os.waitpid(self.pid, 0 if deadline is None else os.WNOHANG)
+            except ChildProcessError:  # reaped elsewhere
+                self.returncode = -1
+                break
+            if pid:
+                self.returncode = os.waitstatus_to_exitcode(status)
+            elif deadline is not None and time.monotonic() >= deadline:
+                raise subprocess.TimeoutExpired(f"planner process {self.pid}", timeout or 0.0)
+            else:
+                time.sleep(0.005)
+        return self.returncode
+
+    def kill(self) -> None:
+        if self.returncode is None:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(self.pid, signal.SIGKILL)
+
+
+def _start_child(fd: int) -> _Child:
+    """The re-optimiser serving on socket ``fd``: a fork while this process runs one thread (a fork of
+    a threaded process may inherit a lock another thread held), else a fresh interpreter."""
+    if threading.active_count() > 1:
+        argv = [sys.executable, "-c", f"from catanc.runtime.planning import serve_fd; serve_fd({fd})"]
+        return subprocess.Popen(argv, pass_fds=[fd])
+    pid = os.fork()
+    if pid == 0:
+        _serve_forked(fd)
+    return _ForkedChild(pid)
+
+
+def _serve_forked(fd: int) -> NoReturn:
+    """The forked child: the parent's descriptors closed, its objects never collected, gone via ``_exit``."""
+    status = 1
+    try:
+        gc.freeze()  # a parent's object collected here could close a descriptor number the child reuses
+        os.closerange(3, fd)  # the parent's log, sockets, watchdog pipe: only the parent may hold them
+        os.closerange(fd + 1, os.sysconf("SC_OPEN_MAX"))
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a Ctrl-C ends the parent, which ends this (EOF)
+        for signum in (signal.SIGTERM, signal.SIGHUP):
+            signal.signal(signum, signal.SIG_DFL)
+        name_thread("catanc-planner")
+        serve(Connection(fd))
+        status = 0
+    except BaseException:  # say why on stderr; never return into the parent's code
+        with contextlib.suppress(Exception):
+            traceback.print_exc()
+            sys.stderr.flush()
+    finally:
+        os._exit(status)
 
 
 def serve(conn: Connection) -> None:

@@ -45,6 +45,14 @@ def cmdline(pid: int) -> str:
         return ""
 
 
+def process_name(pid: int) -> str:
+    """Process ``pid``'s name (``comm``: the planner's is ``catanc-planner``); empty once it is gone."""
+    try:
+        return Path(f"/proc/{pid}/comm").read_text().strip()
+    except OSError:
+        return ""
+
+
 def compile_table(spec_text: str, folder: Path, cores: int, cpus: tuple[int, ...] | None = None) -> Path:
     """``catanc compile`` the spec into ``folder`` (on ``cpus``: ``--cpus``); the runtime table's path."""
     folder.mkdir(parents=True, exist_ok=True)
