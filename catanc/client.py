@@ -72,7 +72,6 @@ MAX_DATAGRAM = 512
 _FD_SPACE = socket.CMSG_SPACE(4)
 _HEADER = struct.Struct("=IIIIQ")
 _ENTRY = struct.Struct("=QQQQIIQ")
-_WRITTEN = struct.Struct("=Q")
 _RING_MAGIC, _RING_VERSION, _HEADER_SIZE, _ENTRY_SIZE = 0x52544143, 1, 64, 48
 _UNKNOWN = 2**64 - 1
 
@@ -154,6 +153,7 @@ class Node:
         self._enforcer: bytes | None = None  # the address the enforcer talks to this node from
         self._identity: tuple[int, int] | None = None
         self._ring: mmap.mmap | None = None
+        self._header: memoryview | None = None  # the ring's header as 8-byte words; [2] is `written`
         self._slots = 0
         self._written = 0
         self._next: tuple[bytes, str, int] | None = None  # (address, node, threads): where a run goes next
@@ -232,6 +232,9 @@ class Node:
             if (magic, version, entry_size) != (_RING_MAGIC, _RING_VERSION, _ENTRY_SIZE):
                 raise ClientError(f"node {self.name!r}: the enforcer's ring is of another layout (version {version})")
             self._ring = mmap.mmap(fd, _HEADER_SIZE + slots * _ENTRY_SIZE)
+            # `written` is stored as one aligned 8-byte word: struct's pack_into writes it a byte at
+            # a time, and the enforcer reading between two bytes saw the counter go back.
+            self._header = memoryview(self._ring)[:_HEADER_SIZE].cast("Q")
         finally:
             os.close(fd)
         self._slots, self._written = slots, written
@@ -338,13 +341,13 @@ class Node:
                 sock.sendto(done, socket.MSG_DONTWAIT, self.socket_path)
 
     def _record(self, trigger: Trigger, end_ns: int, compute_ns: int) -> None:
-        ring = self._ring
-        if ring is None:
+        ring, header = self._ring, self._header
+        if ring is None or header is None:
             return
         offset = _HEADER_SIZE + (self._written % self._slots) * _ENTRY_SIZE
         _ENTRY.pack_into(ring, offset, trigger.seq, self._start_ns, end_ns, compute_ns, trigger.threads, 0, 0)
         self._written += 1
-        _WRITTEN.pack_into(ring, 16, self._written)  # after the entry: the enforcer reads up to `written`
+        header[2] = self._written  # after the entry: the enforcer reads up to `written`
 
     def interrupt(self) -> None:
         """End the trigger loop: a blocked :meth:`wait` returns None.  Safe from any thread and from signal handlers."""
@@ -370,6 +373,9 @@ class Node:
                         sock.sendto(bye, socket.MSG_DONTWAIT, self.socket_path)
                 sock.close()
             if self._ring is not None:
+                if self._header is not None:
+                    self._header.release()
+                    self._header = None
                 self._ring.close()
                 self._ring = None
             os.close(self._wake_r)

@@ -53,7 +53,6 @@ UNKNOWN = 2**64 - 1
 
 HEADER = struct.Struct("=IIIIQ")
 ENTRY = struct.Struct("=QQQQII")
-WRITTEN = struct.Struct("=Q")
 WRITTEN_OFFSET = 16
 
 
@@ -152,13 +151,17 @@ class RingWriter:
             raise ValueError(f"not a catanc ring (magic {magic:#x}, version {version}, entry {entry_size})")
         self.slots = slots
         self._map = mmap.mmap(fd, ring_size(slots), mmap.MAP_SHARED, mmap.PROT_READ | mmap.PROT_WRITE)
+        # `written` is stored as one aligned 8-byte word: struct's pack_into writes it a byte at a
+        # time, and a reader between two bytes saw the counter go back (to 0 at 255 -> 256).
+        self._header = memoryview(self._map)[:HEADER_SIZE].cast("Q")
         self.written = written
 
     def append(self, seq: int, start_ns: int, end_ns: int, compute_ns: int = UNKNOWN, threads: int = 1) -> None:
         offset = HEADER_SIZE + (self.written % self.slots) * ENTRY_SIZE
         ENTRY.pack_into(self._map, offset, seq, start_ns, end_ns, compute_ns, threads, 0)
         self.written += 1
-        WRITTEN.pack_into(self._map, WRITTEN_OFFSET, self.written)
+        self._header[WRITTEN_OFFSET // 8] = self.written
 
     def close(self) -> None:
+        self._header.release()
         self._map.close()
