@@ -308,7 +308,14 @@ def load_table(path: str | Path) -> RuntimeTable:
         raise SpecError([Diagnostic(location, "", f"not JSON: {exc.msg}")]) from None
     except RecursionError:
         raise SpecError([Diagnostic(Location(file, 1, 1), "", "nested too deeply for a runtime table")]) from None
-    source = _source_map(text, file)
+    try:
+        return _checked(Path(path), data, SourceMap(file))
+    except SpecError:  # again with the lines and columns, which cost a YAML parse (~80 ms) to find
+        return _checked(Path(path), data, _source_map(text, file))
+
+
+def _checked(path: Path, data: Any, source: SourceMap) -> RuntimeTable:
+    """The table in ``data``; :class:`SpecError` where it is wrong, located in ``source``."""
 
     def fail(field: FieldPath, message: str) -> SpecError:
         return SpecError([Diagnostic(source.locate(field), ".".join(map(str, field)), message)])
@@ -341,7 +348,7 @@ def load_table(path: str | Path) -> RuntimeTable:
         if len(numbers) < data["cores"]:
             raise fail(("cpus",), f"{len(numbers)} CPUs for {data['cores']} cores")
     return RuntimeTable(
-        path=Path(path),
+        path=path,
         app=data["app"],
         cores=data["cores"],
         spec=spec,
