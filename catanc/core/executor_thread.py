@@ -218,7 +218,7 @@ def periods_as_run(problem: Problem, timings: Mapping[str, Timing], groups: Iter
         if turns is None:
             continue
         for rate in turns.rates:
-            sub = next(sub for sub in problem.subchains if rate.node in sub.nodes)
+            sub = problem.subchain_of(rate.node)
             if sub.nodes[0] == rate.node and rate.rate_hz < rate.planned_hz:
                 result[sub.name] = _period(rate.rate_hz)
         for name, lost_hz in turns.stolen_hz.items():

@@ -211,20 +211,28 @@ class Problem:
     def _subchain_by_name(self) -> dict[str, Subchain]:
         return {sub.name: sub for sub in self.subchains}
 
+    def subchain_of(self, node: str) -> Subchain:
+        """The subchain scheduled node ``node`` runs in (:class:`KeyError` if it is not scheduled)."""
+        return self._subchain_by_node[node]
+
+    @cached_property
+    def _subchain_by_node(self) -> dict[str, Subchain]:
+        return {node: sub for sub in self.subchains for node in sub.nodes}
+
     def with_compute(self, compute_ms: Mapping[str, float]) -> Problem:
         """The same problem with new planning compute times (ms, one thread) for some scheduled nodes.
 
         Raises :class:`UsageError` for a name that is not a scheduled node or a
         time that is not a positive finite number.
         """
-        owner = {node: sub.name for sub in self.subchains for node in sub.nodes}
+        owner = self._subchain_by_node
         for node, value in compute_ms.items():
             if node not in owner:
                 hint = did_you_mean(node, owner)
                 raise UsageError(f"compute time for {node!r}: not a scheduled node of {self.app}{hint}")
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
                 raise UsageError(f"compute time for {node!r}: {value!r} ms is not a positive finite number")
-        touched = {owner[node] for node in compute_ms}
+        touched = {owner[node].name for node in compute_ms}
         subchains = tuple(
             replace(
                 sub,

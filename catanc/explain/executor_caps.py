@@ -67,7 +67,7 @@ def cap_offer(spec: Spec, problem: Problem, plan: Plan, executor: Executor) -> C
     if not losing:
         return None
     blocker = max(losing, key=lambda rate: rate.planned_hz - rate.rate_hz).blocked_by
-    subchain = next(sub for sub in problem.subchains if blocker in sub.nodes)
+    subchain = problem.subchain_of(blocker)
     head, period = subchain.nodes[0], plan.subchains[subchain.name].period_ms
     now = objective_as_run(plan, problem, stealing=stealing)
     groups = core_groups(plan, stealing=stealing)

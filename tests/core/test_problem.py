@@ -54,6 +54,21 @@ def test_collapse_merges_subchains_and_keeps_fixed_clocks() -> None:
     assert problem.fixed_periods_ms == {"odom": 20.0}
 
 
+def test_subchain_of_names_the_subchain_a_scheduled_node_runs_in() -> None:
+    problem = build_problem(parse_spec(NAV))  # subchains: {local: [scan, LM, LP], GL: [GL], ...}
+    assert {node: problem.subchain_of(node).name for node in ("scan", "LM", "LP", "GL", "GM", "GP", "NC")} == {
+        "scan": "local",
+        "LM": "local",
+        "LP": "local",
+        "GL": "GL",
+        "GM": "GM",
+        "GP": "GP",
+        "NC": "NC",
+    }
+    with pytest.raises(KeyError):
+        problem.subchain_of("odom")  # on a clock of its own: in no subchain
+
+
 def test_selector_expands_to_one_term_per_path_and_dedupes_chains() -> None:
     problem = build_problem(parse_spec(NAV))
     from_gl = sorted(problem.chains[t.chain].nodes for t in problem.response_terms if t.weight == 0.005)
