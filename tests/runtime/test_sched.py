@@ -512,25 +512,36 @@ def test_restore_all_leaves_alone_a_thread_whose_tid_now_names_another(monkeypat
             set_other(tid)
 
 
-@pytest.mark.usefixtures("real_kernel")
-def test_a_signal_restores_at_once_then_runs_the_handler_that_was_there() -> None:
-    received: list[int] = []
-    before = signal.signal(signal.SIGHUP, lambda signum, _frame: received.append(signum))
+@contextlib.contextmanager
+def restorer_over_a_raised_sleeper(
+    handler: Callable[[int, Any], None] = lambda _signum, _frame: None,
+) -> Iterator[tuple[Restorer, int]]:
+    """An installed Restorer that remembered a sleeping thread, then raised to FIFO 1; SIGHUP's
+    handler before it was ``handler``."""
+    before = signal.signal(signal.SIGHUP, handler)
     try:
         with sleeping_thread() as tid:
             try:
                 with Restorer() as restorer:
                     restorer.remember(tid)
                     set_fifo(tid, 1)  # it sleeps: nothing runs at SCHED_FIFO
-                    signal.raise_signal(signal.SIGHUP)
-                    assert received == [signal.SIGHUP]  # chained, and the process goes on
-                    assert sched_of(os.getpid(), tid) == Sched(os.SCHED_OTHER, 0, frozenset(os.sched_getaffinity(0)))
-                signal.raise_signal(signal.SIGHUP)  # the handler that was there is back
-                assert received == [signal.SIGHUP, signal.SIGHUP]
+                    yield restorer, tid
             finally:
                 set_other(tid)
     finally:
         signal.signal(signal.SIGHUP, before)
+
+
+@pytest.mark.usefixtures("real_kernel")
+def test_a_signal_restores_at_once_then_runs_the_handler_that_was_there() -> None:
+    received: list[int] = []
+    with restorer_over_a_raised_sleeper(lambda signum, _frame: received.append(signum)) as (restorer, tid):
+        signal.raise_signal(signal.SIGHUP)
+        assert received == [signal.SIGHUP]  # chained, and the process goes on
+        assert sched_of(os.getpid(), tid) == Sched(os.SCHED_OTHER, 0, frozenset(os.sched_getaffinity(0)))
+        restorer.close()  # what leaving its block does
+        signal.raise_signal(signal.SIGHUP)  # the handler that was there is back
+        assert received == [signal.SIGHUP, signal.SIGHUP]
 
 
 @pytest.mark.usefixtures("real_kernel")
@@ -538,43 +549,22 @@ def test_a_signal_calls_before_restore_while_the_threads_are_still_changed() -> 
     """The enforcer stops its loop first: a loop that ran between the restore and its stop read its
     CPU set as the main thread's first one and re-planned for fewer cores (CI, 2026-11-28)."""
     seen: list[int] = []
-    before = signal.signal(signal.SIGHUP, lambda _signum, _frame: None)
-    try:
-        with sleeping_thread() as tid:
-            try:
-                with Restorer() as restorer:
-                    restorer.remember(tid)
-                    set_fifo(tid, 1)  # it sleeps: nothing runs at SCHED_FIFO
-                    restorer.before_restore = lambda: seen.append(sched_of(os.getpid(), tid).policy)
-                    signal.raise_signal(signal.SIGHUP)
-                    assert seen == [os.SCHED_FIFO]  # called once, before the thread was put back
-                    assert sched_of(os.getpid(), tid).policy == os.SCHED_OTHER
-            finally:
-                set_other(tid)
-    finally:
-        signal.signal(signal.SIGHUP, before)
+    with restorer_over_a_raised_sleeper() as (restorer, tid):
+        restorer.before_restore = lambda: seen.append(sched_of(os.getpid(), tid).policy)
+        signal.raise_signal(signal.SIGHUP)
+        assert seen == [os.SCHED_FIFO]  # called once, before the thread was put back
+        assert sched_of(os.getpid(), tid).policy == os.SCHED_OTHER
 
 
 @pytest.mark.usefixtures("real_kernel")
 def test_a_failing_before_restore_does_not_stop_the_restore() -> None:
-    before = signal.signal(signal.SIGHUP, lambda _signum, _frame: None)
-    try:
-        with sleeping_thread() as tid:
-            try:
-                with Restorer() as restorer:
-                    restorer.remember(tid)
-                    set_fifo(tid, 1)
+    def broken() -> None:
+        raise RuntimeError("a callback that fails")
 
-                    def broken() -> None:
-                        raise RuntimeError("a callback that fails")
-
-                    restorer.before_restore = broken
-                    signal.raise_signal(signal.SIGHUP)
-                    assert sched_of(os.getpid(), tid).policy == os.SCHED_OTHER
-            finally:
-                set_other(tid)
-    finally:
-        signal.signal(signal.SIGHUP, before)
+    with restorer_over_a_raised_sleeper() as (restorer, tid):
+        restorer.before_restore = broken
+        signal.raise_signal(signal.SIGHUP)
+        assert sched_of(os.getpid(), tid).policy == os.SCHED_OTHER
 
 
 def test_install_leaves_the_signal_handlers_as_they_were() -> None:
