@@ -21,11 +21,11 @@ import signal
 import socket
 import subprocess
 import sys
-import threading
 import time
 import traceback
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
+from pathlib import Path
 from typing import Any, Literal, NoReturn, Protocol
 
 from catanc.control.schedule import RuntimeSchedule
@@ -85,6 +85,11 @@ class PlannerProcess:
         answer: Answer = self._conn.recv()
         return answer
 
+    @property
+    def pid(self) -> int:
+        """The re-optimiser's process id."""
+        return self._process.pid
+
     def fileno(self) -> int:
         """The connection's descriptor: readable when an answer waits (for ``select``)."""
         return self._conn.fileno()
@@ -102,6 +107,9 @@ class PlannerProcess:
 
 class _Child(Protocol):
     """What :meth:`PlannerProcess.close` needs of the child (a :class:`subprocess.Popen` has it)."""
+
+    @property
+    def pid(self) -> int: ...
 
     def wait(self, timeout: float | None = None) -> int: ...
 
@@ -136,10 +144,18 @@ class _ForkedChild:
                 os.kill(self.pid, signal.SIGKILL)
 
 
+def _one_thread() -> bool:
+    """Whether this process runs a single thread, native ones counted (a BLAS pool, say)."""
+    try:
+        return sum(1 for _ in Path("/proc/self/task").iterdir()) == 1
+    except OSError:
+        return False
+
+
 def _start_child(fd: int) -> _Child:
     """The re-optimiser serving on socket ``fd``: a fork while this process runs one thread (a fork of
     a threaded process may inherit a lock another thread held), else a fresh interpreter."""
-    if threading.active_count() > 1:
+    if not _one_thread():
         argv = [sys.executable, "-c", f"from catanc.runtime.planning import serve_fd; serve_fd({fd})"]
         return subprocess.Popen(argv, pass_fds=[fd])
     pid = os.fork()
