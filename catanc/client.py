@@ -232,8 +232,8 @@ class Node:
             if (magic, version, entry_size) != (_RING_MAGIC, _RING_VERSION, _ENTRY_SIZE):
                 raise ClientError(f"node {self.name!r}: the enforcer's ring is of another layout (version {version})")
             self._ring = mmap.mmap(fd, _HEADER_SIZE + slots * _ENTRY_SIZE)
-            # `written` is stored as one aligned 8-byte word: struct's pack_into writes it a byte at
-            # a time, and the enforcer reading between two bytes saw the counter go back.
+            # `written` is stored as one aligned 8-byte word: struct's pack_into zeroes the field,
+            # then writes it a byte at a time, and the enforcer reading in between saw it go back.
             self._header = memoryview(self._ring)[:_HEADER_SIZE].cast("Q")
         finally:
             os.close(fd)

@@ -151,8 +151,8 @@ class RingWriter:
             raise ValueError(f"not a catanc ring (magic {magic:#x}, version {version}, entry {entry_size})")
         self.slots = slots
         self._map = mmap.mmap(fd, ring_size(slots), mmap.MAP_SHARED, mmap.PROT_READ | mmap.PROT_WRITE)
-        # `written` is stored as one aligned 8-byte word: struct's pack_into writes it a byte at a
-        # time, and a reader between two bytes saw the counter go back (to 0 at 255 -> 256).
+        # `written` is stored as one aligned 8-byte word: struct's pack_into zeroes the field, then
+        # writes it a byte at a time, and a reader in between saw the counter go back (to 0).
         self._header = memoryview(self._map)[:HEADER_SIZE].cast("Q")
         self.written = written
 
