@@ -1,4 +1,5 @@
-"""The order of the slots inside a shared core's period: the one that makes data flow through it.
+"""The orders on a shared core: its slots' inside a period, the one that makes data flow through it,
+and the stealing priority of its subchains (:func:`priorities`).
 
 catan-model.md section 4: unless the spec gives ``schedule.order``, where a
 weighted chain passes from subchain A to subchain B on the same core, A's
@@ -22,6 +23,7 @@ import math
 from collections.abc import Mapping, Sequence
 
 from catanc.core.problem import Problem
+from catanc.spec.language import Schedule
 
 ENUMERATE_UP_TO = 7
 """Score every order of a core with at most this many subchains (7! = 5,040 orders, a few ms)."""
@@ -89,3 +91,12 @@ def data_flow_order(
             best = (cost, order)
     assert best is not None
     return best[1]
+
+
+def priorities(problem: Problem, schedule: Schedule, importance: dict[str, float]) -> dict[str, int]:
+    """Stealing priority: the spec's, else by weight (the heaviest highest); higher steals from lower."""
+    if schedule.priorities:
+        return {sub.name: schedule.priorities.get(sub.name, 0) for sub in problem.subchains}
+    ranked = sorted(range(len(problem.subchains)), key=lambda i: (-importance[problem.subchains[i].name], i))
+    count = len(ranked)
+    return {problem.subchains[i].name: count - rank for rank, i in enumerate(ranked)}

@@ -28,7 +28,7 @@ from catanc.core.build import build_problem
 from catanc.core.metrics import chain_metrics_of
 from catanc.core.problem import Problem
 from catanc.errors import InfeasibleError, UsageError
-from catanc.planning.order import data_flow_order, flow_weights
+from catanc.planning.order import data_flow_order, flow_weights, priorities
 from catanc.planning.stage1 import Allocation, Stage1Result, allocate, next_best
 from catanc.planning.stage1.exhaustive import every_allocation
 from catanc.planning.stage2.base import Layout, SharedCore, Stage2Model
@@ -280,15 +280,6 @@ def slot_order(core: SharedCore, result: Stage2Result, problem: Problem, schedul
     slices = {name: result.fractions[name] * problem.subchain(name).compute_ms for name in core.subchains}
     weights = flow_weights(problem, core.subchains)
     return data_flow_order(core.subchains, slices, weights, schedule.switch_ms, result.lengths[core.core])
-
-
-def priorities(problem: Problem, schedule: Schedule, importance: dict[str, float]) -> dict[str, int]:
-    """Stealing priority: the spec's, else by weight (the heaviest highest); higher steals from lower."""
-    if schedule.priorities:
-        return {sub.name: schedule.priorities.get(sub.name, 0) for sub in problem.subchains}
-    ranked = sorted(range(len(problem.subchains)), key=lambda i: (-importance[problem.subchains[i].name], i))
-    count = len(ranked)
-    return {problem.subchains[i].name: count - rank for rank, i in enumerate(ranked)}
 
 
 def assemble(

@@ -45,7 +45,7 @@ from catanc.core.build import build_problem
 from catanc.core.priorities import ENFORCER_FIFO
 from catanc.core.problem import Problem
 from catanc.errors import PrivilegeError, UsageError
-from catanc.planning.planner import priorities
+from catanc.planning.order import priorities
 from catanc.realbench.driver import BenchError, Driver, DriverSocket
 from catanc.realbench.replay import measured_result, replay, utilisation
 from catanc.runtime import protocol

@@ -33,7 +33,8 @@ from catanc.core.problem import Problem
 from catanc.core.workload import ComputeSampler, NodeStream
 from catanc.errors import UsageError
 from catanc.extras import require
-from catanc.planning.planner import plan_problem, priorities
+from catanc.planning.order import priorities
+from catanc.planning.planner import plan_problem
 from catanc.planning.replan import Replanner
 from catanc.planning.types import Plan
 from catanc.runtime.measure import estimate, mode_times
