@@ -86,7 +86,6 @@ def test_the_ring_writers_counter_never_goes_back(watcher: Path) -> None:
     fd = ring.create(slots=16)
     writer = ring.RingWriter(fd)
     try:
-
         seqs = itertools.count()
 
         def write(count: int) -> None:
