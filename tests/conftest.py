@@ -10,7 +10,8 @@ Markers (registered in pyproject.toml; pytest runs with ``--strict-markers``):
 - ``slow``: takes more than ~10 s on the 2-core development VM;
   ``pytest -m "not slow"`` is the quick pass.
 
-Helpers that are not fixtures live in :mod:`tests.support`.
+Helpers that are not fixtures live in :mod:`tests.support`.  ``untraded`` plans without Stage II's
+executor trade.
 """
 
 from __future__ import annotations
@@ -61,3 +62,13 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     for item in items:
         if REALTIME_FIXTURES & set(getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.realtime)
+
+
+@pytest.fixture
+def untraded(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Plans made without Stage II's executor trade (every member at its least ``k``, as before the trade):
+    for tests of the executor model on plans that lose many triggers, and for the simulator to judge the
+    trade against."""
+    from catanc.planning.stage2.turns import LayoutTurns  # only the tests that ask load the planner
+
+    monkeypatch.setattr(LayoutTurns, "best_spacing", lambda *_args: None)

@@ -90,9 +90,13 @@ class ChainView:
     bound_ms: float | None  # tightest bound as written (unscaled), if any
 
 
+EXECUTOR_SPACING = "executor's thread"
+"""A binding's kind where Stage II spaced a subchain's triggers out to free an executor's thread."""
+
+
 @dataclass(frozen=True)
 class Binding:
-    kind: str  # "rate cap", "rate floor", "fixed rate", "chain bound", "minimum slice", "f <= 1"
+    kind: str  # "rate cap", "rate floor", "fixed rate", "chain bound", "minimum slice", "f <= 1", EXECUTOR_SPACING
     subject: str  # subchain name or chain label
     detail: str
 
@@ -241,12 +245,14 @@ def allocation_note(plan: Plan) -> str:
         )
     if plan.allocation == plan.stage1.allocation:
         return f"Allocation: {allocation_text(plan.allocation)}: Stage I's estimate, confirmed as the {searched}."
-    before = comparison.two_stage_objective
+    before = comparison.two_stage_objective  # as run, as plans are ranked
+    now = plan.objective if plan.objective_as_run is None else plan.objective_as_run
     if before is None:
         versus = "Stage I's allocation cannot meet the bounds as well"
     else:
-        lower = (before - plan.objective) / before if before else 0.0
-        versus = f"{plan.objective:.3f} ms against {before:.3f} ms, {lower:.1%} lower"
+        lower = (before - now) / before if before else 0.0
+        what = "" if now == plan.objective else "objective as run "
+        versus = f"{what}{now:.3f} ms against {before:.3f} ms, {lower:.1%} lower"
     return (
         f"Allocation: {allocation_text(plan.allocation)}, the {searched}; Stage I's estimate chose "
         f"{allocation_text(plan.stage1.allocation)} ({versus})."
@@ -328,8 +334,19 @@ def bindings(plan: Plan, problem: Problem, schedule: Schedule) -> list[Binding]:
                 found.append(Binding("fixed rate", sub.name, f"runs at exactly {hz(sub.min_period_ms)}"))
         else:
             held = chosen.every is not None and chosen.every > (runs_per_period(chosen, sub.batch) or 1)
+            length = period / chosen.every if chosen.every else 0.0
+            by_cap = held and sub.min_period_ms > 0 and period < sub.min_period_ms + length * (1 - 1e-9)
             if capped:
                 found.append(Binding("rate cap", sub.name, f"period {period:.3f} ms = its cap of {hz(period)}"))
+            elif held and not by_cap:  # spaced out by Stage II's trade of an executor's thread
+                found.append(
+                    Binding(
+                        EXECUTOR_SPACING,
+                        sub.name,
+                        f"period {period:.3f} ms = {chosen.every} periods, more than its run needs: triggered "
+                        "less often, its runs hold the thread it shares with other nodes less of the time",
+                    )
+                )
             elif held:  # aligned with the slots: every k periods, the first multiple of T at or above the cap
                 found.append(
                     Binding(

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Literal
 from catanc.core.priorities import ENFORCER_FIFO, RUNNING_FIFO, UNSCHEDULED_FIFO, resting_fifo
 from catanc.explain.analysis import (
     BINDING_TOLERANCE,
+    EXECUTOR_SPACING,
     DedicatedView,
     Explanation,
     SharedCoreView,
@@ -147,7 +148,8 @@ def timeline_bar(view: SharedCoreView, width: int = BAR_WIDTH) -> str:
     return "".join(chars)
 
 
-def _runs_text(sub: SubchainPlan, batch: bool, length: float) -> str:
+def _runs_text(sub: SubchainPlan, batch: bool, length: float, *, spaced: bool = False) -> str:
+    """How often ``sub`` runs and is triggered; ``spaced``: its ``k`` is Stage II's executor trade, not a cap."""
     runs = runs_per_period(sub, batch)
     if runs == 1:
         text = "a whole run every period"
@@ -158,7 +160,8 @@ def _runs_text(sub: SubchainPlan, batch: bool, length: float) -> str:
     else:
         text = f"one run every {1.0 / sub.fraction:.3g} periods on average"
     if sub.every is not None and sub.every > (runs or 1):
-        text += f"; triggered at its slot every {sub.every} periods ({sub.period_ms:.3f} ms, rate cap)"
+        why = "to free its executor's thread" if spaced else "rate cap"
+        text += f"; triggered at its slot every {sub.every} periods ({sub.period_ms:.3f} ms, {why})"
     elif sub.every is not None:
         text += "; triggered at its slot"
     elif sub.period_ms > sub.latency_ms * (1 + BINDING_TOLERANCE):
@@ -168,6 +171,7 @@ def _runs_text(sub: SubchainPlan, batch: bool, length: float) -> str:
 
 def _shared_blocks(view: SharedCoreView, explanation: Explanation) -> list[Block]:
     subs = {sub.name: sub for sub in explanation.subchains}
+    spaced = {binding.subject for binding in explanation.bindings if binding.kind == EXECUTOR_SPACING}
     title = (
         f"core {view.core}: shared by {plural(len(view.order), 'subchain')}, "
         f"schedule period T = {view.period_ms:.3f} ms ({_rate(view.period_ms)} Hz)"
@@ -185,7 +189,7 @@ def _shared_blocks(view: SharedCoreView, explanation: Explanation) -> list[Block
             assert segment.subchain is not None
             sub = subs[segment.subchain]
             what = f"{segment.subchain}: slice f*c = {sub.fraction:.4g} x {explanation.compute_ms[sub.name]:.3f} ms"
-            often = _runs_text(sub, sub.name in explanation.batch, view.period_ms)
+            often = _runs_text(sub, sub.name in explanation.batch, view.period_ms, spaced=sub.name in spaced)
         rows.append(
             (_ms(segment.offset_ms), _ms(segment.length_ms), _share(segment.length_ms, view.period_ms), what, often)
         )

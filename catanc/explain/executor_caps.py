@@ -1,8 +1,9 @@
 """A rate cap on an executor's long node that would make the plan run better: the planner's trade, offered.
 
-The planner does not yet plan an executor's thread across subchains (docs/executor-planning.md):
-it may run a long node (nav2d's GM) often because the slot model sees room for it, while each of
-its runs holds the thread the short nodes (GL) need.  Slowing the long node trades its chains'
+The planner spaces out an executor's members' triggers at the runs and lengths it chose
+(docs/executor-planning.md), but it chooses those for the slot model: it may still run a long
+node (nav2d's GM) with slices the slot model sees room for, while each of its runs holds the
+thread the short nodes (GL) need.  Slowing the long node trades its chains'
 periods against the short nodes' lost triggers.  This module makes that trade the way a user
 would: it scores a few caps below the long node's planned rate on this plan (its period
 lengthened, the rest as planned), adds the best as ``{node: HEAD, max_rate_hz: CAP}`` to the spec,

@@ -146,7 +146,7 @@ def plan_problem(
             complete = False
             break
         layout = layouts[allocation]
-        beat = None if best is None else (best.scale, best.objective)
+        beat = None if best is None else (best.scale, best.as_run)
         limit = STAGE2_RELAXATIONS if best is None else min(RUNNER_UP_RELAXATIONS, budget)
         effort = Effort()
         try:
@@ -170,7 +170,7 @@ def plan_problem(
             budget -= effort.relaxations
         if allocation == first.allocation:
             two_stage = result
-        if result is not None and (best is None or better(result, (best.scale, best.objective))):
+        if result is not None and (best is None or better(result, (best.scale, best.as_run))):
             best, chosen = result, allocation
     if best is None:
         raise InfeasibleError(f"{problem.app}: no schedule exists for the shared cores, whatever the bounds")
@@ -187,7 +187,7 @@ def plan_problem(
         allocations=len(candidates),
         planned=planned,
         complete=complete,
-        two_stage_objective=None if two_stage is None else two_stage.objective,
+        two_stage_objective=None if two_stage is None else two_stage.as_run,
         two_stage_scale=None if two_stage is None else two_stage.scale,
     )
     return assemble(
@@ -254,7 +254,7 @@ def _could_beat(bound: tuple[float, float], best: Stage2Result) -> bool:
         return False
     if scale < best.scale * (1 - SCALE_PRECISION):
         return True
-    return value < best.objective - 1e-9 * max(1.0, abs(best.objective))
+    return value < best.as_run - 1e-9 * max(1.0, abs(best.as_run))
 
 
 def ordered_layout(layout: Layout, schedule: Schedule, importance: dict[str, float], problem: Problem) -> Layout:
@@ -360,4 +360,5 @@ def assemble(
         comparison=comparison,
         runs=dict(result.runs),
         every=dict(result.every),
+        objective_as_run=result.as_run,
     )

@@ -51,7 +51,9 @@ class TwoStageComparison:
     allocations: int  # allocations considered
     planned: int  # of those, planned by Stage II (the rest were bounded out, or beyond the planner's PLAN_AT_MOST)
     complete: bool  # every other allocation was bounded out: the plan is the best of them all
-    two_stage_objective: float | None  # Stage I's allocation under Stage II (None: it could not meet the bounds)
+    two_stage_objective: (
+        float | None
+    )  # Stage I's allocation under Stage II, as run (None: it could not meet the bounds)
     two_stage_scale: float | None
 
 
@@ -70,3 +72,4 @@ class Plan:
     comparison: TwoStageComparison
     runs: dict[str, int]  # n = 1/f per non-batch shared subchain (exact)
     every: dict[str, int] = field(default_factory=dict)  # k >= n per non-batch shared subchain: p = k T
+    objective_as_run: float | None = None  # with the triggers executors' threads lose: what plans are ranked by

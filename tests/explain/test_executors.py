@@ -139,6 +139,7 @@ def test_nav2d_gl_and_the_slots_it_steals_run_at_about_their_predicted_rates(cor
 
 
 @pytest.mark.parametrize(("long_ms", "short_period_ms"), [(30.0, None), (30.0, 5.0)])
+@pytest.mark.usefixtures("untraded")
 def test_the_objective_as_run_counts_lost_triggers(long_ms: float, short_period_ms: float | None) -> None:
     spec = long_and_short(long_ms, short_period_ms)
     plan, problem = planned(spec, 1)

@@ -215,7 +215,8 @@ def test_nav2d_two_cores_runner_up_beats_stage_one() -> None:
     spec = load_spec(SPECS / "nav2d.yaml")
     result = plan(spec, 2)
     assert result.comparison.two_stage_objective is not None
-    assert result.objective < result.comparison.two_stage_objective
+    assert result.objective_as_run is not None  # GL and GM share a thread: plans are ranked as run
+    assert result.objective_as_run < result.comparison.two_stage_objective
     assert result.allocation != result.stage1.allocation
 
 

@@ -1,0 +1,129 @@
+"""An executor's thread on a shared core: its members' trigger spacing ``k`` traded, searched exactly.
+
+Where an executor's nodes head subchains on one shared core, a run of one member holds the
+thread while the others' triggers come and go (:mod:`catanc.core.executor_thread`): the plan's
+objective as run (:func:`~catanc.core.executor_thread.as_run_objective`) is its objective with the
+periods the thread's turns leave.  Triggering a member less often (a longer ``k``, so ``p = k T``)
+lengthens its own period and shortens every other member's losses: the trade made here, once
+Stage II has chosen the runs and schedule lengths (docs/executor-planning.md: those are still
+chosen for the slot model's objective, so the plan is the best over ``k`` at them, not over
+every plan).
+
+The members' ``k`` are searched upward from the least that fits
+(:func:`~catanc.planning.stage2.base.aligned_every`), depth first.  The planned objective only
+grows with each ``k`` and the objective as run is never below it, so a ``k`` whose planned
+objective (the deeper members at their least) reaches the best found as run ends that member's
+search; so does one where a bound no longer holds (bounds only tighten with periods).  Only the
+members' ``k`` are searched: every other subchain keeps the least, whose own period a longer ``k``
+only lengthens.  A member whose period nothing weighs could be spaced out for ever:
+:data:`MOST_STEPS` ends it.
+
+The last member's search also ends where the objective as run stops falling once that member
+loses no trigger itself.  Along its ``p = k T``, the others fixed: the thread's shares do not
+depend on it (they count only the subchains outside the executor); each other member's rate
+``1/p_i - loss/p`` and each victim's ``1/p_v - lost/p`` (or a batch victim's ``1 - steal/p``
+share) make periods of the form ``1/(a - b/p)``, convex and falling in ``p``; its own period is
+``p`` while it loses nothing, and it keeps losing nothing for longer ``p`` (its holds' count
+``S/p`` only falls); a chain's response is a sum of periods and a maximum of them, convex and
+growing in each.  So the objective as run is convex in ``k`` from there, and its first rise is
+past its least.  (A member that loses triggers itself has a period ``p/(A + B p)`` there,
+concave: the search goes on.)
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+from catanc.core.executor_thread import CoreGroup, as_run_objective, periods_as_run
+from catanc.core.metrics import Timing, bound_scale, objective
+from catanc.core.problem import Problem
+from catanc.planning.order import priorities
+from catanc.planning.stage2.base import Layout
+from catanc.spec.language import Schedule
+
+MOST_STEPS = 1000
+"""At most this many ``k`` above the least per member (reached only where its period weighs nothing)."""
+
+
+@dataclass(frozen=True)
+class LayoutTurns:
+    """The executors whose threads a layout's shared cores share: their core groups and searched members."""
+
+    groups: tuple[CoreGroup, ...]
+    members: tuple[str, ...]  # non-batch shared subchains holding an executor's node, in problem order
+
+    @staticmethod
+    def of(problem: Problem, layout: Layout, schedule: Schedule) -> LayoutTurns | None:
+        """None where no executor spans two subchains of one shared core (nothing to trade)."""
+        ranks = priorities(problem, schedule, problem.importance())
+        core_of = {name: core.core for core in layout.shared for name in core.subchains}
+        members: set[str] = set()
+        for executor in problem.executors:
+            subs = executor.subchains
+            if len(subs) < 2 or not all(name in core_of for name in subs):
+                continue
+            if len({core_of[name] for name in subs}) == 1:
+                members.update(name for name in subs if not problem.subchain(name).batch)
+        if not members:
+            return None
+        groups = tuple(
+            CoreGroup(core.subchains, 1, {name: ranks[name] for name in core.subchains}, schedule.stealing)
+            for core in layout.shared
+        )
+        return LayoutTurns(groups, tuple(sub.name for sub in problem.subchains if sub.name in members))
+
+    def as_run(self, problem: Problem, timings: Mapping[str, Timing]) -> float:
+        return as_run_objective(problem, timings, self.groups)
+
+    def best_spacing(
+        self,
+        problem: Problem,
+        timings: Mapping[str, Timing],
+        lengths: Mapping[str, float],
+        least: Mapping[str, int],
+        allowed_scale: float,
+    ) -> tuple[float, dict[str, int]] | None:
+        """The least objective as run over the members' ``k >= least`` and those ``k``, each member's period
+        ``k T`` with ``T = lengths[member]`` (None: ``least`` itself misses the bounds scaled by ``allowed_scale``).
+
+        ``timings`` holds every subchain's timing with the members at ``least``; latencies do not change.
+        """
+        trial = dict(timings)
+        names = self.members
+        if not names:
+            return None
+        best: tuple[float, dict[str, int]] | None = None
+        spacing = dict(least)
+
+        def place(name: str, every: int) -> None:
+            spacing[name] = every
+            trial[name] = Timing(every * lengths[name], trial[name].latency_ms)
+
+        def visit(level: int) -> None:
+            nonlocal best
+            name, last = names[level], level == len(names) - 1
+            previous = math.inf
+            for every in range(least[name], least[name] + MOST_STEPS + 1):
+                place(name, every)
+                for deeper in names[level + 1 :]:
+                    place(deeper, least[deeper])
+                if bound_scale(problem, trial) > allowed_scale:
+                    break  # and every longer k: bounds only tighten with periods
+                if best is not None and objective(problem, trial) >= best[0]:
+                    break  # and every longer k: the planned objective grows, the one as run is above it
+                if not last:
+                    visit(level + 1)
+                    continue
+                periods = periods_as_run(problem, trial, self.groups)
+                value = objective(problem, {key: Timing(periods[key], t.latency_ms) for key, t in trial.items()})
+                if best is None or value < best[0]:
+                    best = (value, dict(spacing))
+                if value >= previous and periods[name] <= trial[name].period_ms:
+                    break  # convex from here on (the module's docstring): past its least
+                previous = value
+            place(name, least[name])
+
+        visit(0)
+        return best
