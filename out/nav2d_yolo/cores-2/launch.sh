@@ -6,11 +6,11 @@
 # Deploys nav2d_yolo as planned for 2 cores: the enforcer (catanc run runtime.json),
 # then these processes, each pinned to its CPUs:
 #   /Mapper: CPUs 1, --static: SCHED_OTHER (GL, GM)
-#   /Navigator: CPUs 0,1, --static: SCHED_OTHER (GP, NC)
+#   /Navigator: CPUs 1, --static: SCHED_OTHER (GP, NC)
 #   /Operator: CPUs 0, --static: SCHED_OTHER (LM, LP)
-#   /image_shim: CPUs 1, --static: SCHED_OTHER (camera)
+#   /image_shim: CPUs 0, --static: SCHED_OTHER (camera)
 #   /scan_shim: CPUs 0, --static: SCHED_OTHER (scan)
-#   /yolo_detector: CPUs 1, --static: SCHED_OTHER (YOLO)
+#   /yolo_detector: CPUs 0, --static: SCHED_OTHER (YOLO)
 #
 # Usage: ./launch.sh [--static] [--no-rt]
 #   By default the enforcer starts first; once its socket is up each process starts under
@@ -210,11 +210,11 @@ if (( static )) || [[ -S ${socket-} ]]; then
   exec 2>/dev/null
   set -m
   start /Mapper 1 0 ros2 run nav2d_karto mapper
-  start /Navigator 0,1 0 ros2 run nav2d_navigator navigator
+  start /Navigator 1 0 ros2 run nav2d_navigator navigator
   start /Operator 0 0 ros2 run nav2d_operator operator
-  start /image_shim 1 0 ros2 run catan_shims image_shim
+  start /image_shim 0 0 ros2 run catan_shims image_shim
   start /scan_shim 0 0 ros2 run catan_shims scan_shim
-  start /yolo_detector 1 0 ros2 run yolo_cpu yolo_detector
+  start /yolo_detector 0 0 ros2 run yolo_cpu yolo_detector
   set +m
   exec 2>&"$stderr"
 fi
