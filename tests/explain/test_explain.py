@@ -369,6 +369,20 @@ def test_the_allocation_note_compares_with_stage_ones_choice() -> None:
     assert "no other allocation was planned" in same
 
 
+def test_a_k_spaced_out_for_an_executor_is_not_called_a_rate_cap() -> None:
+    # nav2d on 2 cores: Stage II triggers GM every k periods, more than its runs need, to free the thread
+    # it shares with GL; GM has no rate cap (explain divided by its zero cap before, 2026-11-28).
+    spec = load_spec(SPECS / "nav2d.yaml")
+    result = plan(spec, 2)
+    gm = result.subchains["GM"]
+    assert gm.every is not None
+    assert gm.every > round(1.0 / gm.fraction)  # spaced out beyond its runs: the trade
+    text = flat(runner.invoke(app, ["explain", str(SPECS / "nav2d.yaml"), "-k", "2"]).output)
+    assert f"GM period {gm.period_ms:.3f} ms = {gm.every} periods, more than its run needs" in text
+    assert f"every {gm.every} periods ({gm.period_ms:.3f} ms, to free its executor's thread)" in text
+    assert f"every {gm.every} periods ({gm.period_ms:.3f} ms, rate cap)" not in text
+
+
 # --------------------------------------------------------------------------- Markdown (PLAN.md)
 
 SECTIONS = ("1. Cores", "2. Subchains", "3. Chains", "4. What binds", "5. Warnings", "6. Baseline")
