@@ -41,6 +41,7 @@ from catanc.explain.headroom import NEAR_SATURATION, Headroom, plan_headrooms
 from catanc.planning.baseline import BaselineEvaluation, BaselineGap, TermValue, evaluate_baseline, objective_terms
 from catanc.planning.order import slot_starts
 from catanc.planning.stage1.estimate import Allocation
+from catanc.planning.stage2.base import aligned_every
 from catanc.spec.language import Schedule, Spec
 from catanc.text import hz
 
@@ -333,12 +334,14 @@ def bindings(plan: Plan, problem: Problem, schedule: Schedule) -> list[Binding]:
             if capped or floored:
                 found.append(Binding("fixed rate", sub.name, f"runs at exactly {hz(sub.min_period_ms)}"))
         else:
-            held = chosen.every is not None and chosen.every > (runs_per_period(chosen, sub.batch) or 1)
-            length = period / chosen.every if chosen.every else 0.0
-            by_cap = held and sub.min_period_ms > 0 and period < sub.min_period_ms + length * (1 - 1e-9)
+            whole = runs_per_period(chosen, sub.batch) or 1
+            every = chosen.every or 0
+            held = every > whole
+            # Beyond the least k its cap asks for: spaced out by Stage II's trade of an executor's thread.
+            spaced = held and every > aligned_every(whole, period / every, sub.min_period_ms)
             if capped:
                 found.append(Binding("rate cap", sub.name, f"period {period:.3f} ms = its cap of {hz(period)}"))
-            elif held and not by_cap:  # spaced out by Stage II's trade of an executor's thread
+            elif spaced:
                 found.append(
                     Binding(
                         EXECUTOR_SPACING,

@@ -57,7 +57,6 @@ class LayoutTurns:
     @staticmethod
     def of(problem: Problem, layout: Layout, schedule: Schedule) -> LayoutTurns | None:
         """None where no executor spans two subchains of one shared core (nothing to trade)."""
-        ranks = priorities(problem, schedule, problem.importance())
         core_of = {name: core.core for core in layout.shared for name in core.subchains}
         members: set[str] = set()
         for executor in problem.executors:
@@ -68,6 +67,7 @@ class LayoutTurns:
                 members.update(name for name in subs if not problem.subchain(name).batch)
         if not members:
             return None
+        ranks = priorities(problem, schedule, problem.importance())  # only where a thread is shared
         groups = tuple(
             CoreGroup(core.subchains, 1, {name: ranks[name] for name in core.subchains}, schedule.stealing)
             for core in layout.shared
