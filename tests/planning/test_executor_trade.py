@@ -13,6 +13,7 @@ import math
 from typing import Any
 
 import pytest
+import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -20,6 +21,7 @@ from catanc.core.build import build_problem
 from catanc.core.executor_thread import as_run_objective
 from catanc.core.metrics import Timing, bound_scale
 from catanc.core.problem import Problem
+from catanc.explain.executors import objective_as_run
 from catanc.planning.planner import plan_problem
 from catanc.planning.stage2.base import Layout, SharedCore
 from catanc.planning.stage2.turns import MOST_STEPS, LayoutTurns
@@ -27,6 +29,7 @@ from catanc.planning.types import Plan
 from catanc.sim.metrics import PolicyResult
 from catanc.sim.simulate import Setup, simulate
 from tests.explain.test_executors import nav2d, planned
+from tests.support.scenario_specs import SPECS
 from tests.support.strategies import spec_of
 
 WINDOW = {2: 60, 3: 15}
@@ -147,3 +150,15 @@ def test_nav2d_runs_better_with_the_trade_in_the_simulator(
     assert plan.every["GM"] > before_plan.every.get("GM", 0) or plan.allocation != before_plan.allocation
     assert run_objective(problem, after) < run_objective(problem, before) * (0.97 if cores == 2 else 0.8)
     assert after.nodes["GL"].rate_hz > before.nodes["GL"].rate_hz * (1.1 if cores == 2 else 1.6)
+
+
+def test_a_thread_of_batch_members_only_is_scored_as_run() -> None:
+    # nav2d with GM batch as well: no member has a k to trade, but GM's runs still hold GL's thread, so the
+    # plan is ranked with the triggers lost counted (before the fix its objective as run was the planned one).
+    data = yaml.safe_load((SPECS / "nav2d.yaml").read_text())
+    data["nodes"]["GM"]["batch"] = {"output_rate_hz": 1.0}
+    spec = spec_of(data)
+    plan, problem = planned(spec, 1)
+    assert plan.objective_as_run is not None
+    assert plan.objective_as_run > plan.objective * 1.01
+    assert plan.objective_as_run == pytest.approx(objective_as_run(plan, problem, stealing=spec.schedule.stealing))

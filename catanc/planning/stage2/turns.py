@@ -56,16 +56,22 @@ class LayoutTurns:
 
     @staticmethod
     def of(problem: Problem, layout: Layout, schedule: Schedule) -> LayoutTurns | None:
-        """None where no executor spans two subchains of one shared core (nothing to trade)."""
+        """None where no executor spans two subchains of one shared core (nothing lost to a thread).
+
+        Such a layout's plans are scored as run even where no member has a ``k`` to trade (every member
+        batch): its ``members`` are then empty.
+        """
         core_of = {name: core.core for core in layout.shared for name in core.subchains}
+        shared_thread = False
         members: set[str] = set()
         for executor in problem.executors:
             subs = executor.subchains
             if len(subs) < 2 or not all(name in core_of for name in subs):
                 continue
             if len({core_of[name] for name in subs}) == 1:
+                shared_thread = True
                 members.update(name for name in subs if not problem.subchain(name).batch)
-        if not members:
+        if not shared_thread:
             return None
         ranks = priorities(problem, schedule, problem.importance())  # only where a thread is shared
         groups = tuple(
@@ -90,10 +96,12 @@ class LayoutTurns:
 
         ``timings`` holds every subchain's timing with the members at ``least``; latencies do not change.
         """
-        trial = dict(timings)
         names = self.members
-        if not names:
-            return None
+        if not names:  # nothing to trade: the objective as run at ``timings``
+            if bound_scale(problem, timings) > allowed_scale:
+                return None
+            return self.as_run(problem, timings), dict(least)
+        trial = dict(timings)
         best: tuple[float, dict[str, int]] | None = None
         spacing = dict(least)
 
