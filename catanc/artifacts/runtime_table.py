@@ -12,6 +12,9 @@ as written:
 
 - each subchain's ``rate_hz`` is ``1000 / period_ms`` and ``slice_ms`` is
   ``fraction * c(S)`` (``c(S)`` from the problem, not printed);
+- ``rate_as_run_hz``, only where an executor's thread takes some of ``rate_hz``
+  (docs/executor-planning.md), is the planner's prediction of what is left:
+  what ``catanc report`` holds the measured rate to;
 - each chain's metrics are section 2 of catan-model.md over the rounded
   subchain timings and the rounded ``clocks`` (unscheduled nodes' periods);
 - ``objective`` is :func:`catanc.core.metrics.objective` over those same numbers.
@@ -28,6 +31,7 @@ and reports a broken one like a bad spec: file, line, field, what is wrong.
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Iterable
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -65,6 +69,7 @@ class SubchainEntry(TypedDict):
     slice_ms: float | None  # a shared subchain's slice per schedule period
     priority: int
     every: NotRequired[int]  # a shared non-batch subchain: triggered at its slot every k schedule periods
+    rate_as_run_hz: NotRequired[float]  # where an executor's thread takes some of rate_hz: what is left
 
 
 class CoreEntry(TypedDict):
@@ -148,6 +153,8 @@ def plan_payload(plan: Plan, problem: Problem) -> PlanPayload:
         }
         if sub.every is not None:  # triggered at its slot every k periods: period_ms = k * the core's
             subchains[name]["every"] = sub.every
+        if sub.period_as_run_ms is not None:
+            subchains[name]["rate_as_run_hz"] = rate_as_run_hz(sub.period_as_run_ms)
     cores: list[CoreEntry] = [
         {"core": core.core, "period_ms": ms(core.period_ms), "order": list(core.order)}
         for core in sorted(plan.shared_cores, key=lambda c: c.core)
@@ -174,6 +181,11 @@ def plan_payload(plan: Plan, problem: Problem) -> PlanPayload:
         "clocks": {name: {"period_ms": period} for name, period in sorted(rounded.fixed_periods_ms.items())},
         "chains": chains,
     }
+
+
+def rate_as_run_hz(period_as_run_ms: float) -> float:
+    """A rate as run as the table writes it (the planner's prediction, not recomputed: 0 for no run at all)."""
+    return round(1000.0 / period_as_run_ms, RATE_DIGITS) if math.isfinite(period_as_run_ms) else 0.0
 
 
 def plan_json(plan: Plan, problem: Problem, **extra: Any) -> str:

@@ -41,6 +41,7 @@ from catanc.planning.stage2.solve import (
     lower_bound,
     solve_layout,
 )
+from catanc.planning.stage2.turns import LayoutTurns
 from catanc.planning.types import ChainPlan, CorePlan, Plan, SubchainPlan, TwoStageComparison
 from catanc.spec.language import Schedule, Spec
 
@@ -282,6 +283,16 @@ def slot_order(core: SharedCore, result: Stage2Result, problem: Problem, schedul
     return data_flow_order(core.subchains, slices, weights, schedule.switch_ms, result.lengths[core.core])
 
 
+def periods_as_run(problem: Problem, schedule: Schedule, result: Stage2Result) -> dict[str, float]:
+    """The periods an executor's thread changes (:meth:`LayoutTurns.periods`), by subchain; the rest run as planned."""
+    turns = LayoutTurns.of(problem, result.layout, schedule) if result.layout.shared else None
+    if turns is None:
+        return {}
+    periods = turns.periods(problem, result.timings)
+    planned = result.timings
+    return {name: period for name, period in periods.items() if period > planned[name].period_ms * (1 + 1e-9)}
+
+
 def assemble(
     *,
     problem: Problem,
@@ -317,6 +328,7 @@ def assemble(
         )
     indices = allocation.core_indices()
     ranks = priorities(problem, schedule, importance)
+    as_run = periods_as_run(problem, schedule, result)
     subchains = {
         sub.name: SubchainPlan(
             name=sub.name,
@@ -329,6 +341,7 @@ def assemble(
             fraction=result.fractions.get(sub.name, 1.0),
             priority=ranks[sub.name],
             every=result.every.get(sub.name),
+            period_as_run_ms=as_run.get(sub.name),
         )
         for sub in problem.subchains
     }

@@ -83,6 +83,10 @@ class LayoutTurns:
     def as_run(self, problem: Problem, timings: Mapping[str, Timing]) -> float:
         return as_run_objective(problem, timings, self.groups)
 
+    def periods(self, problem: Problem, timings: Mapping[str, Timing]) -> dict[str, float]:
+        """Each subchain's period as run at ``timings`` (:func:`periods_as_run` over these core groups)."""
+        return periods_as_run(problem, timings, self.groups)
+
     def best_spacing(
         self,
         problem: Problem,
