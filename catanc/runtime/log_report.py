@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -59,7 +60,13 @@ def summary_payload(summary: RunSummary) -> dict[str, Any]:
                 "measured_hz": _round(sub.measured_hz),
                 "last_plan_hz": _round(sub.last_plan_hz),
                 "planned": [
-                    {"t_s": _round(p.t_s), "period_ms": _round(p.period_ms), "hz": _round(p.hz)} for p in sub.planned
+                    {
+                        "t_s": _round(p.t_s),
+                        "period_ms": _round(p.period_ms),
+                        "hz": _round(p.hz),
+                        "as_run_hz": _round(p.as_run_hz),
+                    }
+                    for p in sub.planned
                 ],
                 "latency_ms": _stats_json(sub.latency),
                 "late": sub.late,
@@ -116,6 +123,14 @@ def summary_json(summary: RunSummary) -> str:
     return json.dumps(summary_payload(summary), indent=2, sort_keys=True, allow_nan=False) + "\n"
 
 
+def _steps(rates: Sequence[float]) -> str:
+    """A planned rate's cell: the first plan's, and the last one's where it differs (``-`` for no plan)."""
+    if not rates:
+        return "-"
+    first, last = f"{rates[0]:.2f}", f"{rates[-1]:.2f}"
+    return first if first == last else f"{first} -> {last}"
+
+
 def _fixed(value: float | None, digits: int = 2) -> str:
     return "-" if value is None else f"{value:.{digits}f}"
 
@@ -146,21 +161,24 @@ def render_summary(summary: RunSummary) -> tuple[Table, ...]:
     if not summary.complete:
         title += " (no stop event: the run was cut short)"
     subchains = Table(title=title, title_justify="left")
-    columns = ("subchain", "runs", "Hz", "Hz last plan", "planned Hz", "latency mean", "p95", "max ms")
-    for column in (*columns, "late", "lost", "steals", "skipped"):
+    # Where an executor's thread takes some of a planned rate, the plan promises what is left: a column says so.
+    as_run = any(p.as_run_hz is not None for sub in summary.subchains for p in sub.planned)
+    columns: tuple[str, ...] = ("subchain", "runs", "Hz", "Hz last plan", "planned Hz")
+    if as_run:
+        columns += ("as run Hz",)
+    for column in (*columns, "latency mean", "p95", "max ms", "late", "lost", "steals", "skipped"):
         subchains.add_column(column, justify="left" if column == "subchain" else "right")
     for sub in summary.subchains:
-        planned = "-"
-        if sub.planned:
-            first, last = sub.planned[0].hz, sub.planned[-1].hz
-            planned = f"{first:.2f}" if len(sub.planned) == 1 else f"{first:.2f} -> {last:.2f}"
+        rates = [_steps([p.hz for p in sub.planned])]
+        if as_run:
+            rates.append(_steps([p.expected_hz for p in sub.planned]))
         latency = _cells(sub.latency)
         subchains.add_row(
             sub.name,
             str(sub.runs),
             _fixed(sub.measured_hz),
             _fixed(sub.last_plan_hz),
-            planned,
+            *rates,
             latency["mean"],
             latency["p95"],
             latency["max"],

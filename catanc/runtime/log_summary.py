@@ -49,14 +49,20 @@ class Stats:
 
 @dataclass(frozen=True)
 class PlannedRate:
-    """From ``t_s`` on, a plan asks for one run every ``period_ms``."""
+    """From ``t_s`` on, a plan asks for one run every ``period_ms`` and expects ``expected_hz`` of them."""
 
     t_s: float
     period_ms: float
+    as_run_hz: float | None = None  # what an executor's thread leaves of ``hz`` (None: all of it)
 
     @property
     def hz(self) -> float:
         return 1000.0 / self.period_ms
+
+    @property
+    def expected_hz(self) -> float:
+        """The rate the plan promises: ``hz``, less what an executor's thread takes (docs/executor-planning.md)."""
+        return self.hz if self.as_run_hz is None else self.as_run_hz
 
 
 @dataclass(frozen=True)
@@ -278,16 +284,20 @@ def _subchain(
 
 
 def _planned_rates(plans: Sequence[tuple[float, Mapping[str, Any]]]) -> dict[str, list[PlannedRate]]:
-    """Per subchain, each plan's period where it differs from the one before."""
+    """Per subchain, each plan's period (and rate as run) where either differs from the one before."""
     planned: dict[str, list[PlannedRate]] = {}
     for t, plan in plans:
         for name, sub in _mapping(plan.get("subchains")).items():
             period = _number(_mapping(sub).get("period_ms"))
             if period is None or period <= 0:
                 continue
+            as_run = _number(_mapping(sub).get("rate_as_run_hz"))
+            if as_run is not None and as_run < 0:
+                as_run = None
+            step = PlannedRate(t_s=t, period_ms=period, as_run_hz=as_run)
             steps = planned.setdefault(str(name), [])
-            if not steps or steps[-1].period_ms != period:
-                steps.append(PlannedRate(t_s=t, period_ms=period))
+            if not steps or (steps[-1].period_ms, steps[-1].as_run_hz) != (step.period_ms, step.as_run_hz):
+                steps.append(step)
     return planned
 
 

@@ -31,6 +31,9 @@ def plot_timeline(summary: RunSummary, path: Path) -> None:
             xs = [p.t_s for p in sub.planned] + [end]
             ys = [p.hz for p in sub.planned] + [sub.planned[-1].hz]
             ax.step(xs, ys, where="post", color="black", linestyle="--", linewidth=1.0, label="planned")
+            if any(p.as_run_hz is not None for p in sub.planned):  # what an executor's thread leaves of it
+                kept = [p.expected_hz for p in sub.planned] + [sub.planned[-1].expected_hz]
+                ax.step(xs, kept, where="post", color="C3", linestyle=":", linewidth=1.2, label="planned as run")
         bins = rate_bins(sub.run_times_s, summary.length_s)
         if bins:
             edges = [start for start, _ in bins] + [summary.length_s]

@@ -28,6 +28,7 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any, Literal, NoReturn, Protocol
 
+from catanc.artifacts.runtime_table import rate_as_run_hz
 from catanc.control.schedule import RuntimeSchedule
 from catanc.errors import UsageError
 from catanc.runtime.sched import name_thread
@@ -241,14 +242,18 @@ def _answer(replanner: Any, spec: Any, began: float, error: str | None = None) -
             "cores": plan.cores,
             "switch_ms": spec.schedule.switch_ms,
             "slack": spec.schedule.slack,
-            "subchains": {
-                name: {"cores": list(sub.cores), "shared": sub.shared, "period_ms": round(sub.period_ms, 6)}
-                for name, sub in sorted(plan.subchains.items())
-            },
+            "subchains": {name: _subchain_summary(sub) for name, sub in sorted(plan.subchains.items())},
         },
         solve_ms=(time.perf_counter() - began) * 1000.0,
         error=error,
     )
+
+
+def _subchain_summary(sub: Any) -> dict[str, Any]:
+    summary = {"cores": list(sub.cores), "shared": sub.shared, "period_ms": round(sub.period_ms, 6)}
+    if sub.period_as_run_ms is not None:  # what report holds the measured rate to
+        summary["rate_as_run_hz"] = rate_as_run_hz(sub.period_as_run_ms)
+    return summary
 
 
 def serve_fd(fd: int) -> None:

@@ -236,7 +236,10 @@ def test_json_is_deterministic_and_rounded() -> None:
     assert a["runs"] == 20
     assert a["measured_hz"] == 5.0
     assert a["last_plan_hz"] == 10.0
-    assert a["planned"] == [{"t_s": 0.0, "period_ms": 200.0, "hz": 5.0}, {"t_s": 3.0, "period_ms": 100.0, "hz": 10.0}]
+    assert a["planned"] == [
+        {"t_s": 0.0, "period_ms": 200.0, "hz": 5.0, "as_run_hz": None},
+        {"t_s": 3.0, "period_ms": 100.0, "hz": 10.0, "as_run_hz": None},
+    ]
     assert a["latency_ms"] == {"count": 20, "mean": 10.5, "p95": 19.05, "min": 1.0, "max": 20.0}
     assert (a["late"], a["lost"], a["steals"], a["skipped"]) == (3, 2, 4, 5)
     assert data["nodes"]["n"] == {
@@ -282,6 +285,42 @@ def test_tables() -> None:
     for cell in ("5", "3.000", "4.800", "1.000", "5.000", "1"):
         assert f" {cell} " in row_n
     assert "stage2" in text
+
+
+def test_tables_without_an_executor_have_no_as_run_column() -> None:
+    assert "as run Hz" not in render(render_summary(summarise(main_log())))
+
+
+def with_rates_as_run(events: list[dict[str, Any]], rates: list[dict[str, float]]) -> list[dict[str, Any]]:
+    """``events`` with each plan's subchains given the rates as run in ``rates`` (one mapping per plan, in order)."""
+    plans = iter(rates)
+    for event in events:
+        if "plan" in event:
+            for name, hz in next(plans).items():
+                event["plan"]["subchains"][name]["rate_as_run_hz"] = hz
+    return events
+
+
+def test_rates_as_run_are_the_plans_promises(tmp_path: Path) -> None:
+    # a: 5 Hz planned of which an executor's thread leaves 4, then 10 Hz leaving 8; b: 1 Hz planned, then
+    # (its period unchanged) 0.9 Hz as run, a step of its own; an unreadable rate as run counts as none.
+    events = with_rates_as_run(main_log(), [{"a": 4.0}, {"a": 8.0, "b": 0.9}])
+    events[0]["plan"]["subchains"]["b"]["rate_as_run_hz"] = "fast"
+    summary = summarise(events)
+    a, b = (next(sub for sub in summary.subchains if sub.name == name) for name in ("a", "b"))
+    assert a.planned == (PlannedRate(0.0, 200.0, 4.0), PlannedRate(3.0, 100.0, 8.0))
+    assert [p.expected_hz for p in a.planned] == [4.0, 8.0]
+    assert b.planned == (PlannedRate(0.0, 1000.0), PlannedRate(3.0, 1000.0, 0.9))
+    assert [p.expected_hz for p in b.planned] == [1.0, 0.9]
+    assert json.loads(summary_json(summary))["subchains"]["a"]["planned"][1]["as_run_hz"] == 8.0
+    text = render(render_summary(summary))
+    assert " as run Hz " in text
+    row_a = next(line for line in text.splitlines() if line.startswith("│ a "))
+    assert " 5.00 -> 10.00 │ 4.00 -> 8.00 " in row_a
+    row_b = next(line for line in text.splitlines() if line.startswith("│ b "))
+    assert " 1.00 │ 1.00 -> 0.90 " in row_b
+    plot_timeline(summary, tmp_path / "timeline.png")  # with the promised rates' own line
+    assert (tmp_path / "timeline.png").read_bytes().startswith(PNG_SIGNATURE)
 
 
 def test_tables_of_a_killed_run_without_replans() -> None:

@@ -29,6 +29,11 @@ def test_a_threaded_parent_starts_a_fresh_interpreter_that_plans() -> None:
         assert process_name(pid) != "catanc-planner"  # a fresh interpreter, not a named fork
         assert planner.initial.error is None
         assert planner.initial.summary["cores"] == 1
+        # What the log's plans promise (catanc report): GL's rate less the triggers GM's runs in their
+        # thread take (the simulator runs 38.0 Hz of 50: tests/planning/test_executor_trade.py).
+        subchains = planner.initial.summary["subchains"]
+        assert 35.0 < subchains["GL"]["rate_as_run_hz"] < 1000.0 / subchains["GL"]["period_ms"]
+        assert "rate_as_run_hz" not in subchains["local"]
         answer = planner.ask(Request("resolve", {}))
         assert answer.error is None
     finally:
