@@ -167,7 +167,7 @@ def explain_plan(spec: Spec, problem: Problem, plan: Plan, machine: MachineUse |
             *(spec_warning(diagnostic) for diagnostic in problem.warnings),
             *plan.warnings,
             *_warnings(plan, problem, spec.schedule, headrooms),
-            *rate_warnings(plan, problem, stealing=spec.schedule.stealing),
+            *rate_warnings(plan, problem, spec.schedule),
             *([] if machine is not None else [found.warning for found in short_slots(plan, spec.schedule)]),
         ),
         baseline=evaluate_baseline(spec, problem, plan.cores),
@@ -201,8 +201,7 @@ def executor_note(executor: Executor, spec: Spec, problem: Problem, plan: Plan) 
         how = f"in subchain {subs[0]} on {where}: its period covers their compute added up"
         return f"Executor {executor.name} runs {nodes} in one thread (never at once): {how}."
     how = f"subchains {', '.join(subs)} share {where}, one slot after the other"
-    stealing = spec.schedule.stealing
-    turns = plan_turns(executor, plan, problem, stealing=stealing)
+    turns = plan_turns(executor, plan, problem, spec.schedule)
     if turns is None:
         return f"Executor {executor.name} runs {nodes} in one thread (never at once): {how}."
     rate = max(turns.rates, key=lambda rate: rate.longest_wait_ms)
@@ -212,7 +211,7 @@ def executor_note(executor: Executor, spec: Spec, problem: Problem, plan: Plan) 
         f"({turns.member(rate.blocked_by).compute_ms:.3g} ms of compute, at what the other subchains leave of the "
         "core), which the plan's latencies do not count."
     )
-    as_run = objective_as_run(plan, problem, stealing=stealing)
+    as_run = objective_as_run(plan, problem, spec.schedule)
     if as_run > plan.objective * (1 + 1e-9):
         note += (
             f" With the triggers lost to it counted, the objective as run is about {as_run:.3f} ms, "

@@ -62,16 +62,16 @@ def cap_offer(spec: Spec, problem: Problem, plan: Plan, executor: Executor) -> C
     ranks the caps); the best is then planned for real, and offered only if that plan beats this
     one, as run, by more than :data:`WORTH_OFFERING`.  One planner run per executor that loses.
     """
-    stealing = spec.schedule.stealing
-    turns = plan_turns(executor, plan, problem, stealing=stealing)
+    schedule = spec.schedule
+    turns = plan_turns(executor, plan, problem, schedule)
     losing = [] if turns is None else [rate for rate in turns.rates if rate.lost_share > 0.0]
     if not losing:
         return None
     blocker = max(losing, key=lambda rate: rate.planned_hz - rate.rate_hz).blocked_by
     subchain = problem.subchain_of(blocker)
     head, period = subchain.nodes[0], plan.subchains[subchain.name].period_ms
-    now = objective_as_run(plan, problem, stealing=stealing)
-    groups = core_groups(plan, stealing=stealing)
+    now = objective_as_run(plan, problem, schedule)
+    groups = core_groups(plan, schedule)
     timings = plan_timings(plan)
 
     def screened(factor: float) -> float:
@@ -83,10 +83,10 @@ def cap_offer(spec: Spec, problem: Problem, plan: Plan, executor: Executor) -> C
     capped = _planned(spec, head, cap, plan.cores)
     if capped is None:
         return None
-    value = objective_as_run(capped, problem, stealing=stealing)
+    value = objective_as_run(capped, problem, schedule)
     if value >= now * (1.0 - WORTH_OFFERING):
         return None
-    after = plan_turns(executor, capped, problem, stealing=stealing)
+    after = plan_turns(executor, capped, problem, schedule)
     rates = {rate.node: rate.rate_hz for rate in after.rates} if after is not None else {}
     return CapOffer(head, cap, now, value, rates)
 

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 from catanc.core.executor_thread import CoreGroup, ExecutorTurns, MemberRate, as_run_objective, executor_turns
 from catanc.core.metrics import Timing
 from catanc.core.problem import Executor, Problem
+from catanc.spec.language import Schedule
 
 if TYPE_CHECKING:
     from catanc.planning.types import Plan
@@ -25,14 +26,14 @@ LOSS_WORTH_A_WARNING = 0.01
 """A subchain predicted to lose more than this share of its planned rate gets a warning."""
 
 
-def core_groups(plan: Plan, *, stealing: bool) -> list[CoreGroup]:
-    """The plan's shared subchains grouped by the cores they share."""
+def core_groups(plan: Plan, schedule: Schedule) -> list[CoreGroup]:
+    """The plan's shared subchains grouped by the cores they share (``schedule``: the one it was planned with)."""
     by_cores: dict[tuple[int, ...], list[str]] = {}
     for sub in plan.subchains.values():
         if sub.shared:
             by_cores.setdefault(sub.cores, []).append(sub.name)
     return [
-        CoreGroup(tuple(names), len(cores), {name: plan.subchains[name].priority for name in names}, stealing)
+        CoreGroup(tuple(names), len(cores), {name: plan.subchains[name].priority for name in names}, schedule.stealing)
         for cores, names in by_cores.items()
     ]
 
@@ -41,14 +42,14 @@ def plan_timings(plan: Plan) -> dict[str, Timing]:
     return {name: Timing(sub.period_ms, sub.latency_ms) for name, sub in plan.subchains.items()}
 
 
-def plan_turns(executor: Executor, plan: Plan, problem: Problem, *, stealing: bool) -> ExecutorTurns | None:
+def plan_turns(executor: Executor, plan: Plan, problem: Problem, schedule: Schedule) -> ExecutorTurns | None:
     """The thread's turns under ``plan``; None unless the executor's nodes span two or more shared subchains."""
-    return executor_turns(problem, executor, plan_timings(plan), core_groups(plan, stealing=stealing))
+    return executor_turns(problem, executor, plan_timings(plan), core_groups(plan, schedule))
 
 
-def objective_as_run(plan: Plan, problem: Problem, *, stealing: bool) -> float:
+def objective_as_run(plan: Plan, problem: Problem, schedule: Schedule) -> float:
     """The plan's objective with the periods the executors' turns leave (:func:`as_run_objective`)."""
-    return as_run_objective(problem, plan_timings(plan), core_groups(plan, stealing=stealing))
+    return as_run_objective(problem, plan_timings(plan), core_groups(plan, schedule))
 
 
 def member_warning(turns: ExecutorTurns, rate: MemberRate) -> str:
@@ -71,11 +72,11 @@ def stolen_warning(turns: ExecutorTurns, subchain: str, planned_hz: float, lost_
     )
 
 
-def rate_warnings(plan: Plan, problem: Problem, *, stealing: bool) -> list[str]:
+def rate_warnings(plan: Plan, problem: Problem, schedule: Schedule) -> list[str]:
     """A warning per subchain predicted to lose more than :data:`LOSS_WORTH_A_WARNING` of its planned rate."""
     warnings = []
     for executor in problem.executors:
-        turns = plan_turns(executor, plan, problem, stealing=stealing)
+        turns = plan_turns(executor, plan, problem, schedule)
         if turns is None:
             continue
         warnings += [member_warning(turns, rate) for rate in turns.rates if rate.lost_share > LOSS_WORTH_A_WARNING]

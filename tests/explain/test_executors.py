@@ -23,7 +23,7 @@ from catanc.explain.executors import core_groups, member_warning, objective_as_r
 from catanc.planning.planner import plan_problem
 from catanc.planning.types import Plan
 from catanc.sim.simulate import Setup, simulate
-from catanc.spec.language import Spec
+from catanc.spec.language import Schedule, Spec
 from tests.support.scenario_specs import SPECS
 from tests.support.strategies import spec_of
 
@@ -38,6 +38,7 @@ PAIR: dict[str, Any] = {
     "executors": {"worker": ["a", "b"]},
 }
 DURATION_S = 20.0
+SCHEDULE = Schedule()  # the specs' own: stealing, the default slack
 
 
 def planned(spec: Spec, cores: int) -> tuple[Plan, Problem]:
@@ -78,7 +79,7 @@ def simulated_hz(spec: Spec, cores: int, node: str) -> float:
 
 
 def turns_of(plan: Plan, problem: Problem) -> ExecutorTurns:
-    turns = plan_turns(problem.executors[0], plan, problem, stealing=True)
+    turns = plan_turns(problem.executors[0], plan, problem, SCHEDULE)
     assert turns is not None
     return turns
 
@@ -96,7 +97,7 @@ def test_a_pair_that_fits_its_periods_is_predicted_and_runs_at_its_planned_rates
     a, b = turns.rates
     assert [a.longest_wait_ms, b.longest_wait_ms] == pytest.approx([2.0, 1.0])  # the other's compute
     assert [a.rate_hz, b.rate_hz] == pytest.approx([a.planned_hz, b.planned_hz])
-    assert rate_warnings(plan, problem, stealing=True) == []
+    assert rate_warnings(plan, problem, SCHEDULE) == []
     for name, node in (("first", "a"), ("second", "b")):
         assert simulated_hz(spec, 1, node) == pytest.approx(1000.0 / plan.subchains[name].period_ms, rel=0.05)
 
@@ -147,7 +148,7 @@ def test_the_objective_as_run_counts_lost_triggers(long_ms: float, short_period_
     # Worked from the formula (nothing else on the core: the thread gets all of it while b runs):
     # a keeps 1/p_a - (1/p_b) (c_b / p_a - 2) runs a millisecond.
     rate_a = 1.0 / short - (1.0 / long) * (long_ms / short - 2.0)
-    as_run = objective_as_run(plan, problem, stealing=True)
+    as_run = objective_as_run(plan, problem, SCHEDULE)
     assert as_run == pytest.approx(1.0 / rate_a + 0.05 * long)
     assert as_run > 1.3 * plan.objective
     # The simulator's periods, weighted as the objective weighs them.
@@ -158,8 +159,8 @@ def test_the_objective_as_run_counts_lost_triggers(long_ms: float, short_period_
 
 def test_a_plan_whose_executor_loses_nothing_runs_as_planned() -> None:
     plan, problem = planned(spec_of(PAIR), 1)
-    assert objective_as_run(plan, problem, stealing=True) == pytest.approx(plan.objective)
-    (group,) = core_groups(plan, stealing=True)
+    assert objective_as_run(plan, problem, SCHEDULE) == pytest.approx(plan.objective)
+    (group,) = core_groups(plan, SCHEDULE)
     assert (group.subchains, group.cores) == (("first", "second"), 1)
     assert group.priorities["first"] > group.priorities["second"]  # first is planned to outrank (steal from) second
     assert plan.subchains["first"].priority > plan.subchains["second"].priority

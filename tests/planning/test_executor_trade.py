@@ -193,4 +193,4 @@ def test_a_thread_of_batch_members_only_is_scored_as_run() -> None:
     plan, problem = planned(spec, 1)
     assert plan.objective_as_run is not None
     assert plan.objective_as_run > plan.objective * 1.01
-    assert plan.objective_as_run == pytest.approx(objective_as_run(plan, problem, stealing=spec.schedule.stealing))
+    assert plan.objective_as_run == pytest.approx(objective_as_run(plan, problem, spec.schedule))
