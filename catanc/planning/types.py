@@ -8,6 +8,7 @@ and Stage I's answer only.  :func:`catanc.planning.planner.plan` makes them.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 from catanc.planning.stage1.estimate import Allocation
@@ -30,6 +31,12 @@ class SubchainPlan:
     # lost while another member holds the thread, slots a late member steals); None where that is
     # period_ms.  It may be inf: a subchain predicted to get no run at all.
     period_as_run_ms: float | None = None
+
+    @property
+    def rate_as_run_hz(self) -> float:
+        """The runs a second the plan promises: its rate, less what an executor's thread takes (0: none)."""
+        period = self.period_ms if self.period_as_run_ms is None else self.period_as_run_ms
+        return 1000.0 / period if math.isfinite(period) else 0.0
 
 
 @dataclass(frozen=True)

@@ -46,6 +46,7 @@ from catanc.core.priorities import ENFORCER_FIFO
 from catanc.core.problem import Problem
 from catanc.errors import PrivilegeError, UsageError
 from catanc.planning.order import priorities
+from catanc.planning.types import Plan
 from catanc.realbench.driver import BenchError, Driver, DriverSocket
 from catanc.realbench.replay import measured_result, replay, utilisation
 from catanc.runtime import protocol
@@ -62,7 +63,7 @@ from catanc.runtime.sched import (
 from catanc.runtime.worker.command import worker_groups, workload_worker_command
 from catanc.runtime.worker.records import RunRecord, read_records
 from catanc.sim.metrics import PolicyResult
-from catanc.sim.simulate import CATAN_POLICIES, Setup, policy_spec, reported_chains, static_profile
+from catanc.sim.simulate import CATAN_POLICIES, Setup, policy_spec, promised_rates, reported_chains, static_profile
 from catanc.spec.language import Spec
 
 POLICIES = ("catan", "catan-nosteal", "baseline", "fifo-static", "static-fullrun", "static-20s")
@@ -99,6 +100,7 @@ class Measured:
     cores_of: dict[str, tuple[int, ...]] = field(default_factory=dict)  # node -> the plan cores it may use
     replans: int = 0
     model: dict[tuple[str, ...], float] = field(default_factory=dict)
+    promised: dict[str, float] = field(default_factory=dict)  # heads' rates as the last plan promises them run
     schedule: RuntimeSchedule | None = None
 
 
@@ -193,6 +195,7 @@ def bench_policy(setup: BenchSetup, policy: str) -> PolicyResult:
         utilisation=busy,
         replans=measured.replans,
         model=measured.model,
+        promised=measured.promised,
         schedule=measured.schedule,
     )
 
@@ -329,16 +332,18 @@ def run_enforced(setup: BenchSetup, spec: Spec, folder: Path, workers: Workers) 
     measured.cores_of = {node: run.cores for run in schedule.subchains.values() for node in run.nodes}
     resolves = [event for event in read_log(log_path) if event.get("event") == "resolve"]
     measured.replans = len(resolves)
-    measured.model = planned_model(spec, setup.cores, resolves)
+    plan = last_plan(spec, setup.cores, resolves)
+    measured.model = {tuple(chain.nodes): chain.response_ms for chain in plan.chains}
+    measured.promised = promised_rates(plan)
     return measured
 
 
-def planned_model(spec: Spec, cores: int, resolves: Sequence[Mapping[str, Any]]) -> dict[tuple[str, ...], float]:
-    """The model's response time ``R`` of each chain under the enforcer's last plan.
+def last_plan(spec: Spec, cores: int, resolves: Sequence[Mapping[str, Any]]) -> Plan:
+    """The enforcer's last plan, made again: what the run is compared with (chains' ``R``, heads' rates).
 
     The enforcer's planner process is deterministic: its plan is the spec's, then one re-solve
     per ``resolve`` line of its log, with the compute times the line lists
-    (:mod:`catanc.runtime.planning`).  This does the same and reads the chains off the result.
+    (:mod:`catanc.runtime.planning`).  This does the same.
     """
     from catanc.planning.replan import Replanner  # noqa: PLC0415 - solvers: only for catan
 
@@ -358,7 +363,7 @@ def planned_model(spec: Spec, cores: int, resolves: Sequence[Mapping[str, Any]])
                 replanner.resolve(compute)
         except Exception:  # the enforcer kept its last plan after a failed re-solve too
             continue
-    return {tuple(chain.nodes): chain.response_ms for chain in replanner.plan.chains}
+    return replanner.plan
 
 
 # --------------------------------------------------------------------------- baselines: the driver

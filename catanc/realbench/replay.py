@@ -114,11 +114,12 @@ def measured_result(
     utilisation: tuple[float, ...],
     replans: int = 0,
     model: Mapping[tuple[str, ...], float] | None = None,
+    promised: Mapping[str, float] | None = None,
     schedule: RuntimeSchedule | None = None,
 ) -> PolicyResult:
     """A replayed run as the simulator reports a simulated one (``catanc.sim.simulate.simulate``)."""
     duration_ms = duration_s * 1000.0
-    found = model or {}
+    found, rates = model or {}, promised or {}
     return PolicyResult(
         policy=policy,
         duration_s=duration_s,
@@ -127,7 +128,8 @@ def measured_result(
             for (nodes, named), arrivals in zip(chains, flow.arrivals, strict=True)
         ),
         nodes={
-            name: node_result(record.done_ms, record.staleness_ms, duration_ms) for name, record in flow.records.items()
+            name: node_result(record.done_ms, record.staleness_ms, duration_ms, rates.get(name))
+            for name, record in flow.records.items()
         },
         utilisation=utilisation,
         replans=replans,

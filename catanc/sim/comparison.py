@@ -7,7 +7,7 @@ from typing import Any
 
 from rich.table import Table
 
-from catanc.sim.metrics import PolicyResult
+from catanc.sim.metrics import NodeResult, PolicyResult
 
 
 def comparison_payload(results: Sequence[PolicyResult]) -> dict[str, Any]:
@@ -17,6 +17,11 @@ def comparison_payload(results: Sequence[PolicyResult]) -> dict[str, Any]:
 
 def _cell(value: float | None, digits: int = 1) -> str:
     return "-" if value is None else f"{value:.{digits}f}"
+
+
+def _node_cell(node: NodeResult) -> str:
+    promised = "" if node.planned_hz is None else f" of {node.planned_hz:.1f}"
+    return f"{_cell(node.rate_hz)}{promised} ({_cell(node.staleness_ms_p95)})"
 
 
 def comparison_tables(results: Sequence[PolicyResult]) -> list[Table]:
@@ -35,12 +40,14 @@ def comparison_tables(results: Sequence[PolicyResult]) -> list[Table]:
             response = result.chains[index].response
             cells.append("-" if response is None else f"{response.p95:.1f} ({response.mean:.1f}, {response.max:.1f})")
         chains.add_row(label, *cells)
-    nodes = Table(title="Node rate, Hz (input staleness p95, ms)", title_justify="left")
+    # A plan's subchain heads: "measured of promised" (the rate as run: docs/executor-planning.md).
+    title = "Node rate, Hz: measured [of the plan's rate as run] (input staleness p95, ms)"
+    nodes = Table(title=title, title_justify="left")
     nodes.add_column("node")
     for policy in policies:
         nodes.add_column(policy, justify="right")
     for name in sorted(results[0].nodes):
-        row = [f"{_cell(r.nodes[name].rate_hz)} ({_cell(r.nodes[name].staleness_ms_p95)})" for r in results]
+        row = [_node_cell(r.nodes[name]) for r in results]
         nodes.add_row(name, *row)
     cores = Table(title="Core utilisation", title_justify="left")
     cores.add_column("core")

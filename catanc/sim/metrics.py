@@ -146,10 +146,14 @@ class ChainResult:
 class NodeResult:
     rate_hz: float
     staleness_ms_p95: float | None
+    planned_hz: float | None = None  # a subchain head's rate as its plan promises it run (catan policies)
 
     def as_dict(self) -> dict[str, Any]:
         stale = None if self.staleness_ms_p95 is None else round(self.staleness_ms_p95, 3)
-        return {"rate_hz": round(self.rate_hz, 3), "staleness_ms_p95": stale}
+        body: dict[str, Any] = {"rate_hz": round(self.rate_hz, 3), "staleness_ms_p95": stale}
+        if self.planned_hz is not None:
+            body["planned_hz"] = round(self.planned_hz, 3)
+        return body
 
 
 @dataclass(frozen=True)
@@ -190,6 +194,7 @@ def node_result(
     done_ms: Sequence[float] | FloatArray,
     staleness_ms: Sequence[float] | FloatArray,
     duration_ms: float,
+    planned_hz: float | None = None,
 ) -> NodeResult:
     stale = percentile_of(staleness_ms, 95) if len(staleness_ms) else None
-    return NodeResult(len(done_ms) * 1000.0 / duration_ms, stale)
+    return NodeResult(len(done_ms) * 1000.0 / duration_ms, stale, planned_hz)

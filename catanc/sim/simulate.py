@@ -292,12 +292,18 @@ def _run_compiled(setup: Setup, prepared: Prepared) -> Records:
     return records
 
 
+def promised_rates(plan: Plan) -> dict[str, float]:
+    """Each subchain head's rate as ``plan`` promises it run (:attr:`SubchainPlan.rate_as_run_hz`), by node."""
+    return {sub.nodes[0]: sub.rate_as_run_hz for sub in plan.subchains.values()}
+
+
 def policy_result(
     setup: Setup, policy: str, chains: list[tuple[tuple[str, ...], bool]], records: Records, plan: Plan | None
 ) -> PolicyResult:
     """What a run of ``policy`` shows, from its records (shared by both engines and by ``catanc bench``)."""
     duration_ms = setup.duration_s * 1000.0
     model = {chain.nodes: chain.response_ms for chain in plan.chains} if plan is not None else {}
+    promised = promised_rates(plan) if plan is not None else {}
     return PolicyResult(
         policy=policy,
         duration_s=setup.duration_s,
@@ -306,7 +312,7 @@ def policy_result(
             for (nodes, named), arrivals in zip(chains, records.arrivals, strict=True)
         ),
         nodes={
-            name: node_result(records.done_ms[name], records.staleness_ms[name], duration_ms)
+            name: node_result(records.done_ms[name], records.staleness_ms[name], duration_ms, promised.get(name))
             for name in records.done_ms
         },
         utilisation=tuple(records.busy_by_core.get(core, 0.0) / duration_ms for core in range(setup.cores)),

@@ -178,6 +178,11 @@ def test_the_runtime_table_promises_the_rates_the_simulator_runs(
         assert hz < table[name]["rate_hz"]
         head = problem.subchain(name).nodes[0]
         assert result.nodes[head].rate_hz == pytest.approx(hz, rel=0.05), name
+        # What `simulate` shows beside the run: the promise of the plan in force at the end (re-solved with
+        # the compute times it measured), as close.
+        promised_at_end = result.nodes[head].planned_hz
+        assert promised_at_end is not None
+        assert result.nodes[head].rate_hz == pytest.approx(promised_at_end, rel=0.05), name
     for name, entry in table.items():  # the rest run as planned (GL's thread's other member, GM, included)
         if name not in promised and entry["rate_hz"] is not None and not problem.subchain(name).batch:
             head = problem.subchain(name).nodes[0]

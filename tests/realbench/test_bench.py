@@ -483,6 +483,11 @@ def test_catans_subchain_runs_near_its_planned_rate(
     assert nodes["det"]["rate_hz"] <= nodes["cam"]["rate_hz"] + 1 / DURATION_S
     assert nodes["det"]["rate_hz"] >= 0.9 * nodes["cam"]["rate_hz"]  # one subchain: det follows each cam run
     assert nodes["map"]["rate_hz"] > 0
+    # The rate the enforcer's last plan promised a head (its re-solves made again from the log): cam's.
+    promised = nodes["cam"]["planned_hz"]
+    assert 0.7 * promised <= nodes["cam"]["rate_hz"] <= 1.05 * promised
+    assert "planned_hz" not in nodes["det"]  # not a head: it runs when cam's run ends
+    assert all("planned_hz" not in node for node in bench_json[0]["policies"]["baseline"]["nodes"].values())
 
 
 # TINY with map growing 2x over 10 s: the first 20 s's tail and the whole run's differ.
