@@ -3,8 +3,10 @@
 A single-threaded executor runs one callback at a time.  Where its nodes head subchains of their
 own on a shared core group, a member ``j``'s run holds the thread until its compute ``c_j`` is
 done, and a member ``i`` triggered meanwhile waits.  The thread runs in its own slots and, at its
-resting level, in every moment the group's other subchains leave: a share ``s0_i = min(1, m -
-sum_k c_k / p_k)`` of a core over the other subchains ``k`` on the ``m`` cores.  Once ``i``'s
+resting level, in every moment the group's other subchains leave of what the app gets: a share
+``s0_i = min(1 - s, m (1 - s) - sum_k c_k / p_k)`` of a core over the other subchains ``k`` on the
+``m`` cores, where ``s`` is the plan's slack (the share of each core the app's SCHED_FIFO threads
+never get: the kernel's RT limit leaves it to others, and the runtime's own CPU is in it).  Once ``i``'s
 waiting run is late (its subchain's latency ``l_i`` after its trigger, which comes ``p_i / 2``
 into the run on average: ``d_i = p_i / 2 + l_i``), ``i`` steals the slots of the subchains it
 outranks (catan-model.md section 5) and the thread, the only one ``i`` has, runs in them too: a
@@ -69,9 +71,11 @@ class MemberRate:
         return 1.0 - self.rate_hz / self.planned_hz
 
 
-def thread_share(others_utilisation: float, cores: int) -> float:
-    """The share of a core the thread gets while it runs: what the other subchains leave (one core at most)."""
-    return min(1.0, cores - others_utilisation)
+def thread_share(others_utilisation: float, cores: int, slack: float = 0.0) -> float:
+    """The share of a core the thread gets while it runs: what the other subchains leave of the app's share
+    of the cores, ``1 - slack`` each (one core's at most)."""
+    app = 1.0 - slack
+    return min(app, cores * app - others_utilisation)
 
 
 def held_ms(blocker: Member, waiter: Member) -> float:
@@ -139,6 +143,7 @@ class CoreGroup:
     cores: int
     priorities: Mapping[str, int]  # stealing priority: higher steals from lower
     stealing: bool = True
+    slack: float = 0.0  # of each core, the share the app never gets (the plan's slack)
 
 
 @dataclass(frozen=True)
@@ -182,8 +187,8 @@ def executor_turns(
                     timings[name].period_ms,
                     compute,
                     timings[name].latency_ms,
-                    share=thread_share(math.fsum(load.values()), group.cores),
-                    stealing_share=thread_share(math.fsum(load[other] for other in above), group.cores)
+                    share=thread_share(math.fsum(load.values()), group.cores, group.slack),
+                    stealing_share=thread_share(math.fsum(load[other] for other in above), group.cores, group.slack)
                     if outranked_here
                     else None,
                 )

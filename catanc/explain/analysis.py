@@ -208,8 +208,8 @@ def executor_note(executor: Executor, spec: Spec, problem: Problem, plan: Plan) 
     note = (
         f"Executor {executor.name} runs {nodes} in one thread (never at once): {how}; a run may wait for "
         f"the others' to end, up to about {rate.longest_wait_ms:.1f} ms for {rate.node} behind {rate.blocked_by} "
-        f"({turns.member(rate.blocked_by).compute_ms:.3g} ms of compute, at what the other subchains leave of the "
-        "core), which the plan's latencies do not count."
+        f"({turns.member(rate.blocked_by).compute_ms:.3g} ms of compute, at what the slack and the other subchains "
+        "leave of the core), which the plan's latencies do not count."
     )
     as_run = objective_as_run(plan, problem, spec.schedule)
     if as_run > plan.objective * (1 + 1e-9):

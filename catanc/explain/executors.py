@@ -5,9 +5,9 @@ finds the thread busy waits for the run on it to end, and once late it steals th
 subchains its own outranks, for the thread to run in.  The slot model plans each subchain as if
 its threads were its own, so neither the wait, nor the triggers lost meanwhile, nor the stolen
 slots are in its latencies or rates.  :mod:`catanc.core.executor_thread` predicts them; this module
-feeds it a plan's timings and core groups.  nav2d is the example: on one core GM's 150 ms run holds
-the thread ~197 ms, so GL, planned at 50 Hz, runs at about 39 Hz, and NC, whose slots GL takes
-meanwhile, at about 106 Hz of 134 (simulated: 38 and 104.5 Hz).
+feeds it a plan's timings, core groups and slack.  nav2d is the example: on one core GM's 150 ms run
+holds the thread ~210 ms, so GL, planned at 50 Hz, runs at about 39 Hz, and NC, whose slots GL takes
+meanwhile, at about 105 Hz of 134 (simulated: 38 and 103.6 Hz).
 """
 
 from __future__ import annotations
@@ -33,7 +33,13 @@ def core_groups(plan: Plan, schedule: Schedule) -> list[CoreGroup]:
         if sub.shared:
             by_cores.setdefault(sub.cores, []).append(sub.name)
     return [
-        CoreGroup(tuple(names), len(cores), {name: plan.subchains[name].priority for name in names}, schedule.stealing)
+        CoreGroup(
+            tuple(names),
+            len(cores),
+            {name: plan.subchains[name].priority for name in names},
+            schedule.stealing,
+            schedule.slack,
+        )
         for cores, names in by_cores.items()
     ]
 

@@ -43,6 +43,9 @@ def test_a_late_waiter_steals_and_shortens_the_hold() -> None:
 def test_the_thread_gets_what_the_others_leave_of_one_core() -> None:
     assert thread_share(others_utilisation=0.4, cores=1) == pytest.approx(0.6)
     assert thread_share(others_utilisation=0.4, cores=2) == 1.0  # one thread: one core at most
+    # With slack, of what the app gets of each core: 0.95 - 0.4, and 0.95 of one core of two.
+    assert thread_share(others_utilisation=0.4, cores=1, slack=0.05) == pytest.approx(0.55)
+    assert thread_share(others_utilisation=0.4, cores=2, slack=0.05) == pytest.approx(0.95)
 
 
 def lost_per_span(span: float, period: float, phases: int = 20_000) -> float:

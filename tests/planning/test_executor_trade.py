@@ -151,13 +151,13 @@ def test_nav2d_runs_better_with_the_trade_in_the_simulator(
     nav2d_untraded: tuple[int, Plan, Problem, PolicyResult],
     nav2d_traded: tuple[int, Plan, Problem, PolicyResult],
 ) -> None:
-    # Simulated 60 s (2026-11-28): the run's objective 37.94 -> 37.94, 32.09 -> 30.05 (-6%), 40.68 -> 29.32
-    # (-28%) on 1, 2, 3 cores; GL 38.2 -> 38.2, 34.3 -> 40.1, 20.3 -> 40.1 Hz.
+    # Simulated 30 s (2026-11-28, the thread's share less the slack): the run's objective 38.04 -> 37.90,
+    # 32.24 -> 30.21 (-6%), 40.51 -> 29.32 (-28%) on 1, 2, 3 cores; GL 38.0 -> 38.1, 34.3 -> 40.6, 20.3 -> 40.1 Hz.
     cores, before_plan, problem, before = nav2d_untraded
     _, plan, _, after = nav2d_traded
     assert plan.objective_as_run is not None
-    if cores == 1:  # GM's 150 ms run at its least k already: nothing to trade
-        assert plan.every == before_plan.every
+    if cores == 1:  # GM's 150 ms run near its least k already: little to trade (97 -> 101 periods)
+        assert run_objective(problem, after) <= run_objective(problem, before) * 1.01
         return
     assert plan.every["GM"] > before_plan.every.get("GM", 0) or plan.allocation != before_plan.allocation
     assert run_objective(problem, after) < run_objective(problem, before) * (0.97 if cores == 2 else 0.8)
@@ -168,8 +168,8 @@ def test_the_runtime_table_promises_the_rates_the_simulator_runs(
     nav2d_traded: tuple[int, Plan, Problem, PolicyResult],
 ) -> None:
     # runtime.json's rate_as_run_hz (what `catanc report` holds a run to) where the thread takes some of a
-    # planned rate.  Simulated 30 s (2026-11-28), promised -> run: 1 core GL 39.19 -> 38.03 Hz, NC 105.93 ->
-    # 103.4; 2 cores GL 40.54 -> 40.27, NC 41.38 -> 40.2; 3 cores GL 40.36 -> 40.07.  The rest within 2%.
+    # planned rate.  Simulated 30 s (2026-11-28), promised -> run: 1 core GL 38.75 -> 38.10 Hz, NC 104.71 ->
+    # 103.63; 2 cores GL 40.21 -> 40.57, NC 40.98 -> 40.33; 3 cores GL 39.67 -> 40.07.  The rest within 2%.
     cores, plan, problem, result = nav2d_traded
     table = plan_payload(plan, problem)["subchains"]
     promised = {name: entry["rate_as_run_hz"] for name, entry in table.items() if "rate_as_run_hz" in entry}

@@ -75,7 +75,9 @@ class LayoutTurns:
             return None
         ranks = priorities(problem, schedule, problem.importance())  # only where a thread is shared
         groups = tuple(
-            CoreGroup(core.subchains, 1, {name: ranks[name] for name in core.subchains}, schedule.stealing)
+            CoreGroup(
+                core.subchains, 1, {name: ranks[name] for name in core.subchains}, schedule.stealing, schedule.slack
+            )
             for core in layout.shared
         )
         return LayoutTurns(groups, tuple(sub.name for sub in problem.subchains if sub.name in members))
