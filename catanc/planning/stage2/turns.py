@@ -125,15 +125,17 @@ class LayoutTurns:
                     place(deeper, least[deeper])
                 if bound_scale(problem, trial) > allowed_scale:
                     break  # and every longer k: bounds only tighten with periods
-                if best is not None and objective(problem, trial) >= best[0]:
-                    break  # and every longer k: the planned objective grows, the one as run is above it
                 if not last:
+                    if best is not None and objective(problem, trial) >= best[0]:
+                        break  # and every longer k: the planned objective grows, the one as run is above it
                     visit(level + 1)
                     continue
                 periods = periods_as_run(problem, trial, self.groups)
                 value = objective(problem, {key: Timing(periods[key], t.latency_ms) for key, t in trial.items()})
                 if best is None or value < best[0]:
-                    best = (value, dict(spacing))
+                    best = (value, dict(spacing))  # its planned objective is below it: no need to look
+                elif objective(problem, trial) >= best[0]:
+                    break  # as above
                 if value >= previous and periods[name] <= trial[name].period_ms:
                     break  # convex from here on (the module's docstring): past its least
                 previous = value
