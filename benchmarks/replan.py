@@ -34,6 +34,7 @@ from typing import Any
 from benchmarks.solvers import median_ms
 from catanc.core.load import load_spec
 from catanc.planning.replan import RUNTIME_GAP
+from catanc.planning.types import Plan
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER_STAGE2_MS = {"nav2d": 25.0, "vr_illixr": 5.5}  # C++/Mosek, paper section 6 (24-26 ms, 5-6 ms)
@@ -148,6 +149,11 @@ def commands(repeats: int) -> dict[str, float]:
     return rows
 
 
+def ranked_by(plan: Plan) -> float:
+    """What the planner ranks plans by: the objective as run, where an executor's thread makes it differ."""
+    return plan.objective if plan.objective_as_run is None else plan.objective_as_run
+
+
 def runners_up() -> list[dict[str, Any]]:
     from catanc.planning.planner import plan  # noqa: PLC0415
 
@@ -161,13 +167,15 @@ def runners_up() -> list[dict[str, Any]]:
             started = time.perf_counter()
             paper = plan(spec, cores, runners_up=False)
             took_paper = (time.perf_counter() - started) * 1000
-            better = (paper.objective - ours.objective) / paper.objective if paper.objective else 0.0
+            # Plans are ranked by the objective as run (an executor's thread counted): compare that.
+            two_stage, best = ranked_by(paper), ranked_by(ours)
+            better = (two_stage - best) / two_stage if two_stage else 0.0
             rows.append(
                 {
                     "spec": path.stem,
                     "cores": cores,
-                    "two_stage": round(paper.objective, 4),
-                    "best": round(ours.objective, 4),
+                    "two_stage": round(two_stage, 4),
+                    "best": round(best, 4),
                     "lower_by": round(better, 4),
                     "allocations": ours.comparison.allocations,
                     "planned": ours.comparison.planned,
@@ -215,7 +223,10 @@ def main() -> None:
     print("\nWhole-process command times (ms)")
     for label, value in report["commands"].items():
         print(f"{label:<44}{value:>8}")
-    print("\nStage I's runners-up under exact Stage II, against the paper's plain two-stage plan")
+    print(
+        "\nStage I's runners-up under exact Stage II, against the paper's plain two-stage plan "
+        "(objectives as run: an executor's thread counted)"
+    )
     print(
         f"{'spec':<16}{'K':>3}{'two-stage':>11}{'best':>10}{'lower by':>10}{'allocs':>8}{'planned':>9}"
         f"{'plan ms':>9}{'2-stage ms':>11}"
