@@ -146,7 +146,7 @@ class ChainResult:
 class NodeResult:
     rate_hz: float
     staleness_ms_p95: float | None
-    planned_hz: float | None = None  # a subchain head's rate as its plan promises it run (catan policies)
+    planned_hz: float | None = None  # a subchain head's rate as the last plan promises it run (catan policies)
 
     def as_dict(self) -> dict[str, Any]:
         stale = None if self.staleness_ms_p95 is None else round(self.staleness_ms_p95, 3)
