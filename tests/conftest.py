@@ -71,4 +71,4 @@ def untraded(monkeypatch: pytest.MonkeyPatch) -> None:
     trade against."""
     from catanc.planning.stage2.turns import LayoutTurns  # only the tests that ask load the planner
 
-    monkeypatch.setattr(LayoutTurns, "best_spacing", lambda *_args: None)
+    monkeypatch.setattr(LayoutTurns, "best_spacing", lambda *_args, **_kwargs: None)

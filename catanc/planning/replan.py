@@ -104,6 +104,7 @@ class Replanner:
             self.spec.schedule,
             conic_model(self._models, self._problem, layout, self.spec.schedule),
             start=current.runs or None,
+            spacing=current.every or None,
             gap=self.gap,
             node_limit=STAGE2_RELAXATIONS,
         )

@@ -233,6 +233,7 @@ def solve_layout(
     node_limit: int | None = None,
     fixed: tuple[dict[str, int], float] | None = None,
     effort: Effort | None = None,
+    spacing: dict[str, int] | None = None,
 ) -> Stage2Result | None:
     """The best integer plan for ``layout``, or None if it cannot beat ``beat`` = (scale, objective).
 
@@ -245,7 +246,8 @@ def solve_layout(
     ``effort`` counts them, whatever the outcome.
     ``fixed`` = (runs, scale) skips the search: the plan with those runs
     (None if they miss the bounds so scaled); the planner's model of record
-    re-solves the winner so.
+    re-solves the winner so.  ``spacing``: a re-solve's last trigger spacing,
+    where the executor trade starts its search (the same answer, sooner).
     """
     timings, threads = dedicated_timings(problem, layout)
     fractions: dict[str, float] = {}
@@ -291,7 +293,7 @@ def solve_layout(
     if turns is not None:
         scale = max(1.0, bound_scale(problem, timings)) * (1 + SCALE_PRECISION)
         lengths_of = {name: lengths[core.core] for core in layout.shared for name in core.subchains}
-        traded = turns.best_spacing(problem, timings, lengths_of, every, scale)
+        traded = turns.best_spacing(problem, timings, lengths_of, every, scale, hint=spacing)
         if traded is not None:
             as_run, every = traded
             for name in turns.members:

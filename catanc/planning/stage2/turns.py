@@ -96,11 +96,17 @@ class LayoutTurns:
         lengths: Mapping[str, float],
         least: Mapping[str, int],
         allowed_scale: float,
+        *,
+        hint: Mapping[str, int] | None = None,
     ) -> tuple[float, dict[str, int]] | None:
         """The least objective as run over the members' ``k >= least`` and those ``k``, each member's period
         ``k T`` with ``T = lengths[member]`` (None: ``least`` itself misses the bounds scaled by ``allowed_scale``).
 
         ``timings`` holds every subchain's timing with the members at ``least``; latencies do not change.
+        ``hint`` (a re-solve's last ``k``): where the last member loses no trigger at its least, the objective
+        as run is convex along its ``k`` (the module's docstring), so its search walks downhill from the hint
+        instead of up from the least: the same ``k`` (the least of the best), in a few steps where the hint is
+        near it.
         """
         names = self.members
         if not names:  # nothing to trade: the objective as run at ``timings``
@@ -115,9 +121,54 @@ class LayoutTurns:
             spacing[name] = every
             trial[name] = Timing(every * lengths[name], trial[name].latency_ms)
 
-        def visit(level: int) -> None:
+        def as_run_at(name: str, every: int) -> tuple[float, bool] | None:
+            """The objective as run with ``name`` at ``every`` and whether ``name`` loses no trigger there
+            (None: a bound no longer holds, nor for any longer ``k``)."""
+            place(name, every)
+            if bound_scale(problem, trial) > allowed_scale:
+                return None
+            periods = periods_as_run(problem, trial, self.groups)
+            value = objective(problem, {key: Timing(periods[key], t.latency_ms) for key, t in trial.items()})
+            return value, periods[name] <= trial[name].period_ms
+
+        def offer(value: float) -> None:
             nonlocal best
+            if best is None or value < best[0]:
+                best = (value, dict(spacing))
+
+        def descend(name: str, start: int) -> bool:
+            """The last member's best ``k`` by walking downhill from ``start``; False where its objective as
+            run is not known to be convex (it loses triggers at its least)."""
+            low, high = least[name], least[name] + MOST_STEPS
+            found = as_run_at(name, low)
+            if found is None:  # no k meets the bounds
+                place(name, low)
+                return True
+            if not found[1]:
+                return False
+            values = {low: found[0]}
+
+            def at(every: int) -> float:  # +inf past the bounds: still convex over the integers
+                if every not in values:
+                    here = as_run_at(name, every)
+                    values[every] = math.inf if here is None else here[0]
+                return values[every]
+
+            every = min(max(start, low), high)
+            while every > low and at(every - 1) <= at(every):
+                every -= 1  # to the least of equal values, as the upward search keeps the first
+            while every < high and at(every + 1) < at(every):
+                every += 1
+            if math.isfinite(at(every)):
+                place(name, every)
+                offer(at(every))
+            place(name, low)
+            return True
+
+        def visit(level: int) -> None:
             name, last = names[level], level == len(names) - 1
+            if last and hint is not None and name in hint and descend(name, hint[name]):
+                return
             previous = math.inf
             for every in range(least[name], least[name] + MOST_STEPS + 1):
                 place(name, every)
@@ -133,7 +184,7 @@ class LayoutTurns:
                 periods = periods_as_run(problem, trial, self.groups)
                 value = objective(problem, {key: Timing(periods[key], t.latency_ms) for key, t in trial.items()})
                 if best is None or value < best[0]:
-                    best = (value, dict(spacing))  # its planned objective is below it: no need to look
+                    offer(value)  # its planned objective is below it: no need to look
                 elif objective(problem, trial) >= best[0]:
                     break  # as above
                 if value >= previous and periods[name] <= trial[name].period_ms:
