@@ -23,8 +23,6 @@ from __future__ import annotations
 
 import io
 import math
-import os
-import tempfile
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,7 +31,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from catanc.control.schedule import CoreSchedule, RuntimeSchedule, SubchainRun
-from catanc.errors import OutputError
+from catanc.files import write_files
 from catanc.runtime.log_summary import RATE_BIN_S, rate_bins
 from catanc.sim.metrics import ChainResult, PolicyResult
 
@@ -70,41 +68,6 @@ def write_plots(
     the rates plot (default: every node any result has completion times of, by name).
     """
     return write_files(out_dir, render_plots(results, title=title, nodes=nodes))
-
-
-def write_files(folder: Path, files: Mapping[str, bytes]) -> list[Path]:
-    """Write each file atomically (a temporary file in ``folder``, synced, then renamed over its name)."""
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except FileExistsError:
-        raise OutputError(f"{folder}: not a folder") from None
-    except OSError as exc:
-        raise OutputError(f"{folder}: cannot create the plot folder: {exc.strerror or exc}") from None
-    written = []
-    for name, data in files.items():
-        path = folder / name
-        try:
-            _replace(path, data)
-        except OSError as exc:
-            raise OutputError(f"{path}: cannot write the plot: {exc.strerror or exc}") from None
-        written.append(path)
-    return written
-
-
-def _replace(path: Path, data: bytes) -> None:
-    fd, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as stream:
-            stream.write(data)
-            stream.flush()
-            os.fsync(stream.fileno())
-        umask = os.umask(0o022)
-        os.umask(umask)
-        Path(temporary).chmod(0o666 & ~umask)  # mkstemp made it private
-        Path(temporary).replace(path)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise
 
 
 # --------------------------------------------------------------------------- drawing
