@@ -97,17 +97,30 @@ def bench(
     seed: WorkloadSeedOpt = 0,
     as_json: TablesJsonOpt = False,
     plot: PlotDirOpt = None,
+    log: Annotated[
+        Path | None,
+        typer.Option(
+            "--log",
+            metavar="DIR",
+            help="Also keep each enforced policy's run log in DIR (created if missing) as <policy>.jsonl, "
+            "for catanc report.",
+        ),
+    ] = None,
     quiet: QuietOpt = False,
 ) -> None:
     """Run the app's synthetic workers on this machine under catanc's plan and the baselines; compare them."""
     from catanc.cli.progress import progress
+    from catanc.errors import UsageError
     from catanc.extras import require
     from catanc.realbench.bench import DEFAULT_POLICIES, BenchSetup, bench_policies
 
     if plot is not None:
         require("matplotlib", "catanc bench --plot")
+    for option, folder in (("--plot", plot), ("--log", log)):  # before minutes of runs, not after them
+        if folder is not None and folder.exists() and not folder.is_dir():
+            raise UsageError(f"{option} {folder}: not a folder")
     spec, _ = load_problem(spec_path)
-    setup = BenchSetup(spec_path, spec, cores, duration, seed)
+    setup = BenchSetup(spec_path, spec, cores, duration, seed, log)
     chosen = policy or list(DEFAULT_POLICIES)
     err = stderr_console()
     try:

@@ -45,6 +45,7 @@ from catanc.core.build import build_problem
 from catanc.core.priorities import ENFORCER_FIFO
 from catanc.core.problem import Problem
 from catanc.errors import PrivilegeError, UsageError
+from catanc.files import write_files
 from catanc.planning.order import priorities
 from catanc.planning.types import Plan
 from catanc.realbench.driver import BenchError, Driver, DriverSocket
@@ -68,6 +69,8 @@ from catanc.spec.language import Spec
 
 POLICIES = ("catan", "catan-nosteal", "baseline", "fifo-static", "static-fullrun", "static-20s")
 DEFAULT_POLICIES = ("catan", "baseline", "fifo-static")
+ENFORCER_LOG = "enforcer.jsonl"
+"""The enforcer's run log in a policy's working folder (``--log`` keeps a copy)."""
 ENFORCED_POLICIES = frozenset({"catan", "catan-nosteal", "static-fullrun", "static-20s"})  # under the real enforcer
 FIFO_POLICIES = frozenset({*ENFORCED_POLICIES, "fifo-static"})
 REGISTER_TIMEOUT_S = 30.0
@@ -88,6 +91,7 @@ class BenchSetup:
     cores: int
     duration_s: float
     seed: int
+    log_dir: Path | None = None  # --log: each enforced policy's run log, as <policy>.jsonl (catanc report reads it)
 
 
 @dataclass
@@ -179,6 +183,9 @@ def bench_policy(setup: BenchSetup, policy: str) -> PolicyResult:
         try:
             if policy in ENFORCED_POLICIES:
                 measured = run_enforced(setup, planned_spec(setup, policy), folder, workers)
+                if setup.log_dir is not None:
+                    log = (folder / ENFORCER_LOG).read_bytes()
+                    write_files(setup.log_dir, {f"{policy}.jsonl": log}, kind="run log")
             else:
                 measured = run_timers(setup, policy, folder, workers)
             measured.runs = workers.finish()
@@ -285,7 +292,7 @@ def run_enforced(setup: BenchSetup, spec: Spec, folder: Path, workers: Workers) 
 
     table = RuntimeTable(path=setup.spec_path, app=spec.app, cores=setup.cores, spec=spec, plan=None, processes=())
     socket_path = folder / "enforcer.sock"
-    log_path = folder / "enforcer.jsonl"
+    log_path = folder / ENFORCER_LOG
     measured = Measured()
 
     def begin(enforcer: Enforcer) -> None:

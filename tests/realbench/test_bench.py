@@ -35,6 +35,8 @@ from catanc.realbench.bench import fifo_levels
 from catanc.realbench.driver import BenchError, Driver
 from catanc.realbench.replay import measured_result, replay, utilisation
 from catanc.runtime import protocol
+from catanc.runtime.log_report import load_events
+from catanc.runtime.log_summary import summarise
 from catanc.runtime.protocol import Address
 from catanc.runtime.sched import read_policy
 from catanc.runtime.worker.records import RunRecord
@@ -407,16 +409,22 @@ def own_tmp(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
 
 
 @pytest.fixture(scope="module")
-def bench_json(real_kernel: None, tmp_path_factory: pytest.TempPathFactory) -> tuple[dict[str, Any], str, list[int]]:
+def bench_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Where :func:`bench_json`'s bench runs: its spec, plots (``plots/``) and run logs (``logs/``)."""
+    return tmp_path_factory.mktemp("bench")
+
+
+@pytest.fixture(scope="module")
+def bench_json(real_kernel: None, bench_folder: Path) -> tuple[dict[str, Any], str, list[int]]:
     """One ``catanc bench`` of TINY, every policy, on one core: its JSON, its stderr, and what it left running."""
-    folder = tmp_path_factory.mktemp("bench")
+    folder = bench_folder
     spec = folder / "tiny.yaml"
     spec.write_text(TINY)
     runs = folder / "runs"
     runs.mkdir()
     argv = [sys.executable, "-c", BENCH_MAIN, "bench", str(spec), "-k", "1", "--duration", str(DURATION_S), "--json"]
     finished = subprocess.run(
-        [*argv, "--plot", str(folder / "plots")],
+        [*argv, "--plot", str(folder / "plots"), "--log", str(folder / "logs")],
         capture_output=True,
         text=True,
         timeout=120,
@@ -538,6 +546,32 @@ def test_a_static_bench_runs_under_the_enforcer_without_re_solving(tmp_path: Pat
     )
     planned_hz = 1000.0 / static.subchains["fast"].period_ms
     assert 0.7 * planned_hz <= body["nodes"]["cam"]["rate_hz"] <= 1.05 * planned_hz  # as catan's check above
+
+
+def test_a_bench_keeps_each_enforced_policys_run_log_for_report(
+    bench_json: tuple[dict[str, Any], str, list[int]], bench_folder: Path
+) -> None:
+    # catan runs under the enforcer, the baselines under the bench's own timers: one log, catan's.
+    logs = bench_folder / "logs"
+    assert sorted(path.name for path in logs.iterdir()) == ["catan.jsonl"]
+    summary = summarise(load_events(logs / "catan.jsonl"))
+    assert summary.complete
+    runs = {sub.name: sub.runs for sub in summary.subchains}
+    # The same run the JSON reports: cam heads subchain fast, one run each.
+    measured = bench_json[0]["policies"]["catan"]["nodes"]["cam"]["rate_hz"] * DURATION_S
+    assert runs["fast"] >= 0.9 * measured
+
+
+def test_a_log_folder_that_is_a_file_is_refused_before_anything_runs(tmp_path: Path) -> None:
+    spec = tmp_path / "tiny.yaml"
+    spec.write_text(TINY)
+    taken = tmp_path / "logs"
+    taken.write_text("not a folder")
+    argv = [sys.executable, "-c", BENCH_MAIN, "bench", str(spec), "-k", "1", "--log", str(taken)]
+    finished = subprocess.run(argv, capture_output=True, text=True, timeout=60, check=False)
+    assert finished.returncode == 2
+    assert f"--log {taken}: not a folder" in finished.stderr
+    assert taken.read_text() == "not a folder"
 
 
 def test_a_bench_leaves_no_process_behind(bench_json: tuple[dict[str, Any], str, list[int]]) -> None:
