@@ -491,9 +491,10 @@ def test_catans_subchain_runs_near_its_planned_rate(
     assert nodes["det"]["rate_hz"] <= nodes["cam"]["rate_hz"] + 1 / DURATION_S
     assert nodes["det"]["rate_hz"] >= 0.9 * nodes["cam"]["rate_hz"]  # one subchain: det follows each cam run
     assert nodes["map"]["rate_hz"] > 0
-    # The rate the enforcer's last plan promised a head (its re-solves made again from the log): cam's.
+    # The rate the enforcer's last plan promised a head (its re-solves made again from the log): cam's. The
+    # run's first 2 s ran the spec's plan, which a re-plan with measured costs may slow by 10-20%.
     promised = nodes["cam"]["planned_hz"]
-    assert 0.7 * promised <= nodes["cam"]["rate_hz"] <= 1.05 * promised
+    assert 0.7 * promised <= nodes["cam"]["rate_hz"] <= 1.25 * promised
     assert "planned_hz" not in nodes["det"]  # not a head: it runs when cam's run ends
     assert all("planned_hz" not in node for node in bench_json[0]["policies"]["baseline"]["nodes"].values())
 
