@@ -39,9 +39,10 @@ from matplotlib.figure import Figure
 
 from catanc.core.build import build_problem
 from catanc.core.load import load_spec
+from catanc.files import write_files
 from catanc.planning.planner import plan_problem
 from catanc.sim.metrics import ChainResult, PolicyResult
-from catanc.sim.plots import panel_figure, png_bytes, write_files
+from catanc.sim.plots import panel_figure, png_bytes
 from catanc.sim.simulate import Setup, simulate, static_profile
 from tests.support.scenario_specs import (
     BUCKET_S,
