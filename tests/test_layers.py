@@ -26,7 +26,10 @@ import pytest
 PACKAGE = Path(__file__).resolve().parents[1] / "catanc"
 
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("base", ("catanc.errors", "catanc.extras", "catanc.files", "catanc.text")),  # errors, extras, atomic writes, words
+    (
+        "base",
+        ("catanc.errors", "catanc.extras", "catanc.files", "catanc.numba_cache", "catanc.text"),
+    ),  # errors, extras, atomic writes, numba's cache, words
     ("spec", ("catanc.spec",)),  # the language, YAML positions, syntax and shape, the deploy section's checks
     ("core", ("catanc.core",)),  # the problem, its building (meaning checks), the analytic model, loading a spec
     ("planning", ("catanc.planning",)),  # the plan's types, Stage I, Stage II, the planner, re-planning, baseline

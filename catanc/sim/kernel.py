@@ -37,7 +37,7 @@ import numpy as np
 import numpy.typing as npt
 from numba.experimental import structref
 
-from catanc.sim.numba_cache import drop_stale_cache
+from catanc.numba_cache import drop_stale_cache
 
 F = TypeVar("F", bound=Callable[..., Any])
 

@@ -1,4 +1,4 @@
-"""Stale numba cache files are removed before numba can trip over them (catanc.sim.numba_cache)."""
+"""Stale numba cache files are removed before numba can trip over them (catanc.numba_cache)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 import catanc.sim
-from catanc.sim.numba_cache import drop_stale_cache
+from catanc.numba_cache import drop_stale_cache
 
 HOUR_S = 3600.0
 
