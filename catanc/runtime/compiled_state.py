@@ -1,0 +1,287 @@
+"""The compiled walk's arrays (:class:`~catanc.runtime.compiled_walk.Walk`) from the enforcer's Python objects.
+
+:func:`install` lays a :class:`~catanc.control.schedule.RuntimeSchedule` out as a new walk of its
+shared cores, as :meth:`SharedCores.install <catanc.runtime.cores.SharedCores.install>` starts
+one, with the runs in flight, levels and rings the enforcer has; :func:`update` adds a schedule
+that each core takes at its next period (:meth:`SharedCores.update`).  :func:`runs_in_flight`
+reads the runs back the way :class:`~catanc.runtime.runs.RunBook` keeps them, and
+:func:`events` the log the walk wrote since the last call.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import NamedTuple
+
+import numpy as np
+from numba import typed
+
+from catanc.control.policy import CoreCursor, slot_rules
+from catanc.control.schedule import CoreSchedule, RuntimeSchedule
+from catanc.runtime import compiled_walk as cw
+from catanc.runtime.endpoints import Endpoint
+from catanc.runtime.levels import Levels
+from catanc.runtime.nodes import Wiring
+from catanc.runtime.protocol import PROTOCOL
+from catanc.runtime.ring import SLOTS
+from catanc.runtime.runs import RunBook
+from catanc.spec.speedup import threads_and_speedup
+
+VERSIONS = 3
+"""Schedules kept at once: a core's current one, the latest, and one more while cores move over."""
+EVENTS = 8192
+
+KernelFd = Callable[[Endpoint], int | None]
+"""A node thread's opened ``schedstat`` descriptor (None: not opened)."""
+
+
+class Flight(NamedTuple):
+    """A run in flight as the walk has it (for comparison with :class:`~catanc.runtime.runs.RunFlight`)."""
+
+    seq: int
+    node: int  # the subchain's node it is at
+    triggered_ms: float
+    last_end_ms: float | None
+    until_ms: float | None
+    kernel_ns: int | None
+
+
+def install(
+    schedule: RuntimeSchedule,
+    wiring: Wiring,
+    book: RunBook,
+    levels: Levels,
+    now_ms: float,
+    *,
+    kernel_fd: KernelFd = lambda _endpoint: None,
+) -> tuple[cw.Walk, tuple[str, ...], tuple[int, ...]]:
+    """A walk of ``schedule``'s shared cores from ``now_ms``: the walk, its subchains' names and its cores."""
+    names = tuple(schedule.subchains)
+    sub = {name: s for s, name in enumerate(names)}
+    cores = tuple(core for core in schedule.shared if core.slots)
+    core_ids = tuple(core.core for core in cores)
+    n_subs, n_cores = len(names), len(cores)
+    most = max([len(run.nodes) for run in schedule.subchains.values()] + [1])
+    slots = max([len(core.slots) for core in cores] + [n_subs, 1])
+
+    readers = [
+        (s, index, endpoint, reader)
+        for s, name in enumerate(names)
+        for index, endpoint, reader in wiring.readers.get(name, ())
+    ]
+    sub_readers = np.zeros((n_subs, 2), dtype=np.int64)
+    for s in range(n_subs):
+        mine = [r for r, reader in enumerate(readers) if reader[0] == s]
+        sub_readers[s] = (mine[0], len(mine)) if mine else (0, 0)
+    words = typed.List()
+    for _, _, _, reader in readers:
+        words.append(np.frombuffer(reader.words, dtype=np.uint64))
+    if not readers:  # numba needs the list's type: an empty ring nobody reads
+        words.append(np.frombuffer(bytes(64), dtype=np.uint64))
+    speedups = [book.speedups.get(endpoint.node, (1.0,)) for _, _, endpoint, _ in readers]
+    widest = max([len(speedup) for speedup in speedups] + [1])
+    r_speedup = np.ones((max(len(readers), 1), widest + 1))
+    for r, speedup in enumerate(speedups):
+        for q in range(widest + 1):
+            r_speedup[r, q] = threads_and_speedup(speedup, max(q, 1))[1]
+
+    tids = sorted({tid for chain in wiring.tids.values() for tid in chain[0]} if wiring.tids else set())
+    thread = {tid: h for h, tid in enumerate(tids)}
+    sub_threads = np.zeros((n_subs, most, 2), dtype=np.int64)
+    order: list[int] = []
+    for s, name in enumerate(names):
+        for first, chain in enumerate(wiring.tids.get(name, ())):
+            sub_threads[s, first] = (len(order), len(chain))
+            order += [thread[tid] for tid in chain]
+    th_raised = np.full(len(tids), cw.NONE, dtype=np.int64)
+    raised_count = np.zeros(n_cores, dtype=np.int64)
+    for c, core_id in enumerate(core_ids):
+        for tid in levels.raised.get(core_id, ()):
+            if tid in thread:
+                th_raised[thread[tid]] = c
+                raised_count[c] += 1
+
+    datagram = np.zeros((n_subs, cw.DATAGRAM), dtype=np.uint8)
+    prefix = np.zeros(n_subs, dtype=np.int64)
+    head_fd = np.full(n_subs, cw.NONE, dtype=np.int64)
+    head_kernel_fd = np.full(n_subs, cw.NONE, dtype=np.int64)
+    for s, name in enumerate(names):
+        head = wiring.heads.get(name)
+        if head is None:
+            continue
+        text = b"%s trigger %s " % (PROTOCOL, head.node.encode())
+        datagram[s, : len(text)] = np.frombuffer(text, dtype=np.uint8)
+        prefix[s] = len(text)
+        head_fd[s] = head.sock.fileno() if head.sock is not None else -2
+        fd = kernel_fd(head)
+        head_kernel_fd[s] = cw.NONE if fd is None else fd
+
+    states = [book.state(name) for name in names]
+    walk = cw.Walk(
+        period=np.zeros((VERSIONS, n_cores)),
+        switch=np.zeros((VERSIONS, n_cores)),
+        nslots=np.ones((VERSIONS, n_cores), dtype=np.int64),
+        slot_start=np.zeros((VERSIONS, n_cores, slots)),
+        slot_length=np.zeros((VERSIONS, n_cores, slots)),
+        rule_sub=np.full((VERSIONS, n_cores, slots + 1), cw.NONE, dtype=np.int64),
+        rule_every=np.zeros((VERSIONS, n_cores, slots + 1), dtype=np.int64),
+        rule_thieves=np.full((VERSIONS, n_cores, slots + 1, slots), cw.NONE, dtype=np.int64),
+        core_every=np.ones((VERSIONS, n_cores), dtype=np.int64),
+        latest=np.zeros(n_cores, dtype=np.int64),
+        version=np.zeros(n_cores, dtype=np.int64),
+        start=np.zeros(n_cores),
+        period_index=np.zeros(n_cores, dtype=np.int64),
+        position=np.zeros(n_cores, dtype=np.int64),
+        due=np.zeros(n_cores),
+        wake=np.zeros(n_cores),
+        raised=np.full(n_cores, cw.NONE, dtype=np.int64),
+        raised_from=np.full(n_cores, cw.NONE, dtype=np.int64),
+        raised_count=raised_count,
+        latency=np.zeros(n_subs),
+        length=np.array([len(schedule.subchains[name].nodes) for name in names], dtype=np.int64),
+        shared=np.array([int(schedule.subchains[name].shared) for name in names], dtype=np.int64),
+        seq=np.array([state.seq for state in states], dtype=np.int64),
+        pending=np.array([cw.NONE if state.pending is None else state.pending for state in states], dtype=np.int64),
+        late=np.array([state.late for state in states], dtype=np.int64),
+        skipped=np.array([state.skipped for state in states], dtype=np.int64),
+        unmatched=np.array([state.unmatched for state in states], dtype=np.int64),
+        steals=np.array([state.steals for state in states], dtype=np.int64),
+        flying=np.zeros(n_subs, dtype=np.int64),
+        fl_seq=np.zeros((n_subs, cw.FLIGHTS), dtype=np.int64),
+        fl_index=np.zeros((n_subs, cw.FLIGHTS), dtype=np.int64),
+        fl_triggered=np.zeros((n_subs, cw.FLIGHTS)),
+        fl_last_end=np.full((n_subs, cw.FLIGHTS), math.nan),
+        fl_until=np.full((n_subs, cw.FLIGHTS), math.nan),
+        fl_kernel=np.full((n_subs, cw.FLIGHTS), cw.NONE, dtype=np.int64),
+        sub_readers=sub_readers,
+        r_index=np.array([index for _, index, _, _ in readers] or [0], dtype=np.int64),
+        r_last=np.array([reader.last for _, _, _, reader in readers] or [0], dtype=np.int64),
+        r_slots=np.array([reader.slots for _, _, _, reader in readers] or [SLOTS], dtype=np.int64),
+        r_overrun=np.array([reader.overrun for _, _, _, reader in readers] or [0], dtype=np.int64),
+        r_kernel_fd=np.array([_fd(kernel_fd(endpoint)) for _, _, endpoint, _ in readers] or [cw.NONE], dtype=np.int64),
+        r_kernel_mark=np.array(
+            [cw.NONE if e.kernel_mark_ns is None else e.kernel_mark_ns for _, _, e, _ in readers] or [cw.NONE],
+            dtype=np.int64,
+        ),
+        r_expected=np.array([book.expected.get(e.node, math.nan) for _, _, e, _ in readers] or [math.nan]),
+        r_speedup=r_speedup,
+        r_words=words,
+        entries=np.zeros(
+            max([reader.slots for _, _, _, reader in readers] + [SLOTS]) * cw.ENTRY_WORDS, dtype=np.uint64
+        ),
+        th_tid=np.array(tids, dtype=np.int64),
+        th_level=np.array([_level(levels.level(tid)) for tid in tids], dtype=np.int64),
+        th_resting=np.array([_level(levels.resting.get(tid)) for tid in tids], dtype=np.int64),
+        th_raised=th_raised,
+        sub_threads=sub_threads,
+        raise_order=np.array(order or [0], dtype=np.int64),
+        head_fd=head_fd,
+        head_kernel_fd=head_kernel_fd,
+        head_datagram=datagram,
+        head_prefix=prefix,
+        head_threads=np.array([schedule.subchains[name].threads_of(0)[0] for name in names], dtype=np.int64),
+        flags=np.array([int(levels.rt), 0, 0, _room(len(readers))], dtype=np.int64),
+        events=np.zeros((EVENTS, cw.EVENT_FIELDS)),
+        scratch=np.zeros(8, dtype=np.int64),
+        text=np.zeros(64, dtype=np.uint8),
+    )
+    for s, state in enumerate(states):
+        for seq, flight in state.in_flight.items():
+            k = walk.flying[s]
+            walk.fl_seq[s, k], walk.fl_index[s, k], walk.fl_triggered[s, k] = seq, flight.index, flight.triggered_ms
+            walk.fl_last_end[s, k] = math.nan if flight.last_end_ms is None else flight.last_end_ms
+            walk.fl_until[s, k] = math.nan if flight.until_ms is None else flight.until_ms
+            walk.fl_kernel[s, k] = cw.NONE if flight.kernel_ns is None else flight.kernel_ns
+            walk.flying[s] = k + 1
+    _lay_out(walk, 0, schedule, cores, sub)
+    for c, core in enumerate(cores):
+        cursor = CoreCursor(core, now_ms)
+        walk.start[c], walk.period_index[c], walk.position[c], walk.due[c] = now_ms, 0, 0, cursor.due
+    cw.rewake(walk)
+    return walk, names, core_ids
+
+
+def update(walk: cw.Walk, schedule: RuntimeSchedule, names: tuple[str, ...], core_ids: tuple[int, ...]) -> None:
+    """A new schedule on the same allocation: each core takes it at its next period (:meth:`SharedCores.update`).
+
+    Raises ``ValueError`` if it is not the same allocation (another set of subchains or cores:
+    a new walk is installed then) or if every version is still in use.
+    """
+    if tuple(schedule.subchains) != names:
+        raise ValueError("another set of subchains: install a new walk")
+    by_core = {core.core: core for core in schedule.shared if core.slots}
+    if tuple(by_core) != core_ids:
+        raise ValueError("another set of shared cores: install a new walk")
+    in_use = set(walk.version.tolist()) | set(walk.latest.tolist())
+    free = [v for v in range(VERSIONS) if v not in in_use]
+    if not free:
+        raise ValueError("every schedule version is in use")
+    cores = tuple(by_core[core_id] for core_id in core_ids)
+    _lay_out(walk, free[0], schedule, cores, {name: s for s, name in enumerate(names)})
+    cw.rewake(walk)
+
+
+def _lay_out(
+    walk: cw.Walk, v: int, schedule: RuntimeSchedule, cores: tuple[CoreSchedule, ...], sub: dict[str, int]
+) -> None:
+    width = walk.slot_start.shape[2]
+    for c, core in enumerate(cores):
+        if len(core.slots) > width:
+            raise ValueError(f"core {core.core} has {len(core.slots)} slots, the walk room for {width}")
+        walk.period[v, c], walk.switch[v, c], walk.nslots[v, c] = core.period_ms, core.switch_ms, len(core.slots)
+        walk.rule_sub[v, c] = cw.NONE
+        walk.rule_every[v, c] = 0
+        walk.rule_thieves[v, c] = cw.NONE
+        for j, slot in enumerate(core.slots):
+            walk.slot_start[v, c, j], walk.slot_length[v, c, j] = slot.start_ms, slot.length_ms
+        rules = slot_rules(core, schedule.subchains)
+        for j, rule in enumerate(rules):
+            if rule.subchain is None:
+                continue
+            walk.rule_sub[v, c, j] = sub[rule.subchain]
+            walk.rule_every[v, c, j] = rule.every or 0
+            for t, thief in enumerate(rule.thieves):
+                walk.rule_thieves[v, c, j, t] = sub[thief]
+        walk.core_every[v, c] = max((rule.every or 1 for rule in rules), default=1)
+        walk.latest[c] = v
+    for name, s in sub.items():
+        walk.latency[s] = schedule.subchains[name].latency_ms
+        walk.head_threads[s] = schedule.subchains[name].threads_of(0)[0]
+
+
+def _fd(fd: int | None) -> int:
+    return cw.NONE if fd is None else fd
+
+
+def _level(level: int | None) -> int:
+    return cw.NONE if level is None else level
+
+
+def _room(readers: int) -> int:
+    """Log records one boundary may write at most: each ring's entries (a compute, a hop, a run) and a few more."""
+    return 3 * SLOTS * max(readers, 1) + 8
+
+
+def runs_in_flight(walk: cw.Walk, s: int) -> dict[int, Flight]:
+    """Subchain ``s``'s runs in flight, by seq."""
+    found = {}
+    for k in range(int(walk.flying[s])):
+        last_end, until, kernel = walk.fl_last_end[s, k], walk.fl_until[s, k], int(walk.fl_kernel[s, k])
+        found[int(walk.fl_seq[s, k])] = Flight(
+            int(walk.fl_seq[s, k]),
+            int(walk.fl_index[s, k]),
+            float(walk.fl_triggered[s, k]),
+            None if math.isnan(last_end) else float(last_end),
+            None if math.isnan(until) else float(until),
+            None if kernel == cw.NONE else kernel,
+        )
+    return dict(sorted(found.items()))
+
+
+def events(walk: cw.Walk) -> list[tuple[float, ...]]:
+    """The records the walk logged since the last call (the log is emptied)."""
+    count = int(walk.flags[cw.LOGGED])
+    found = [tuple(float(x) for x in row) for row in walk.events[:count]]
+    walk.flags[cw.LOGGED] = 0
+    return found

@@ -1,0 +1,643 @@
+"""The shared cores' walk compiled with numba: :class:`~catanc.runtime.cores.SharedCores` over flat arrays.
+
+The first part of issue 31's compiled hot loop (docs/compiled-loop.md).  What one wake-up of the
+enforcer does on its shared cores is said in Python by :mod:`catanc.runtime.cores` (the boundary
+walk, the slot owner, the levels, the slot-aligned triggers), :mod:`catanc.runtime.runs` (the
+rings read into runs in flight, every report checked and clamped) and
+:mod:`catanc.control.policy` (the decisions); :func:`run_due` does exactly that, step for step,
+over the arrays of one :class:`Walk`, so that a wake-up costs no interpreter.  The Python stays
+the readable statement and the oracle: tests/runtime/test_compiled_walk.py holds the two to the
+same levels, triggers, runs in flight and samples, boundary by boundary.  Keep them in step.
+
+What needs Python is left to it, through :class:`Walk`'s event log (replayed at each return):
+the samples (compute times, run latencies, hop delays, switch latencies) for the measurements
+and the run log, the threads found gone, a level the kernel refused, a trigger the node did not
+take.  The system calls are libc's, declared by name (numba caches the compiled function; a
+ctypes pointer would tie it to one process): ``sched_setscheduler`` for the levels, ``send``
+for the triggers, ``pread`` of a thread's opened ``schedstat`` for the kernel's CPU figures,
+``clock_gettime`` for the switch latency.
+
+Not wired into ``catanc run`` yet: the loop around it (``ppoll`` with the next boundary as its
+deadline) and the hand-over of the run book between the two are the next part.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, NamedTuple, TypeVar, cast
+
+import numba
+import numpy as np
+import numpy.typing as npt
+from numba import types
+
+from catanc.numba_cache import drop_stale_cache
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+
+
+def compiled(function: F) -> F:
+    """numba's no-Python mode, cached on disk beside the module."""
+    return cast(F, numba.njit(cache=True, nogil=True)(function))
+
+
+drop_stale_cache(Path(__file__))
+
+# libc, by name (pointers and sizes as 64-bit integers: the same registers on x86-64 and aarch64).
+_sched_setscheduler = types.ExternalFunction("sched_setscheduler", types.intc(types.intc, types.intc, types.intp))
+_send = types.ExternalFunction("send", types.intp(types.intc, types.intp, types.uintp, types.intc))
+_pread = types.ExternalFunction("pread", types.intp(types.intc, types.intp, types.uintp, types.int64))
+_clock_gettime = types.ExternalFunction("clock_gettime", types.intc(types.intc, types.intp))
+
+SCHED_FIFO = os.SCHED_FIFO
+MSG_DONTWAIT = 0x40  # socket.MSG_DONTWAIT on Linux
+CLOCK_MONOTONIC = 1
+RUNNING_FIFO = 2  # catanc.core.priorities.RUNNING_FIFO: the slot owner's level
+
+# As in catanc.runtime.runs and catanc.runtime.measure.
+KERNEL_CHECK_EVERY = 8
+SUSPICIOUS = 3.0
+KERNEL_SLACK_MS = 0.05
+RECONCILE_REL_TOL = 0.10
+RECONCILE_ABS_TOL_MS = 0.05
+CLIENT_WORK_MS = 0.5
+UNKNOWN = np.uint64(2**64 - 1)  # a ring entry's compute_ns the node did not measure
+HEADER_WORDS = 8  # catanc.runtime.ring: a 64-byte header, 48-byte entries
+ENTRY_WORDS = 6
+
+NONE = -1  # an integer that is not there (a subchain, a thread, a seq, a level)
+FLIGHTS = 64
+"""Runs in flight a subchain may have here; one more returns :data:`FULL` before its boundary."""
+DATAGRAM = 128  # bytes of a trigger datagram, at most
+
+# Event log records: (kind, a, b, c, d, e, f, g) as float64.
+EV_COMPUTE = 1.0  # at_ms, reader, ms (nan: unknown), reported_ms (nan), kernel_ms (nan), threads
+EV_RUN = 2.0  # at_ms, subchain, seq, latency_ms
+EV_HOP = 3.0  # subchain, reader, delay_ms
+EV_SWITCH = 4.0  # core, latency_ms
+EV_GONE = 5.0  # thread (a level could not be set: gone, or refused; Python sets it again to say why)
+EV_UNTAKEN = 6.0  # subchain: its head did not take its trigger (send failed)
+EV_TRIGGER = 7.0  # subchain, seq, at_ms, deferred
+EVENT_FIELDS = 8
+
+# What run_due returns.
+DONE, FULL, LOG_FULL = 0, 1, 2
+
+
+class Walk(NamedTuple):
+    """Everything :func:`run_due` reads and changes, built by :mod:`catanc.runtime.compiled_state`.
+
+    Schedules are kept by version ``[V, C, ...]`` (a core keeps the version of its current
+    period; a new one is taken at its next period).  Subchains ``S``, readers ``R`` (one per
+    registered node thread with a ring, in node order per subchain), threads ``H`` (every
+    thread a subchain may raise), cores ``C`` (the shared cores walked), slots ``M``.
+    """
+
+    # schedules, by version
+    period: FloatArray  # [V, C]
+    switch: FloatArray  # [V, C]
+    nslots: IntArray  # [V, C]
+    slot_start: FloatArray  # [V, C, M]
+    slot_length: FloatArray  # [V, C, M]
+    rule_sub: IntArray  # [V, C, M + 1]: the slot's subchain; NONE at the end of the last slice
+    rule_every: IntArray  # [V, C, M + 1]: its head triggered there every k periods (0: never)
+    rule_thieves: IntArray  # [V, C, M + 1, M]: best first, NONE-padded
+    core_every: IntArray  # [V, C]: the longest trigger cycle of its rules, in periods
+    # the cores' cursors
+    latest: IntArray  # [C]: the version a core takes at its next period (NONE: keep its own)
+    version: IntArray  # [C]
+    start: FloatArray  # [C]: the current period's start
+    period_index: IntArray  # [C]: periods since the cursor started
+    position: IntArray  # [C]
+    due: FloatArray  # [C]
+    wake: FloatArray  # [C]
+    raised: IntArray  # [C]: the subchain raised there (NONE: none)
+    raised_from: IntArray  # [C]: its threads are raised from this node on (NONE: not yet)
+    raised_count: IntArray  # [C]: threads raised above their resting level there
+    # subchains
+    latency: FloatArray  # [S]: planned (late beyond it)
+    length: IntArray  # [S]: its nodes
+    shared: IntArray  # [S]: 1 if on a shared core
+    seq: IntArray  # [S]: the last seq given
+    pending: IntArray  # [S]: a deferred head trigger's seq (NONE: none)
+    late: IntArray  # [S]
+    skipped: IntArray  # [S]
+    unmatched: IntArray  # [S]
+    steals: IntArray  # [S]
+    flying: IntArray  # [S]: runs in flight
+    # runs in flight, unordered: [S, FLIGHTS]
+    fl_seq: IntArray
+    fl_index: IntArray
+    fl_triggered: FloatArray
+    fl_last_end: FloatArray  # nan: none yet
+    fl_until: FloatArray  # nan: none (hops do not measure the runtime)
+    fl_kernel: IntArray  # the head thread's schedstat at the trigger (NONE: not checked)
+    # readers (node threads with rings), per subchain in node order
+    sub_readers: IntArray  # [S, 2]: first reader, how many
+    r_index: IntArray  # [R]: its node's index in the subchain
+    r_last: IntArray  # [R]: entries taken so far
+    r_slots: IntArray  # [R]
+    r_overrun: IntArray  # [R]
+    r_kernel_fd: IntArray  # [R]: its thread's schedstat, opened (NONE: unknown)
+    r_kernel_mark: IntArray  # [R]: its thread's CPU at the last suspicious report (NONE: none)
+    r_expected: FloatArray  # [R]: its node's planning estimate (nan: none)
+    r_speedup: FloatArray  # [R, Q + 1]: its speedup when a run says it used q threads (q >= Q: Q's)
+    r_words: Any  # numba.typed.List of the rings as uint64 words (read-only)
+    entries: npt.NDArray[np.uint64]  # [max slots * ENTRY_WORDS]: a ring's new entries, copied
+    # threads
+    th_tid: IntArray  # [H]
+    th_level: IntArray  # [H]: as last set (NONE: unknown)
+    th_resting: IntArray  # [H]: NONE if not placed
+    th_raised: IntArray  # [H]: the core it is raised on (NONE: not raised)
+    sub_threads: IntArray  # [S, N, 2]: from node n on, the threads' first position in `raise_order` and how many
+    raise_order: IntArray  # thread indices, per subchain in node order
+    # heads
+    head_fd: IntArray  # [S]: its head's socket (NONE: no head to trigger, counted as skipped; -2: no socket)
+    head_kernel_fd: IntArray  # [S]: the head thread's schedstat (NONE: unknown)
+    head_datagram: npt.NDArray[np.uint8]  # [S, DATAGRAM]: "catanc/2 trigger NODE " then the seq and threads
+    head_prefix: IntArray  # [S]: the prefix's length
+    head_threads: IntArray  # [S]
+    # the machine and the log
+    flags: IntArray  # [4]: rt (set levels), calls (levels set), events logged, log room needed per boundary
+    events: FloatArray  # [L, EVENT_FIELDS]
+    scratch: IntArray  # [8]: a timespec, a sched_param, a schedstat buffer's bytes
+    text: npt.NDArray[np.uint8]  # [64]: a schedstat line
+
+
+RT, CALLS, LOGGED, ROOM = 0, 1, 2, 3
+
+
+@compiled
+def boundary_ms(w: Walk, v: int, c: int, start: float, position: int) -> float:
+    """:func:`catanc.control.policy.boundary_ms` for core ``c``'s schedule version ``v``."""
+    n = w.nslots[v, c]
+    if position < n:
+        return float(start + w.slot_start[v, c, position] - w.switch[v, c])
+    return float(start + w.slot_start[v, c, n - 1] + w.slot_length[v, c, n - 1])
+
+
+@compiled
+def advance(w: Walk, c: int, now: float) -> None:
+    """:meth:`catanc.control.policy.CoreCursor.advance` (the latest version taken at the period's end)."""
+    v = w.version[c]
+    if w.position[c] < w.nslots[v, c]:
+        w.position[c] += 1
+    else:
+        period = w.period[v, c]
+        start = w.start[c] + period
+        skipped = max(0, math.floor((now - start) / period))
+        w.start[c] = start + skipped * period
+        w.period_index[c] += 1 + skipped
+        w.position[c] = 0
+        if w.latest[c] != NONE:
+            w.version[c] = w.latest[c]
+    w.due[c] = boundary_ms(w, w.version[c], c, w.start[c], w.position[c])
+
+
+@compiled
+def log(w: Walk, kind: float, a: float, b: float, c: float, d: float, e: float, f: float, g: float) -> None:
+    k = w.flags[LOGGED]
+    row = w.events[k]
+    row[0], row[1], row[2], row[3], row[4], row[5], row[6], row[7] = kind, a, b, c, d, e, f, g
+    w.flags[LOGGED] = k + 1
+
+
+# --------------------------------------------------------------------------- runs in flight (RunBook)
+
+
+@compiled
+def slot_of(w: Walk, s: int, seq: int) -> int:
+    for k in range(w.flying[s]):
+        if w.fl_seq[s, k] == seq:
+            return k
+    return NONE
+
+
+@compiled
+def add_flight(w: Walk, s: int, seq: int, triggered: float, until: float) -> None:
+    k = w.flying[s]
+    w.fl_seq[s, k], w.fl_index[s, k], w.fl_triggered[s, k] = seq, 0, triggered
+    w.fl_last_end[s, k], w.fl_until[s, k], w.fl_kernel[s, k] = math.nan, until, NONE
+    w.flying[s] = k + 1
+
+
+@compiled
+def drop_flight(w: Walk, s: int, k: int) -> None:
+    last = w.flying[s] - 1
+    if k != last:
+        w.fl_seq[s, k], w.fl_index[s, k], w.fl_triggered[s, k] = (
+            w.fl_seq[s, last],
+            w.fl_index[s, last],
+            w.fl_triggered[s, last],
+        )
+        w.fl_last_end[s, k], w.fl_until[s, k], w.fl_kernel[s, k] = (
+            w.fl_last_end[s, last],
+            w.fl_until[s, last],
+            w.fl_kernel[s, last],
+        )
+    w.flying[s] = last
+
+
+@compiled
+def is_late(w: Walk, s: int, now: float) -> bool:
+    """:meth:`RunBook.late`: the oldest run in flight past the planned latency."""
+    if w.flying[s] == 0:
+        return False
+    oldest = math.inf
+    for k in range(w.flying[s]):
+        oldest = min(oldest, w.fl_triggered[s, k])
+    return bool(now - oldest > w.latency[s])
+
+
+@compiled
+def first_index(w: Walk, s: int) -> int:
+    """:meth:`RunBook.first_index` (NONE: no run in flight)."""
+    first = NONE
+    for k in range(w.flying[s]):
+        if first == NONE or w.fl_index[s, k] < first:
+            first = w.fl_index[s, k]
+    return first
+
+
+@compiled
+def busy(w: Walk, s: int) -> bool:
+    return bool(w.flying[s] > 0 or w.pending[s] != NONE)
+
+
+@compiled
+def kernel_ns(w: Walk, fd: int) -> int:
+    """A thread's CPU so far (ns) from its opened ``schedstat`` (NONE: unreadable)."""
+    if fd < 0:
+        return NONE
+    got = _pread(fd, w.text.ctypes.data, w.text.size, 0)
+    if got <= 0:
+        return NONE
+    value, digits = 0, 0
+    for k in range(got):
+        byte = w.text[k]
+        if byte < 48 or byte > 57:
+            break
+        value = value * 10 + (byte - 48)
+        digits += 1
+    return value if digits > 0 and digits < 19 else NONE
+
+
+@compiled
+def trigger(w: Walk, s: int, now: float, until: float) -> None:
+    """``Enforcer._trigger_head`` at a slot: :meth:`RunBook.trigger` (:meth:`Flights.start`), then the datagram."""
+    fd = w.head_fd[s]
+    if fd == NONE:
+        w.skipped[s] += 1
+        return
+    if w.flying[s] > 0:
+        until = math.nan
+    head_busy = False
+    for k in range(w.flying[s]):
+        if w.fl_index[s, k] == 0:
+            head_busy = True
+    deferred = False
+    if head_busy:
+        if w.pending[s] != NONE:
+            return
+        w.skipped[s] += 1
+        w.seq[s] += 1
+        w.pending[s] = w.seq[s]
+        deferred = True
+    elif w.pending[s] != NONE:  # its head run vanished (lost): the deferred trigger, sent already, starts it
+        add_flight(w, s, w.pending[s], now, until)
+        w.pending[s] = NONE
+        return
+    else:
+        w.seq[s] += 1
+        add_flight(w, s, w.seq[s], now, until)
+        if w.seq[s] % KERNEL_CHECK_EVERY == 0:
+            w.fl_kernel[s, w.flying[s] - 1] = kernel_ns(w, w.head_kernel_fd[s])
+    seq = w.seq[s]
+    log(w, EV_TRIGGER, s, seq, now, 1.0 if deferred else 0.0, 0.0, 0.0, 0.0)
+    if fd < 0 or not send_trigger(w, s, seq):  # a head without a socket takes no triggers either
+        log(w, EV_UNTAKEN, s, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+@compiled
+def put_decimal(buffer: Any, at: int, value: int) -> int:
+    """``value`` (>= 0) in decimal into ``buffer`` from ``at``; where it ends."""
+    digits = 1
+    rest = value
+    while rest >= 10:
+        rest //= 10
+        digits += 1
+    for k in range(digits - 1, -1, -1):
+        buffer[at + k] = 48 + value % 10
+        value //= 10
+    return at + digits
+
+
+@compiled
+def send_trigger(w: Walk, s: int, seq: int) -> bool:
+    buffer = w.head_datagram[s]
+    end = put_decimal(buffer, w.head_prefix[s], seq)
+    buffer[end] = 32
+    end = put_decimal(buffer, end + 1, w.head_threads[s])
+    return bool(_send(w.head_fd[s], buffer.ctypes.data, end, MSG_DONTWAIT) == end)
+
+
+@compiled
+def reconcile(reported: float, kernel: float) -> float:
+    """:func:`catanc.runtime.measure.reconcile` (nan: unknown)."""
+    if math.isnan(kernel) or not math.isfinite(kernel) or kernel < 0:
+        return reported
+    if math.isnan(reported) or not math.isfinite(reported) or reported < 0:
+        return kernel
+    tol = max(RECONCILE_ABS_TOL_MS, RECONCILE_REL_TOL * kernel)
+    if kernel - CLIENT_WORK_MS - tol <= reported <= kernel + tol:
+        return reported
+    return kernel
+
+
+@compiled
+def head_again(w: Walk, s: int, seq: int) -> bool:
+    if w.pending[s] != NONE:
+        return True
+    for k in range(w.flying[s]):
+        if w.fl_seq[s, k] != seq and w.fl_index[s, k] == 0:
+            return True
+    return False
+
+
+@compiled
+def take(w: Walk, s: int, r: int, entry: int, now: float, last: bool) -> None:
+    """:meth:`RunBook._take`: one entry of reader ``r``'s ring (copied to ``entries`` at ``entry``) moves its run on."""
+    words = w.entries
+    index = w.r_index[r]
+    seq = int(np.int64(words[entry]))  # numba mixes uint64 with int64 into float64: signed at once
+    if seq != 0:
+        k = slot_of(w, s, seq)
+        if k == NONE or w.fl_index[s, k] != index:
+            w.unmatched[s] += 1
+            return
+    else:  # a run nothing triggered: the oldest waiting at this node
+        k = NONE
+        for j in range(w.flying[s]):
+            if w.fl_index[s, j] == index and (
+                k == NONE
+                or w.fl_triggered[s, j] < w.fl_triggered[s, k]
+                or (w.fl_triggered[s, j] == w.fl_triggered[s, k] and w.fl_seq[s, j] < w.fl_seq[s, k])
+            ):
+                k = j
+        if k == NONE:
+            w.unmatched[s] += 1
+            return
+        seq = w.fl_seq[s, k]
+    triggered = w.fl_triggered[s, k]
+    start_ms = min(max(float(words[entry + 1]) / 1e6, triggered), now)
+    end_ms = min(max(float(words[entry + 2]) / 1e6, start_ms), now)
+    before = w.fl_last_end[s, k] if index > 0 else triggered
+    until = w.fl_until[s, k]
+    if not math.isnan(before) and not math.isnan(until) and start_ms <= until:
+        log(w, EV_HOP, s, r, max(start_ms - before, 0.0), 0.0, 0.0, 0.0, 0.0)
+    threads = int(np.int64(words[entry + 4] & np.uint64(0xFFFFFFFF)))
+    own = math.nan if words[entry + 3] == UNKNOWN else float(words[entry + 3]) / 1e6
+    elapsed = max(now - triggered, 0.0)
+    compute = math.nan if math.isnan(own) else min(own, elapsed)
+    expected = w.r_expected[r]
+    if not math.isnan(compute) and threads <= 1 and not math.isnan(expected) and compute > SUSPICIOUS * expected:
+        mark_now = kernel_ns(w, w.r_kernel_fd[r])
+        if mark_now != NONE:
+            mark = w.r_kernel_mark[r]
+            w.r_kernel_mark[r] = mark_now
+            if mark != NONE and mark_now >= mark:
+                compute = min(compute, (mark_now - mark) / 1e6 + KERNEL_SLACK_MS)
+    kernel_ms = math.nan
+    if index == 0 and w.fl_kernel[s, k] != NONE and last and not head_again(w, s, seq):
+        after = kernel_ns(w, w.r_kernel_fd[r])
+        if after != NONE and after >= w.fl_kernel[s, k]:
+            kernel_ms = (after - w.fl_kernel[s, k]) / 1e6
+        compute = kernel_ms if math.isnan(compute) else reconcile(compute, kernel_ms)
+    if not math.isnan(compute) and threads > 1:
+        speedups = w.r_speedup[r]
+        compute *= speedups[min(threads, speedups.size - 1)]
+    log(w, EV_COMPUTE, end_ms, r, compute, own, kernel_ms, float(max(threads, 1)), 0.0)
+    head_done = w.fl_index[s, k] == 0
+    flight_until = w.fl_until[s, k]
+    if w.fl_index[s, k] + 1 < w.length[s]:
+        w.fl_index[s, k] += 1
+        w.fl_last_end[s, k] = end_ms
+    else:
+        drop_flight(w, s, k)
+        took = end_ms - triggered
+        if took > w.latency[s]:
+            w.late[s] += 1
+        log(w, EV_RUN, end_ms, s, seq, took, 0.0, 0.0, 0.0)
+    if head_done and w.pending[s] != NONE:  # a trigger that came while the head ran starts now
+        add_flight(w, s, w.pending[s], end_ms, flight_until if w.shared[s] == 0 else math.nan)
+        w.pending[s] = NONE
+
+
+@compiled
+def read(w: Walk, s: int, now: float) -> None:
+    """:meth:`RunBook.read`: the new entries of subchain ``s``'s rings (:meth:`RingReader.new`), in node order."""
+    first, many = w.sub_readers[s, 0], w.sub_readers[s, 1]
+    for r in range(first, first + many):
+        words = w.r_words[r]
+        written = np.int64(words[2])
+        last = w.r_last[r]
+        if written == last:
+            continue
+        if written < last:  # a node that rewound its counter: start over from it
+            w.r_last[r] = written
+            continue
+        slots = w.r_slots[r]
+        begin = max(last, written - slots)
+        w.r_overrun[r] += begin - last
+        copied = w.entries
+        for k in range(begin, written):  # copied first: a writer may overtake the reader meanwhile
+            at = HEADER_WORDS + (k % slots) * ENTRY_WORDS
+            for j in range(ENTRY_WORDS):
+                copied[(k - begin) * ENTRY_WORDS + j] = words[at + j]
+        again = np.int64(words[2])
+        w.r_last[r] = written
+        for k in range(max(begin, again - slots), written):  # those it overwrote are dropped
+            take(w, s, r, (k - begin) * ENTRY_WORDS, now, k == written - 1)
+
+
+# --------------------------------------------------------------------------- levels (Levels)
+
+
+@compiled
+def set_level(w: Walk, h: int, level: int) -> bool:
+    """:meth:`Levels.set`; False (logged) if the kernel refused: the thread is gone, or Python says why."""
+    if w.flags[RT] == 0 or w.th_level[h] == level:
+        return True
+    w.flags[CALLS] += 1
+    w.scratch[2] = level
+    param = w.scratch.ctypes.data + 16
+    if _sched_setscheduler(w.th_tid[h], SCHED_FIFO, param) != 0:
+        w.th_level[h] = NONE
+        log(w, EV_GONE, h, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        return False
+    w.th_level[h] = level
+    return True
+
+
+@compiled
+def lower_on(w: Walk, c: int) -> None:
+    """:meth:`Levels.lower_on`: every thread raised on core ``c`` back to its resting level."""
+    for h in range(w.th_tid.size):
+        if w.th_raised[h] == c:
+            w.th_raised[h] = NONE
+            if w.th_resting[h] != NONE:
+                set_level(w, h, w.th_resting[h])
+    w.raised_count[c] = 0
+
+
+@compiled
+def raise_owner(w: Walk, c: int, owner: int, triggered: bool) -> None:
+    """:meth:`SharedCores.raise_owner`."""
+    if w.raised[c] != owner:
+        w.raised[c] = owner
+        w.raised_from[c] = NONE
+        if w.raised_count[c] > 0:
+            lower_on(w, c)
+    if owner == NONE:
+        return
+    first = 0 if triggered else first_index(w, owner)
+    if first == NONE or (w.raised_from[c] != NONE and w.raised_from[c] <= first):
+        return
+    if first < w.length[owner]:
+        w.raised_from[c] = first
+        begin, many = w.sub_threads[owner, first, 0], w.sub_threads[owner, first, 1]
+        for j in range(begin, begin + many):
+            h = w.raise_order[j]
+            if set_level(w, h, RUNNING_FIFO) and w.th_raised[h] != c:
+                if w.th_raised[h] != NONE:
+                    w.raised_count[w.th_raised[h]] -= 1
+                w.th_raised[h] = c
+                w.raised_count[c] += 1
+
+
+# --------------------------------------------------------------------------- the walk (SharedCores)
+
+
+@compiled
+def monotonic_ms(w: Walk) -> float:
+    _clock_gettime(CLOCK_MONOTONIC, w.scratch.ctypes.data)
+    return float((w.scratch[0] * 1_000_000_000 + w.scratch[1]) / 1e6)
+
+
+@compiled
+def boundary(w: Walk, c: int, now: float, sample: bool) -> None:
+    """:meth:`SharedCores._boundary`."""
+    v, position = w.version[c], w.position[c]
+    sub = w.rule_sub[v, c, position]
+    owner, trig, stolen = NONE, NONE, False
+    if sub != NONE:
+        raised = w.raised[c]
+        for t in range(w.rule_thieves.shape[3]):
+            thief = w.rule_thieves[v, c, position, t]
+            if thief == NONE:
+                break
+            if pending_entries(w, thief):
+                read(w, thief, now)
+        if pending_entries(w, sub):
+            read(w, sub, now)
+        if raised != NONE and pending_entries(w, raised):
+            read(w, raised, now)
+        owner = sub
+        for t in range(w.rule_thieves.shape[3]):  # best first: the first late one takes the slot
+            thief = w.rule_thieves[v, c, position, t]
+            if thief == NONE:
+                break
+            if is_late(w, thief, now):
+                owner = thief
+                break
+        every = w.rule_every[v, c, position]
+        if every > 0 and w.period_index[c] % every == 0:
+            trig = sub
+        stolen = owner != sub
+    if stolen:
+        w.steals[owner] += 1
+    calls = w.flags[CALLS]
+    raise_owner(w, c, owner, trig != NONE and trig == owner)
+    if trig != NONE:
+        until = math.nan
+        if owner == trig:
+            until = w.slot_start[v, c, position] + w.slot_length[v, c, position] + w.start[c]
+        trigger(w, trig, now, until)
+    if sample and (trig != NONE or w.flags[CALLS] != calls):
+        log(w, EV_SWITCH, c, monotonic_ms(w) - w.due[c], 0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+@compiled
+def pending_entries(w: Walk, s: int) -> bool:
+    """Whether some ring of ``s`` has entries not taken yet (one memory read a ring)."""
+    first, many = w.sub_readers[s, 0], w.sub_readers[s, 1]
+    for r in range(first, first + many):
+        if np.int64(w.r_words[r][2]) != w.r_last[r]:
+            return True
+    return False
+
+
+@compiled
+def next_wake(w: Walk, c: int) -> float:
+    """:meth:`SharedCores._wake`."""
+    v = w.version[c]
+    n = w.nslots[v, c]
+    for j in range(n):
+        if busy(w, w.rule_sub[v, c, j]):
+            return float(w.due[c])
+    if w.raised_count[c] > 0:
+        w.raised_from[c] = NONE
+        lower_on(w, c)
+    same = w.latest[c] == v
+    position, index, start = w.position[c], w.period_index[c], w.start[c]
+    for _ in range((w.core_every[v, c] + 1) * (n + 1)):
+        every = w.rule_every[v, c, position]
+        if every > 0 and index % every == 0:
+            return boundary_ms(w, v, c, start, position)
+        position += 1
+        if position > n:
+            if not same:
+                return float(start + w.period[v, c])
+            position, index, start = 0, index + 1, start + w.period[v, c]
+    return math.inf
+
+
+@compiled
+def run_due(w: Walk, now: float) -> int:
+    """:meth:`SharedCores.run_due`: every boundary due by ``now``, in order, on every core.
+
+    Returns :data:`DONE`, or before a boundary that could not be handled here: :data:`FULL` (its
+    subchain has :data:`FLIGHTS` runs in flight) or :data:`LOG_FULL` (the event log needs reading).
+    """
+    for c in range(w.due.size):
+        if w.due[c] > now:
+            continue
+        planned = w.wake[c]
+        while w.due[c] <= now:
+            if w.flags[LOGGED] + w.flags[ROOM] > w.events.shape[0]:
+                return LOG_FULL
+            sub = w.rule_sub[w.version[c], c, w.position[c]]
+            if sub != NONE and w.flying[sub] >= FLIGHTS - 1:
+                return FULL
+            boundary(w, c, now, w.due[c] >= planned)
+            advance(w, c, now)
+        w.wake[c] = next_wake(w, c)
+    return DONE
+
+
+@compiled
+def rewake(w: Walk) -> None:
+    """:meth:`SharedCores.rewake`."""
+    for c in range(w.due.size):
+        w.wake[c] = next_wake(w, c)
+
+
+def wake_ms(walk: Walk) -> float:
+    """When the walk next needs the loop (inf: never)."""
+    return float(walk.wake.min()) if walk.wake.size else math.inf
