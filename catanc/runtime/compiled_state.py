@@ -10,14 +10,14 @@ reads the runs back the way :class:`~catanc.runtime.runs.RunBook` keeps them, an
 
 from __future__ import annotations
 
+import heapq
 import math
 from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
-from numba import typed
 
-from catanc.control.policy import CoreCursor, slot_rules
+from catanc.control.policy import CoreCursor, SlotRule, slot_rules
 from catanc.control.schedule import CoreSchedule, RuntimeSchedule
 from catanc.runtime import compiled_walk as cw
 from catanc.runtime.endpoints import Endpoint
@@ -56,7 +56,11 @@ def install(
     *,
     kernel_fd: KernelFd = lambda _endpoint: None,
 ) -> tuple[cw.Walk, tuple[str, ...], tuple[int, ...]]:
-    """A walk of ``schedule``'s shared cores from ``now_ms``: the walk, its subchains' names and its cores."""
+    """A walk of ``schedule``'s shared cores from ``now_ms``: the walk, its subchains' names and its cores
+    (its wake-ups are worked out by :func:`~catanc.runtime.compiled_walk.rewake`, or copied in).
+
+    The walk reads each ring where its reader mapped it: lay the walk out again before a reader is closed.
+    """
     names = tuple(schedule.subchains)
     sub = {name: s for s, name in enumerate(names)}
     cores = tuple(core for core in schedule.shared if core.slots)
@@ -74,11 +78,7 @@ def install(
     for s in range(n_subs):
         mine = [r for r, reader in enumerate(readers) if reader[0] == s]
         sub_readers[s] = (mine[0], len(mine)) if mine else (0, 0)
-    words = typed.List()
-    for _, _, _, reader in readers:
-        words.append(np.frombuffer(reader.words, dtype=np.uint64))
-    if not readers:  # numba needs the list's type: an empty ring nobody reads
-        words.append(np.frombuffer(bytes(64), dtype=np.uint64))
+    addresses = [np.frombuffer(reader.words, dtype=np.uint64).ctypes.data for _, _, _, reader in readers]
     speedups = [book.speedups.get(endpoint.node, (1.0,)) for _, _, endpoint, _ in readers]
     widest = max([len(speedup) for speedup in speedups] + [1])
     r_speedup = np.ones((max(len(readers), 1), widest + 1))
@@ -118,6 +118,7 @@ def install(
         head_kernel_fd[s] = cw.NONE if fd is None else fd
 
     states = [book.state(name) for name in names]
+    runs = [schedule.subchains[name] for name in names]
     walk = cw.Walk(
         period=np.zeros((VERSIONS, n_cores)),
         switch=np.zeros((VERSIONS, n_cores)),
@@ -166,7 +167,7 @@ def install(
         ),
         r_expected=np.array([book.expected.get(e.node, math.nan) for _, _, e, _ in readers] or [math.nan]),
         r_speedup=r_speedup,
-        r_words=words,
+        r_address=np.array(addresses or [0], dtype=np.int64),
         entries=np.zeros(
             max([reader.slots for _, _, _, reader in readers] + [SLOTS]) * cw.ENTRY_WORDS, dtype=np.uint64
         ),
@@ -181,7 +182,15 @@ def install(
         head_datagram=datagram,
         head_prefix=prefix,
         head_threads=np.array([schedule.subchains[name].threads_of(0)[0] for name in names], dtype=np.int64),
-        flags=np.array([int(levels.rt), 0, 0, _room(len(readers))], dtype=np.int64),
+        clk_sub=np.zeros(max(n_subs, 1), dtype=np.int64),
+        clk_due=np.zeros(max(n_subs, 1)),
+        clk_period=np.zeros(max(n_subs, 1)),
+        clk_rank=np.zeros(max(n_subs, 1), dtype=np.int64),
+        sub_core=np.array(
+            [core_ids.index(run.cores[0]) if run.shared and run.cores[0] in core_ids else cw.NONE for run in runs],
+            dtype=np.int64,
+        ),
+        flags=np.array([int(levels.rt), 0, 0, _room(len(readers)), 0, 0, 0], dtype=np.int64),
         events=np.zeros((EVENTS, cw.EVENT_FIELDS)),
         scratch=np.zeros(8, dtype=np.int64),
         text=np.zeros(64, dtype=np.uint8),
@@ -198,12 +207,12 @@ def install(
     for c, core in enumerate(cores):
         cursor = CoreCursor(core, now_ms)
         walk.start[c], walk.period_index[c], walk.position[c], walk.due[c] = now_ms, 0, 0, cursor.due
-    cw.rewake(walk)
     return walk, names, core_ids
 
 
 def update(walk: cw.Walk, schedule: RuntimeSchedule, names: tuple[str, ...], core_ids: tuple[int, ...]) -> None:
-    """A new schedule on the same allocation: each core takes it at its next period (:meth:`SharedCores.update`).
+    """A new schedule on the same allocation: each core takes it at its next period (:meth:`SharedCores.update`;
+    then :func:`~catanc.runtime.compiled_walk.rewake`).
 
     Raises ``ValueError`` if it is not the same allocation (another set of subchains or cores:
     a new walk is installed then) or if every version is still in use.
@@ -219,35 +228,40 @@ def update(walk: cw.Walk, schedule: RuntimeSchedule, names: tuple[str, ...], cor
         raise ValueError("every schedule version is in use")
     cores = tuple(by_core[core_id] for core_id in core_ids)
     _lay_out(walk, free[0], schedule, cores, {name: s for s, name in enumerate(names)})
-    cw.rewake(walk)
 
 
 def _lay_out(
     walk: cw.Walk, v: int, schedule: RuntimeSchedule, cores: tuple[CoreSchedule, ...], sub: dict[str, int]
 ) -> None:
-    width = walk.slot_start.shape[2]
     for c, core in enumerate(cores):
-        if len(core.slots) > width:
-            raise ValueError(f"core {core.core} has {len(core.slots)} slots, the walk room for {width}")
-        walk.period[v, c], walk.switch[v, c], walk.nslots[v, c] = core.period_ms, core.switch_ms, len(core.slots)
-        walk.rule_sub[v, c] = cw.NONE
-        walk.rule_every[v, c] = 0
-        walk.rule_thieves[v, c] = cw.NONE
-        for j, slot in enumerate(core.slots):
-            walk.slot_start[v, c, j], walk.slot_length[v, c, j] = slot.start_ms, slot.length_ms
-        rules = slot_rules(core, schedule.subchains)
-        for j, rule in enumerate(rules):
-            if rule.subchain is None:
-                continue
-            walk.rule_sub[v, c, j] = sub[rule.subchain]
-            walk.rule_every[v, c, j] = rule.every or 0
-            for t, thief in enumerate(rule.thieves):
-                walk.rule_thieves[v, c, j, t] = sub[thief]
-        walk.core_every[v, c] = max((rule.every or 1 for rule in rules), default=1)
+        lay_out_core(walk, v, c, core, rules=slot_rules(core, schedule.subchains), sub=sub)
         walk.latest[c] = v
     for name, s in sub.items():
         walk.latency[s] = schedule.subchains[name].latency_ms
         walk.head_threads[s] = schedule.subchains[name].threads_of(0)[0]
+
+
+def lay_out_core(
+    walk: cw.Walk, v: int, c: int, core: CoreSchedule, *, rules: tuple[SlotRule, ...], sub: dict[str, int]
+) -> None:
+    """Core ``c``'s schedule ``core`` with its slot ``rules`` as version ``v``."""
+    width = walk.slot_start.shape[2]
+    if len(core.slots) > width:
+        raise ValueError(f"core {core.core} has {len(core.slots)} slots, the walk room for {width}")
+    walk.period[v, c], walk.switch[v, c], walk.nslots[v, c] = core.period_ms, core.switch_ms, len(core.slots)
+    walk.rule_sub[v, c] = cw.NONE
+    walk.rule_every[v, c] = 0
+    walk.rule_thieves[v, c] = cw.NONE
+    for j, slot in enumerate(core.slots):
+        walk.slot_start[v, c, j], walk.slot_length[v, c, j] = slot.start_ms, slot.length_ms
+    for j, rule in enumerate(rules):
+        if rule.subchain is None:
+            continue
+        walk.rule_sub[v, c, j] = sub[rule.subchain]
+        walk.rule_every[v, c, j] = rule.every or 0
+        for t, thief in enumerate(rule.thieves):
+            walk.rule_thieves[v, c, j, t] = sub[thief]
+    walk.core_every[v, c] = max((rule.every or 1 for rule in rules), default=1)
 
 
 def _fd(fd: int | None) -> int:
@@ -261,6 +275,36 @@ def _level(level: int | None) -> int:
 def _room(readers: int) -> int:
     """Log records one boundary may write at most: each ring's entries (a compute, a hop, a run) and a few more."""
     return 3 * SLOTS * max(readers, 1) + 8
+
+
+def set_clocks(
+    walk: cw.Walk, clocks: list[tuple[float, str]], schedule: RuntimeSchedule, names: tuple[str, ...]
+) -> None:
+    """The enforcer's clocks (a heap of (due, subchain)) into the walk: those of subchains still on a clock."""
+    sub = {name: s for s, name in enumerate(names)}
+    rank = {name: r for r, name in enumerate(sorted(names))}
+    k = 0
+    for due, name in clocks:
+        run = schedule.subchains.get(name)
+        if run is None or not run.on_clock or name not in sub:
+            continue  # dropped, as the enforcer drops it when it comes due
+        if k == walk.clk_sub.size:
+            raise ValueError("more clocks than subchains")
+        walk.clk_sub[k], walk.clk_due[k], walk.clk_period[k], walk.clk_rank[k] = (
+            sub[name],
+            due,
+            run.period_ms,
+            rank[name],
+        )
+        k += 1
+    walk.flags[cw.CLOCKS] = k
+
+
+def get_clocks(walk: cw.Walk, names: tuple[str, ...]) -> list[tuple[float, str]]:
+    """The walk's clocks as the enforcer's heap."""
+    clocks = [(float(walk.clk_due[k]), names[int(walk.clk_sub[k])]) for k in range(int(walk.flags[cw.CLOCKS]))]
+    heapq.heapify(clocks)
+    return clocks
 
 
 def runs_in_flight(walk: cw.Walk, s: int) -> dict[int, Flight]:

@@ -33,6 +33,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 from numba import types
+from numba.extending import intrinsic
 
 from catanc.numba_cache import drop_stale_cache
 
@@ -81,7 +82,7 @@ EV_COMPUTE = 1.0  # at_ms, reader, ms (nan: unknown), reported_ms (nan), kernel_
 EV_RUN = 2.0  # at_ms, subchain, seq, latency_ms
 EV_HOP = 3.0  # subchain, reader, delay_ms
 EV_SWITCH = 4.0  # core, latency_ms
-EV_GONE = 5.0  # thread (a level could not be set: gone, or refused; Python sets it again to say why)
+EV_GONE = 5.0  # thread, level (it could not be set: gone, or refused; Python sets it again to say why)
 EV_UNTAKEN = 6.0  # subchain: its head did not take its trigger (send failed)
 EV_TRIGGER = 7.0  # subchain, seq, at_ms, deferred
 EVENT_FIELDS = 8
@@ -148,7 +149,9 @@ class Walk(NamedTuple):
     r_kernel_mark: IntArray  # [R]: its thread's CPU at the last suspicious report (NONE: none)
     r_expected: FloatArray  # [R]: its node's planning estimate (nan: none)
     r_speedup: FloatArray  # [R, Q + 1]: its speedup when a run says it used q threads (q >= Q: Q's)
-    r_words: Any  # numba.typed.List of the rings as uint64 words (read-only)
+    r_address: (
+        IntArray  # [R]: where its ring is mapped (the reader keeps the mapping; the walk is laid out again first)
+    )
     entries: npt.NDArray[np.uint64]  # [max slots * ENTRY_WORDS]: a ring's new entries, copied
     # threads
     th_tid: IntArray  # [H]
@@ -163,14 +166,37 @@ class Walk(NamedTuple):
     head_datagram: npt.NDArray[np.uint8]  # [S, DATAGRAM]: "catanc/2 trigger NODE " then the seq and threads
     head_prefix: IntArray  # [S]: the prefix's length
     head_threads: IntArray  # [S]
+    # clocks: subchains triggered every period on their own (dedicated, batch), not at a slot
+    clk_sub: IntArray  # [S]: the clock's subchain ([:flags[CLOCKS]] are in use)
+    clk_due: FloatArray  # [S]
+    clk_period: FloatArray  # [S]
+    clk_rank: IntArray  # [S]: its subchain's name's rank (equal times fire in name order, as a heap of (due, name))
+    sub_core: IntArray  # [S]: the walked core a shared subchain runs on (NONE: none)
     # the machine and the log
-    flags: IntArray  # [4]: rt (set levels), calls (levels set), events logged, log room needed per boundary
+    flags: IntArray  # [7]: rt, levels set, records logged, room a boundary needs, wake-ups, needs Python, clocks
     events: FloatArray  # [L, EVENT_FIELDS]
-    scratch: IntArray  # [8]: a timespec, a sched_param, a schedstat buffer's bytes
+    scratch: IntArray  # [8]: a timespec [0:2], a sched_param [2], ppoll's timeout [4:6]
     text: npt.NDArray[np.uint8]  # [64]: a schedstat line
 
 
-RT, CALLS, LOGGED, ROOM = 0, 1, 2, 3
+RT, CALLS, LOGGED, ROOM, WAKES, NEEDS_PYTHON, CLOCKS = 0, 1, 2, 3, 4, 5, 6  # NEEDS_PYTHON: a record only Python acts on
+
+
+@intrinsic  # type: ignore[untyped-decorator]
+def _u64_pointer(_typingctx: Any, _address: Any) -> Any:
+    """An integer address as a ``uint64*`` (not a typed list of the rings: numba compiles those in every process)."""
+    signature = types.CPointer(types.uint64)(types.intp)
+
+    def codegen(context: Any, builder: Any, _signature: Any, args: Any) -> Any:
+        return builder.inttoptr(args[0], context.get_value_type(types.CPointer(types.uint64)))
+
+    return signature, codegen
+
+
+@compiled
+def ring_words(w: Walk, r: int) -> Any:
+    """Reader ``r``'s ring as uint64 words (its header, then its entries)."""
+    return numba.carray(_u64_pointer(w.r_address[r]), HEADER_WORDS + w.r_slots[r] * ENTRY_WORDS)
 
 
 @compiled
@@ -322,6 +348,7 @@ def trigger(w: Walk, s: int, now: float, until: float) -> None:
     log(w, EV_TRIGGER, s, seq, now, 1.0 if deferred else 0.0, 0.0, 0.0, 0.0)
     if fd < 0 or not send_trigger(w, s, seq):  # a head without a socket takes no triggers either
         log(w, EV_UNTAKEN, s, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        w.flags[NEEDS_PYTHON] = 1
 
 
 @compiled
@@ -444,7 +471,7 @@ def read(w: Walk, s: int, now: float) -> None:
     """:meth:`RunBook.read`: the new entries of subchain ``s``'s rings (:meth:`RingReader.new`), in node order."""
     first, many = w.sub_readers[s, 0], w.sub_readers[s, 1]
     for r in range(first, first + many):
-        words = w.r_words[r]
+        words = ring_words(w, r)
         written = np.int64(words[2])
         last = w.r_last[r]
         if written == last:
@@ -479,7 +506,8 @@ def set_level(w: Walk, h: int, level: int) -> bool:
     param = w.scratch.ctypes.data + 16
     if _sched_setscheduler(w.th_tid[h], SCHED_FIFO, param) != 0:
         w.th_level[h] = NONE
-        log(w, EV_GONE, h, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        log(w, EV_GONE, h, level, 0.0, 0.0, 0.0, 0.0, 0.0)
+        w.flags[NEEDS_PYTHON] = 1
         return False
     w.th_level[h] = level
     return True
@@ -578,7 +606,7 @@ def pending_entries(w: Walk, s: int) -> bool:
     """Whether some ring of ``s`` has entries not taken yet (one memory read a ring)."""
     first, many = w.sub_readers[s, 0], w.sub_readers[s, 1]
     for r in range(first, first + many):
-        if np.int64(w.r_words[r][2]) != w.r_last[r]:
+        if np.int64(ring_words(w, r)[2]) != w.r_last[r]:
             return True
     return False
 
@@ -632,6 +660,50 @@ def run_due(w: Walk, now: float) -> int:
 
 
 @compiled
+def next_clock(w: Walk) -> int:
+    """The clock that fires first (by time, then name; NONE: no clock)."""
+    best = NONE
+    for k in range(w.flags[CLOCKS]):
+        if (
+            best == NONE
+            or w.clk_due[k] < w.clk_due[best]
+            or (w.clk_due[k] == w.clk_due[best] and w.clk_rank[k] < w.clk_rank[best])
+        ):
+            best = k
+    return best
+
+
+@compiled
+def fire_clocks(w: Walk, now: float) -> int:
+    """``Enforcer._on_time``'s clocks: every clock due by ``now`` triggers its subchain's head (a dedicated one
+    runs raised for good), then fires next a period later (or now, if it fell behind).  Returns
+    :data:`DONE`, or :data:`FULL`/:data:`LOG_FULL` before a clock that could not be handled here."""
+    shared = False
+    while True:
+        k = next_clock(w)
+        if k == NONE or w.clk_due[k] > now:
+            break
+        s = w.clk_sub[k]
+        if w.flying[s] >= FLIGHTS - 1:
+            return FULL
+        if w.flags[LOGGED] + w.flags[ROOM] > w.events.shape[0]:
+            return LOG_FULL
+        if w.head_fd[s] == NONE:
+            w.skipped[s] += 1
+        else:  # Enforcer._trigger_head off a slot: is the head still busy? keep its threads raised if it owns the core
+            read(w, s, now)
+            c = w.sub_core[s]
+            if w.shared[s] == 1 and c != NONE and w.raised[c] == s:
+                raise_owner(w, c, s, True)
+            trigger(w, s, now, math.nan if w.shared[s] == 1 else math.inf)
+        w.clk_due[k] = max(w.clk_due[k] + w.clk_period[k], now)
+        shared = shared or w.shared[s] == 1
+    if shared:  # a core with a run in flight needs its boundaries again
+        rewake(w)
+    return DONE
+
+
+@compiled
 def rewake(w: Walk) -> None:
     """:meth:`SharedCores.rewake`."""
     for c in range(w.due.size):
@@ -641,3 +713,56 @@ def rewake(w: Walk) -> None:
 def wake_ms(walk: Walk) -> float:
     """When the walk next needs the loop (inf: never)."""
     return float(walk.wake.min()) if walk.wake.size else math.inf
+
+
+# --------------------------------------------------------------------------- the loop between Python's visits
+
+_ppoll = types.ExternalFunction("ppoll", types.intc(types.intp, types.uintp, types.intp, types.intp))
+
+TIME, READY = 10, 11  # what wait returns besides run_due's: Python's own time came, a descriptor is readable
+
+
+@compiled
+def wait(w: Walk, polled: Any, until: float) -> int:
+    """Walk the shared cores until ``until`` (ms, CLOCK_MONOTONIC), sleeping in ``ppoll`` on ``polled``.
+
+    ``polled`` is an array of ``struct pollfd`` as int32 pairs (the descriptor; events in the low
+    half of the second word, revents in the high half).  Returns :data:`TIME`, :data:`READY` (some
+    revents set), or a status of :func:`run_due`; also as soon as a record only Python can act on
+    (a thread gone, a trigger not taken) was logged.
+    """
+    count = polled.size // 2
+    while True:
+        now = monotonic_ms(w)
+        if now >= until:
+            return TIME
+        deadline = min(until, wake_of(w))
+        k = next_clock(w)
+        if k != NONE:
+            deadline = min(deadline, w.clk_due[k])
+        rest = max(deadline - now, 0.0)
+        nanos = int(rest * 1e6)
+        w.scratch[4], w.scratch[5] = nanos // 1_000_000_000, nanos % 1_000_000_000
+        for k in range(count):
+            polled[2 * k + 1] &= 0xFFFF
+        _ppoll(polled.ctypes.data, count, w.scratch.ctypes.data + 32, 0)
+        w.flags[WAKES] += 1
+        now = monotonic_ms(w)
+        status = run_due(w, now)
+        if status == DONE:
+            status = fire_clocks(w, now)
+        if status != DONE:
+            return status
+        for k in range(count):
+            if polled[2 * k + 1] >> 16 != 0:
+                return READY
+        if w.flags[NEEDS_PYTHON] != 0:
+            return DONE
+
+
+@compiled
+def wake_of(w: Walk) -> float:
+    soonest = math.inf
+    for c in range(w.wake.size):
+        soonest = min(soonest, w.wake[c])
+    return soonest

@@ -36,8 +36,9 @@ from catanc.runtime.runs import RunBook, Seen
 MS = 1_000_000  # ns
 
 
-def random_schedule(rng: random.Random, *, scale: float = 1.0) -> RuntimeSchedule:
-    """1-2 shared cores of 1-3 subchains of 1-3 nodes, slots one after the other within the period."""
+def random_schedule(rng: random.Random, *, scale: float = 1.0, dedicated: bool = False) -> RuntimeSchedule:
+    """1-2 shared cores of 1-3 subchains of 1-3 nodes, slots one after the other within the period; with
+    ``dedicated``, 0-2 subchains on cores of their own."""
     runs: dict[str, SubchainRun] = {}
     cores = []
     for core in range(rng.choice((1, 1, 2))):
@@ -67,7 +68,13 @@ def random_schedule(rng: random.Random, *, scale: float = 1.0) -> RuntimeSchedul
                 threads,
             )
         cores.append(CoreSchedule(core, period, switch, tuple(slots), stealing=rng.random() < 0.8))
-    return RuntimeSchedule(len(cores), runs, tuple(cores))
+    for k in range(rng.choice((0, 0, 1, 2)) if dedicated else 0):  # on cores of their own, on their own clocks
+        name = f"d{k}"
+        nodes = tuple(f"{name}n{i}" for i in range(rng.randint(1, 2)))
+        period = rng.uniform(3.0, 30.0) * scale
+        core = len(cores) + k
+        runs[name] = SubchainRun(name, nodes, (core,), False, period, rng.uniform(0.5, 2.0) * period, None, 0)
+    return RuntimeSchedule(len(cores) + sum(not run.shared for run in runs.values()), runs, tuple(cores))
 
 
 def rescheduled(schedule: RuntimeSchedule, rng: random.Random) -> RuntimeSchedule:
@@ -170,6 +177,7 @@ def made(rng: random.Random) -> Both:
     python = SharedCores(book, levels, Costs(), trigger=trigger, seen=seen, gone=lambda _tids: None)
     python.rewire(wiring)
     walk, names, core_ids = compiled_state.install(schedule, wiring, book, levels, 0.0)
+    cw.rewake(walk)
     python.install(schedule, 0.0)
     for s, name in enumerate(names):
         if walk.head_fd[s] >= 0:
@@ -187,10 +195,12 @@ def close(both: Both) -> None:
         thing.close()  # type: ignore[attr-defined]
 
 
-def report_runs(both: Both, rng: random.Random, now: float) -> None:
+def report_runs(
+    schedule: RuntimeSchedule, book: RunBook, writers: dict[str, ring.RingWriter], rng: random.Random, now: float
+) -> None:
     """Some node threads report a run in their rings: most a run waiting at them, some forged or unmeasured."""
-    for name, run in both.schedule.subchains.items():
-        state = both.book.state(name)
+    for name, run in schedule.subchains.items():
+        state = book.state(name)
         for index, node in enumerate(run.nodes):
             if rng.random() < 0.4:
                 continue
@@ -207,7 +217,7 @@ def report_runs(both: Both, rng: random.Random, now: float) -> None:
                 start = before + rng.uniform(-0.5, 2.0)
                 end = start + rng.uniform(0.0, 3.0)
                 compute = ring.UNKNOWN if rng.random() < 0.1 else int(rng.uniform(0.0, 4.0) * MS)
-                both.writers[node].append(
+                writers[node].append(
                     seq, max(int(start * MS), 0), max(int(end * MS), 0), compute, rng.choice((1, 1, 2, 3))
                 )
 
@@ -295,7 +305,7 @@ def test_the_compiled_walk_does_what_the_python_one_does(seed: int) -> None:
                 now = max(now, both.python.wake_ms if math.isfinite(both.python.wake_ms) else now)
             else:
                 now += rng.uniform(0.0, 80.0)  # asleep through periods
-            report_runs(both, rng, now)
+            report_runs(both.schedule, both.book, both.writers, rng, now)
             assert cw.run_due(both.walk, now) == cw.DONE
             both.python.run_due(now)
             compare(both, f"step {step} at {now:.3f} ms")
@@ -312,6 +322,7 @@ def test_the_compiled_walk_does_what_the_python_one_does(seed: int) -> None:
                 schedule = rescheduled(both.schedule, rng)
                 both.schedule = schedule
                 compiled_state.update(both.walk, schedule, both.names, both.core_ids)
+                cw.rewake(both.walk)
                 both.python.update(schedule)
                 compare(both, f"update after step {step}")
     finally:
