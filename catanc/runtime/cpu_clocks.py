@@ -63,6 +63,7 @@ class OpenCpuClocks:
     def __init__(self, proc: Path = Path("/proc")) -> None:
         self.proc = proc
         self._fds: dict[int, int] = {}
+        self.generation = 0  # counts descriptors opened and closed: a copy of them (the compiled walk's) is stale
 
     def read_ns(self, pid: int, tid: int) -> int:
         """Like ``CpuClock(pid, tid).read_ns()``: ``OSError`` once the thread has exited, or ``ValueError``."""
@@ -70,6 +71,7 @@ class OpenCpuClocks:
         if fd is None:
             fd = os.open(schedstat_path(pid, tid, self.proc), os.O_RDONLY | os.O_CLOEXEC)
             self._fds[tid] = fd
+            self.generation += 1
         try:
             return parse_schedstat(os.pread(fd, 128, 0).decode("ascii"))
         except (OSError, ValueError):
@@ -83,7 +85,12 @@ class OpenCpuClocks:
             self._fds[tid] = os.open(schedstat_path(pid, tid, self.proc), os.O_RDONLY | os.O_CLOEXEC)
         except OSError:
             return False
+        self.generation += 1
         return True
+
+    def opened_fd(self, tid: int) -> int | None:
+        """The descriptor :meth:`open` opened for ``tid`` (valid until :attr:`generation` moves)."""
+        return self._fds.get(tid)
 
     def read_opened_ns(self, tid: int) -> int | None:
         """Like :meth:`read_ns` for a thread given to :meth:`open`, None for any other: no path is looked up.
@@ -105,6 +112,7 @@ class OpenCpuClocks:
         fd = self._fds.pop(tid, None)
         if fd is not None:
             os.close(fd)
+            self.generation += 1
 
     def close(self) -> None:
         for tid in list(self._fds):
