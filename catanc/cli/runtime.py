@@ -38,6 +38,12 @@ def run_(
     ] = "bootstrap",
     cores: Annotated[int | None, typer.Option(min=1, help="Plan for this many cores instead of the table's.")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", help="No live status; a summary at the end.")] = False,
+    compiled_loop: Annotated[
+        bool,
+        typer.Option(
+            "--compiled-loop", help="Walk the shared cores in compiled code (numba, the sim extra): less CPU."
+        ),
+    ] = False,
     observe: Annotated[
         bool,
         typer.Option(
@@ -80,6 +86,7 @@ def run_(
         log_path=log_path,
         cores=cores,
         restorer=restorer,
+        compiled=compiled_loop,
     )
 
     def begin(running: Enforcer) -> None:

@@ -38,12 +38,13 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from catanc.artifacts.runtime_table import RuntimeTable
 from catanc.control.policy import next_clock_ms
 from catanc.control.schedule import RuntimeSchedule, SubchainRun
 from catanc.errors import CatancError, ExitCode, PrivilegeError, SchedError
+from catanc.extras import require
 from catanc.runtime import protocol
 from catanc.runtime.cores import SharedCores
 from catanc.runtime.costs import Costs
@@ -60,6 +61,9 @@ from catanc.runtime.ring import RingReader
 from catanc.runtime.runs import Reader, RunBook
 from catanc.runtime.sched import Restorer, allowed_cpus, at_sched_other, name_thread
 from catanc.runtime.status import status_rows
+
+if TYPE_CHECKING:
+    from catanc.runtime.compiled_loop import CompiledLoop
 
 Start = Literal["bootstrap", "spec"]
 
@@ -96,6 +100,7 @@ class Enforcer:
         cores: int | None = None,
         restorer: Restorer | None = None,
         clock: Callable[[], float] = now_ms,
+        compiled: bool = False,
     ) -> None:
         self.table = table
         self.spec = table.spec
@@ -158,6 +163,7 @@ class Enforcer:
             seen=self.reader.seen,
             gone=self.nodes.gone_tids,
         )
+        self.compiled = self._compiled_loop() if compiled else None
         self.wiring: Wiring | None = None
         self.clocks: list[tuple[float, str]] = []
         self.stopping = False
@@ -314,19 +320,25 @@ class Enforcer:
         wait = select.select
         clock = self.clock
         costs = self.costs
+        compiled = self.compiled
         while not self.stopping:
             now = clock()
-            until = min(self.next_housekeeping_ms, self.cores.wake_ms)
-            if self.clocks and self.clocks[0][0] < until:
-                until = self.clocks[0][0]
+            until = self.next_housekeeping_ms  # Python's own next time; the cores' and clocks' are added below
             deadline = self.deadline_ms
             if deadline is not None:
                 if now >= deadline:
                     return
                 until = min(until, deadline)
-            timeout = until - now
-            ready = wait(fds, (), (), timeout / 1000.0 if timeout > 0 else 0)[0]
-            costs.wakes += 1
+            if compiled is not None and compiled.load(now, self.clocks):
+                ready = compiled.wait(fds, until)
+                compiled.store(self.clocks)
+            else:
+                until = min(until, self.cores.wake_ms)
+                if self.clocks and self.clocks[0][0] < until:
+                    until = self.clocks[0][0]
+                timeout = until - now
+                ready = wait(fds, (), (), timeout / 1000.0 if timeout > 0 else 0)[0]
+                costs.wakes += 1
             now = clock()
             self._on_time(now)
             if ready:
@@ -350,10 +362,7 @@ class Enforcer:
                 self._housekeep(now, on_tick)
 
     def _on_time(self, now: float) -> None:
-        wiring = self.wiring
-        if wiring is None or wiring.version != self.nodes.version or wiring.schedule is not self.schedule:
-            self.wiring = self.nodes.wiring(self.schedule)
-            self.cores.rewire(self.wiring)
+        self._fresh_wiring()
         cores = self.cores
         cores.run_due(now)
         clocks = self.clocks
@@ -393,11 +402,37 @@ class Enforcer:
         self.reader.read(run, now)
 
     def _readers(self, name: str) -> tuple[tuple[int, Endpoint, RingReader], ...]:
+        return self._fresh_wiring().readers.get(name, ())
+
+    def _fresh_wiring(self) -> Wiring:
+        """The node threads as the hot path needs them, made again when a thread came or went or the plan changed."""
         wiring = self.wiring
         if wiring is None or wiring.version != self.nodes.version or wiring.schedule is not self.schedule:
             self.wiring = wiring = self.nodes.wiring(self.schedule)
             self.cores.rewire(wiring)
-        return wiring.readers.get(name, ())
+        return wiring
+
+    def _compiled_loop(self) -> CompiledLoop:
+        """The shared cores walked compiled between the loop's visits to Python (needs numba: the sim extra)."""
+        # numpy's BLAS would start a thread per CPU at import: the enforcer multiplies no matrices.
+        os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+        require("numba", "catanc run --compiled-loop")
+        from catanc.runtime.compiled_loop import CompiledLoop  # noqa: PLC0415 - numba's import only when asked for
+
+        def untaken(name: str) -> None:
+            head = self.wiring.heads.get(name) if self.wiring is not None else None
+            if head is not None:
+                self.nodes.gone(head, "takes no triggers (a send failed)")
+
+        return CompiledLoop(
+            self.cores,
+            self.costs,
+            self.reader.seen,
+            kernel_fd=lambda endpoint: self.cpu_clocks.opened_fd(endpoint.tid),
+            gone=self.nodes.gone_tids,
+            untaken=untaken,
+            fds_generation=lambda: self.cpu_clocks.generation,
+        )
 
     def _read_name(self, name: str, now: float) -> None:
         run = self.schedule.subchains.get(name)

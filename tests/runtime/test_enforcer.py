@@ -326,12 +326,16 @@ class MixedRun:
     after: dict[str, Sched | None]  # each node's thread once the enforcer has exited
 
 
-@pytest.fixture(scope="module")
-def mixed(tmp_path_factory: pytest.TempPathFactory) -> Iterator[MixedRun]:
+@pytest.fixture(scope="module", params=["python", "compiled"])
+def mixed(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Iterator[MixedRun]:
+    """The run, with the enforcer's Python loop and with its compiled one (``--compiled-loop``)."""
+    loop = ["--compiled-loop"] if request.param == "compiled" else []
+    if loop:
+        pytest.importorskip("numba", reason="--compiled-loop needs numba (the sim extra)")
     folder = tmp_path_factory.mktemp("mixed")
     table = compile_table(MIXED_SPEC, folder, 2)
     with harness_in(folder) as run:
-        run.start(table, "--start", "spec", duration=MIXED_DURATION_S)
+        run.start(table, "--start", "spec", *loop, duration=MIXED_DURATION_S)
         for node, compute in MIXED_COMPUTE.items():
             run.lingering(node, compute)
         threads = run.registered(list(MIXED_COMPUTE))

@@ -1,0 +1,322 @@
+"""``catanc run``'s shared cores walked by compiled code between the loop's visits to Python (issue 31).
+
+The Python objects stay the enforcer's state: :class:`~catanc.runtime.cores.SharedCores` (the
+cursors, who is raised), :class:`~catanc.runtime.runs.RunBook` (runs in flight),
+:class:`~catanc.runtime.levels.Levels`, the rings' readers and the cost figures.  Before the loop
+sleeps, :meth:`CompiledLoop.load` copies what may have changed into the walk's arrays
+(:mod:`catanc.runtime.compiled_walk`), laid out again only when the schedule or the node threads
+changed; :meth:`CompiledLoop.wait` sleeps and walks compiled until Python's next own time
+(housekeeping, a clock, the end), a readable descriptor, or something only Python can act on;
+:meth:`CompiledLoop.store` copies the walk back and replays its log (samples, threads gone,
+triggers not taken).  So everything else the enforcer does is unchanged, and a wake-up where
+only the cores change costs no interpreter.
+"""
+
+from __future__ import annotations
+
+import math
+import select
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from catanc.runtime import compiled_state
+from catanc.runtime import compiled_walk as cw
+from catanc.runtime.cores import SharedCores
+from catanc.runtime.costs import SAMPLES, Costs
+from catanc.runtime.endpoints import Endpoint
+from catanc.runtime.nodes import Wiring
+from catanc.runtime.ring import RingReader
+from catanc.runtime.runs import ComputeSample, HopSample, RunFlight, RunSample, Seen
+
+Untaken = Callable[[str], None]
+"""A subchain whose head did not take its trigger (the send failed)."""
+
+
+@dataclass
+class _Layout:
+    walk: cw.Walk
+    names: tuple[str, ...]
+    core_ids: tuple[int, ...]
+    wiring: Wiring
+    generation: int  # of the kernel descriptors laid out
+    versions: list[dict[int, object]]  # per version, per core: the CoreSchedule laid out there
+    reader_nodes: list[str]
+
+
+class CompiledLoop:
+    """The walk's arrays kept in step with the enforcer's Python state."""
+
+    def __init__(
+        self,
+        cores: SharedCores,
+        costs: Costs,
+        seen: Seen,
+        *,
+        kernel_fd: compiled_state.KernelFd,
+        gone: Callable[[list[int]], None],
+        untaken: Untaken,
+        fds_generation: Callable[[], int] = lambda: 0,
+    ) -> None:
+        self.cores, self.book, self.levels, self.costs, self.seen = cores, cores.book, cores.levels, costs, seen
+        self.kernel_fd, self.gone, self.untaken = kernel_fd, gone, untaken
+        self.fds_generation = fds_generation  # kernel_fd's descriptors changed: the walk's copies are stale
+        self.layout: _Layout | None = None
+        self.polled = np.zeros(0, dtype=np.int32)
+        self._fds: tuple[int, ...] = ()
+
+    # ------------------------------------------------------------------ Python -> the walk
+
+    def load(self, now_ms: float, clocks: list[tuple[float, str]]) -> bool:
+        """Copy the Python state and the enforcer's ``clocks`` into the walk; False if the walk cannot take them
+        (nothing to walk, or more than it holds): the loop stays in Python."""
+        cores, wiring = self.cores, self.cores.wiring
+        if wiring is None or cores.schedule is None:
+            return False
+        layout = self.layout
+        generation = self.fds_generation()
+        if (
+            layout is None
+            or layout.wiring is not wiring
+            or layout.generation != generation
+            or not self._same_schedules(layout)
+        ):
+            try:
+                layout = self.layout = self._lay_out(now_ms, wiring, generation)
+            except ValueError:  # a layout the walk has no room for: these wake-ups stay in Python
+                self.layout = None
+                return False
+        walk, names = layout.walk, layout.names
+        book, levels = self.book, self.levels
+        for s, name in enumerate(names):
+            state = book.state(name)
+            walk.seq[s], walk.late[s], walk.skipped[s] = state.seq, state.late, state.skipped
+            walk.unmatched[s], walk.steals[s] = state.unmatched, state.steals
+            walk.pending[s] = cw.NONE if state.pending is None else state.pending
+            flights = state.in_flight
+            if len(flights) >= cw.FLIGHTS:
+                return False  # more than the walk holds: this wake-up stays in Python
+            k = 0
+            for seq, flight in flights.items():
+                walk.fl_seq[s, k], walk.fl_index[s, k], walk.fl_triggered[s, k] = seq, flight.index, flight.triggered_ms
+                walk.fl_last_end[s, k] = math.nan if flight.last_end_ms is None else flight.last_end_ms
+                walk.fl_until[s, k] = math.nan if flight.until_ms is None else flight.until_ms
+                walk.fl_kernel[s, k] = cw.NONE if flight.kernel_ns is None else flight.kernel_ns
+                k += 1
+            walk.flying[s] = k
+        for r, (_, endpoint, reader) in enumerate(self._readers(layout)):
+            walk.r_last[r], walk.r_overrun[r] = reader.last, reader.overrun
+            walk.r_kernel_mark[r] = cw.NONE if endpoint.kernel_mark_ns is None else endpoint.kernel_mark_ns
+            walk.r_expected[r] = book.expected.get(endpoint.node, math.nan)
+        index = {name: s for s, name in enumerate(names)}
+        where = dict(enumerate(layout.core_ids))
+        raised_on = {tid: c for c, core in where.items() for tid in levels.raised.get(core, ())}
+        for h, tid in enumerate(walk.th_tid.tolist()):
+            level = levels.level(tid)
+            walk.th_level[h] = cw.NONE if level is None else level
+            resting = levels.resting.get(tid)
+            walk.th_resting[h] = cw.NONE if resting is None else resting
+            walk.th_raised[h] = raised_on.get(tid, cw.NONE)
+        for c, core_id in where.items():
+            python = cores.cores[core_id]
+            cursor = python.cursor
+            walk.version[c] = self._version_of(layout, c, cursor.schedule)
+            walk.start[c], walk.period_index[c], walk.position[c], walk.due[c] = (
+                cursor.start_ms,
+                cursor.index,
+                cursor.position,
+                cursor.due,
+            )
+            walk.wake[c] = python.wake_ms
+            owner = cores.raised.get(core_id)
+            walk.raised[c] = cw.NONE if owner is None else index[owner]
+            walk.raised_from[c] = cores._raised_from.get(core_id, cw.NONE)
+            walk.raised_count[c] = len(levels.raised.get(core_id, ()))
+        walk.flags[cw.CALLS] = levels.calls
+        walk.flags[cw.NEEDS_PYTHON] = 0
+        try:
+            compiled_state.set_clocks(walk, clocks, cores.schedule, names)
+        except ValueError:
+            return False
+        return True
+
+    def _same_schedules(self, layout: _Layout) -> bool:
+        """Whether every core's current and latest schedule is laid out in the walk."""
+        cores = self.cores
+        if tuple(cores.cores) != layout.core_ids:
+            return False
+        for core_id in layout.core_ids:
+            latest = cores.latest(core_id)
+            laid = [version.get(core_id) for version in layout.versions]
+            if cores.cores[core_id].cursor.schedule not in laid or (latest is not None and latest not in laid):
+                return False
+        return True
+
+    def _version_of(self, layout: _Layout, c: int, schedule: object) -> int:
+        core_id = layout.core_ids[c]
+        for v, version in enumerate(layout.versions):
+            if version.get(core_id) is schedule:
+                return v
+        raise AssertionError("checked by _same_schedules")  # pragma: no cover
+
+    def _lay_out(self, now_ms: float, wiring: Wiring, generation: int) -> _Layout:
+        """A new walk: version 0 the cores' latest schedules, version 1 those still in an older period."""
+        cores = self.cores
+        schedule = cores.schedule
+        assert schedule is not None
+        walk, names, core_ids = compiled_state.install(
+            schedule, wiring, self.book, self.levels, now_ms, kernel_fd=self.kernel_fd
+        )
+        if core_ids != tuple(cores.cores):
+            raise ValueError("the walk's cores are not the enforcer's")
+        sub = {name: s for s, name in enumerate(names)}
+        versions: list[dict[int, object]] = [{}, {}]
+        for c, core_id in enumerate(core_ids):
+            python = cores.cores[core_id]
+            latest = cores.latest(core_id)
+            versions[0][core_id] = latest
+            current = python.cursor.schedule
+            if current is not latest:  # the cursor's period still runs an older schedule, with its rules
+                compiled_state.lay_out_core(walk, 1, c, current, rules=python.rules, sub=sub)
+                versions[1][core_id] = current
+        reader_nodes = [endpoint.node for name in names for _, endpoint, _ in wiring.readers.get(name, ())]
+        return _Layout(walk, names, core_ids, wiring, generation, versions, reader_nodes)
+
+    @staticmethod
+    def _readers(layout: _Layout) -> list[tuple[int, Endpoint, RingReader]]:
+        return [reader for name in layout.names for reader in layout.wiring.readers.get(name, ())]
+
+    def run_due(self, now_ms: float, clocks: list[tuple[float, str]]) -> bool:
+        """:meth:`SharedCores.run_due`, then the clocks due, compiled; False if the walk could not take it all
+        (the caller does the rest in Python, as it would without the walk)."""
+        if not self.load(now_ms, clocks):
+            return False
+        assert self.layout is not None
+        status = cw.run_due(self.layout.walk, now_ms)
+        if status == cw.DONE:
+            status = cw.fire_clocks(self.layout.walk, now_ms)
+        self.store(clocks)
+        return status == cw.DONE
+
+    # ------------------------------------------------------------------ the wait
+
+    def wait(self, fds: Sequence[int], until_ms: float) -> list[int]:
+        """Sleep and walk until ``until_ms``; the descriptors of ``fds`` that are readable."""
+        layout = self.layout
+        assert layout is not None
+        if tuple(fds) != self._fds:
+            self._fds = tuple(fds)
+            self.polled = np.zeros(2 * len(fds), dtype=np.int32)
+            self.polled[0::2] = fds
+            self.polled[1::2] = select.POLLIN
+        status = cw.wait(layout.walk, self.polled, until_ms)
+        if status != cw.READY:
+            return []
+        return [fd for k, fd in enumerate(self._fds) if int(self.polled[2 * k + 1]) >> 16]
+
+    # ------------------------------------------------------------------ the walk -> Python
+
+    def store(self, clocks: list[tuple[float, str]]) -> None:
+        """Copy the walk back into the Python state (``clocks``: the enforcer's, rewritten) and replay its log."""
+        layout = self.layout
+        assert layout is not None
+        clocks[:] = compiled_state.get_clocks(layout.walk, layout.names)
+        walk, names = layout.walk, layout.names
+        cores, book, levels = self.cores, self.book, self.levels
+        for s, name in enumerate(names):
+            state = book.state(name)
+            state.seq, state.late, state.skipped = int(walk.seq[s]), int(walk.late[s]), int(walk.skipped[s])
+            state.unmatched, state.steals = int(walk.unmatched[s]), int(walk.steals[s])
+            state.pending = None if walk.pending[s] == cw.NONE else int(walk.pending[s])
+            old = state.in_flight
+            flights = {}
+            for k in sorted(range(int(walk.flying[s])), key=lambda k: int(walk.fl_seq[s, k])):
+                seq = int(walk.fl_seq[s, k])
+                flight = old.get(seq) or RunFlight(0, 0.0)
+                flight.index, flight.triggered_ms = int(walk.fl_index[s, k]), float(walk.fl_triggered[s, k])
+                last_end, until, kernel = walk.fl_last_end[s, k], walk.fl_until[s, k], int(walk.fl_kernel[s, k])
+                flight.last_end_ms = None if math.isnan(last_end) else float(last_end)
+                flight.until_ms = None if math.isnan(until) else float(until)
+                flight.kernel_ns = None if kernel == cw.NONE else kernel
+                flights[seq] = flight
+            state.in_flight = flights
+        for r, (_, endpoint, reader) in enumerate(self._readers(layout)):
+            reader.last, reader.overrun = int(walk.r_last[r]), int(walk.r_overrun[r])
+            mark = int(walk.r_kernel_mark[r])
+            endpoint.kernel_mark_ns = None if mark == cw.NONE else mark
+        raised: dict[int, set[int]] = {}
+        for h, tid in enumerate(walk.th_tid.tolist()):
+            level = int(walk.th_level[h])
+            if level == cw.NONE:
+                levels._level.pop(tid, None)
+            else:
+                levels._level[tid] = level
+            c = int(walk.th_raised[h])
+            if c != cw.NONE:
+                raised.setdefault(layout.core_ids[c], set()).add(tid)
+        for core_id in layout.core_ids:
+            levels.raised.pop(core_id, None)
+        for core_id, tids in raised.items():
+            levels.raised[core_id] = tids
+        levels.calls = int(walk.flags[cw.CALLS])
+        for c, core_id in enumerate(layout.core_ids):
+            python = cores.cores[core_id]
+            cursor = python.cursor
+            schedule = layout.versions[int(walk.version[c])][core_id]
+            if (
+                schedule is not cursor.schedule
+            ):  # the core took the latest schedule: its rules as SharedCores makes them
+                cursor.schedule = schedule  # type: ignore[assignment]
+                fresh = cores._core(cursor)
+                python.names, python.rules, python.watch, python.every = (
+                    fresh.names,
+                    fresh.rules,
+                    fresh.watch,
+                    fresh.every,
+                )
+            cursor.start_ms, cursor.index = float(walk.start[c]), int(walk.period_index[c])
+            cursor.position, cursor.due = int(walk.position[c]), float(walk.due[c])
+            python.wake_ms = float(walk.wake[c])
+            owner = int(walk.raised[c])
+            cores.raised[core_id] = None if owner == cw.NONE else names[owner]
+            first = int(walk.raised_from[c])
+            if first == cw.NONE:
+                cores._raised_from.pop(core_id, None)
+            else:
+                cores._raised_from[core_id] = first
+        cores.wake_ms = min((core.wake_ms for core in cores.cores.values()), default=math.inf)
+        self.costs.wakes += int(walk.flags[cw.WAKES])
+        walk.flags[cw.WAKES] = 0
+        self._replay(layout)
+
+    def _replay(self, layout: _Layout) -> None:
+        walk, names, seen = layout.walk, layout.names, self.seen
+        gone = []
+        for record in compiled_state.events(walk):
+            kind = record[0]
+            if kind == cw.EV_COMPUTE:
+                ms, reported, kernel = (None if math.isnan(x) else x for x in record[3:6])
+                node = layout.reader_nodes[int(record[2])]
+                seen.computes.append(ComputeSample(record[1], node, ms, reported, kernel, int(record[6])))
+            elif kind == cw.EV_RUN:
+                name = names[int(record[2])]
+                self.book.state(name).ends_ms.append(record[1])
+                seen.runs.append(RunSample(record[1], name, int(record[3]), record[4]))
+            elif kind == cw.EV_HOP:
+                seen.hops.append(HopSample(names[int(record[1])], layout.reader_nodes[int(record[2])], record[3]))
+            elif kind == cw.EV_SWITCH:
+                core_id = layout.core_ids[int(record[1])]
+                switches = self.costs.switches.get(core_id)
+                if switches is None:
+                    switches = self.costs.switches[core_id] = deque(maxlen=SAMPLES)
+                switches.append(record[2])
+            elif kind == cw.EV_GONE:
+                tid = int(walk.th_tid[int(record[1])])
+                if not self.levels.set(tid, int(record[2])):  # refused for another reason: Levels says why (raises)
+                    gone.append(tid)
+            elif kind == cw.EV_UNTAKEN:
+                self.untaken(names[int(record[1])])
+        if gone:
+            self.gone(gone)
