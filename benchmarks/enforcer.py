@@ -136,7 +136,9 @@ class Tree:
         return own if own.exists() else ROOT / "out" / app / "cores-1" / "runtime.json"
 
 
-def measure(app: str, duration_s: float, binary: Path, tree: Tree, cpp_node: Path | None = None) -> dict[str, Any]:
+def measure(  # noqa: PLR0917 - the benchmark's axes
+    app: str, duration_s: float, binary: Path, tree: Tree, cpp_node: Path | None = None, loop: str = "python"
+) -> dict[str, Any]:
     table_path = tree.table(app)
     table = load_table(table_path)
     rate = switches_per_s(table.plan)
@@ -150,6 +152,7 @@ def measure(app: str, duration_s: float, binary: Path, tree: Tree, cpp_node: Pat
         log = Path(folder) / "run.jsonl"
         command = [tree.python, "-m", "catanc", "run", str(table_path), "--quiet", "--start", "spec"]
         command += ["--duration", str(duration_s), "--socket", sock, "--log", str(log)]
+        command += ["--compiled-loop"] if loop == "compiled" else []
         began = time.monotonic()
         enforcer = subprocess.Popen(command, stdout=subprocess.DEVNULL, env=env, cwd=tree.cwd)
         deadline = time.monotonic() + 30
@@ -192,6 +195,7 @@ def measure(app: str, duration_s: float, binary: Path, tree: Tree, cpp_node: Pat
         "app": app,
         "tree": str(tree.path),
         "workers": "python" if cpp_node is None else "cpp",
+        "loop": loop,
         "python": tree.python,
         "exit_status": os.waitstatus_to_exitcode(status),
         "wall_s": round(wall, 2),
@@ -237,6 +241,12 @@ def main() -> None:
     parser.add_argument(
         "--workers", choices=("python", "cpp"), default="python", help="the nodes' processes (default: python)"
     )
+    parser.add_argument(
+        "--loop",
+        action="append",
+        choices=("python", "compiled"),
+        help="the enforcer's loop: python, or compiled (--compiled-loop); repeat it to compare (default: python)",
+    )
     parser.add_argument("--json", action="store_true")
     options = parser.parse_args()
     with tempfile.TemporaryDirectory() as folder:
@@ -248,14 +258,18 @@ def main() -> None:
             tree.check()
         cpp_node = build_cpp_node(Path(folder)) if options.workers == "cpp" else None
         results = [
-            measure(app, options.duration, binary, tree, cpp_node) for app in options.app or APPS for tree in trees
+            measure(app, options.duration, binary, tree, cpp_node, loop)
+            for app in options.app or APPS
+            for tree in trees
+            for loop in options.loop or ["python"]
         ]
     if options.json:
         sys.stdout.write(json.dumps(results, indent=2, sort_keys=True) + "\n")
         return
     for r in results:
         floor = r["floor"]
-        print(f"{r['app']} (1 core, {r['workers']} workers), {r['tree']}: {r['wall_s']} s, exit {r['exit_status']}")
+        where = f"{r['app']} (1 core, {r['workers']} workers, {r['loop']} loop), {r['tree']}"
+        print(f"{where}: {r['wall_s']} s, exit {r['exit_status']}")
         print(f"  load average {r['load_before']} before, {r['load_after']} after")
         per_s, us, cores = floor["switches_per_s"], floor["us_per_wake"], floor["cores"]
         print(f"  floor: {per_s} switches/s x {us} us = {cores:.4f} cores")
