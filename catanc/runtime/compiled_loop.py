@@ -22,14 +22,27 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from catanc.control.schedule import RuntimeSchedule
 from catanc.runtime import compiled_state
 from catanc.runtime import compiled_walk as cw
 from catanc.runtime.cores import SharedCores
 from catanc.runtime.costs import SAMPLES, Costs
 from catanc.runtime.endpoints import Endpoint
+from catanc.runtime.levels import Levels
 from catanc.runtime.nodes import Wiring
 from catanc.runtime.ring import RingReader
-from catanc.runtime.runs import ComputeSample, HopSample, RunFlight, RunSample, Seen
+from catanc.runtime.runs import ComputeSample, HopSample, RunBook, RunFlight, RunSample, Seen
+
+
+def warm_up() -> None:
+    """Load (or, on a machine's first run, compile) the walk's loop now: the first call costs 0.5-0.7 s of CPU
+    from numba's cache (a minute without one), which must not come at SCHED_FIFO in the loop thread."""
+    empty = RuntimeSchedule(1, {}, ())
+    walk, _, _ = compiled_state.install(
+        empty, Wiring(0, empty, {}, {}, {}), RunBook([], {}, lambda _e: None), Levels(rt=False), 0.0
+    )
+    cw.wait(walk, np.zeros(2, dtype=np.int32), -math.inf)
+
 
 Untaken = Callable[[str], None]
 """A subchain whose head did not take its trigger (the send failed)."""

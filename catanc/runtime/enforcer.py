@@ -417,7 +417,9 @@ class Enforcer:
         # numpy's BLAS would start a thread per CPU at import: the enforcer multiplies no matrices.
         os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
         require("numba", "catanc run --compiled-loop")
-        from catanc.runtime.compiled_loop import CompiledLoop  # noqa: PLC0415 - numba's import only when asked for
+        from catanc.runtime.compiled_loop import CompiledLoop, warm_up  # noqa: PLC0415 - numba only when asked for
+
+        warm_up()  # here, at SCHED_OTHER, before the loop thread is raised
 
         def untaken(name: str) -> None:
             head = self.wiring.heads.get(name) if self.wiring is not None else None
