@@ -1,6 +1,6 @@
 """The shared cores' walk compiled with numba: :class:`~catanc.runtime.cores.SharedCores` over flat arrays.
 
-The first part of issue 31's compiled hot loop (docs/compiled-loop.md).  What one wake-up of the
+Issue 31's compiled hot loop (docs/compiled-loop.md).  What one wake-up of the
 enforcer does on its shared cores is said in Python by :mod:`catanc.runtime.cores` (the boundary
 walk, the slot owner, the levels, the slot-aligned triggers), :mod:`catanc.runtime.runs` (the
 rings read into runs in flight, every report checked and clamped) and
@@ -17,8 +17,9 @@ ctypes pointer would tie it to one process): ``sched_setscheduler`` for the leve
 for the triggers, ``pread`` of a thread's opened ``schedstat`` for the kernel's CPU figures,
 ``clock_gettime`` for the switch latency.
 
-Not wired into ``catanc run`` yet: the loop around it (``ppoll`` with the next boundary as its
-deadline) and the hand-over of the run book between the two are the next part.
+:func:`fire_clocks` does what ``Enforcer._on_time`` does with its clocks, and :func:`wait` is the
+``ppoll`` loop around both; :mod:`catanc.runtime.compiled_loop` keeps the enforcer's Python state
+and these arrays in step (``catanc run --compiled-loop``).
 """
 
 from __future__ import annotations
