@@ -54,6 +54,7 @@ class _Layout:
     names: tuple[str, ...]
     core_ids: tuple[int, ...]
     wiring: Wiring
+    schedule: RuntimeSchedule  # the plan in force laid out (each subchain's latency, threads, clock period)
     generation: int  # of the kernel descriptors laid out
     versions: list[dict[int, object]]  # per version, per core: the CoreSchedule laid out there
     reader_nodes: list[str]
@@ -94,6 +95,7 @@ class CompiledLoop:
             layout is None
             or layout.wiring is not wiring
             or layout.generation != generation
+            or layout.schedule is not cores.schedule  # a re-plan: rates, latencies, threads
             or not self._same_schedules(layout)
         ):
             try:
@@ -195,7 +197,7 @@ class CompiledLoop:
                 compiled_state.lay_out_core(walk, 1, c, current, rules=python.rules, sub=sub)
                 versions[1][core_id] = current
         reader_nodes = [endpoint.node for name in names for _, endpoint, _ in wiring.readers.get(name, ())]
-        return _Layout(walk, names, core_ids, wiring, generation, versions, reader_nodes)
+        return _Layout(walk, names, core_ids, wiring, schedule, generation, versions, reader_nodes)
 
     @staticmethod
     def _readers(layout: _Layout) -> list[tuple[int, Endpoint, RingReader]]:

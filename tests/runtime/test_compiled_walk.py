@@ -41,7 +41,7 @@ def random_schedule(rng: random.Random, *, scale: float = 1.0, dedicated: bool =
     ``dedicated``, 0-2 subchains on cores of their own."""
     runs: dict[str, SubchainRun] = {}
     cores = []
-    for core in range(rng.choice((1, 1, 2))):
+    for core in range(rng.choice((0, 1, 1, 2) if dedicated else (1, 1, 2))):
         period = rng.uniform(4.0, 20.0) * scale
         switch = rng.choice((0.0, 0.1, 0.3))
         count = rng.randint(1, 3)
@@ -68,7 +68,8 @@ def random_schedule(rng: random.Random, *, scale: float = 1.0, dedicated: bool =
                 threads,
             )
         cores.append(CoreSchedule(core, period, switch, tuple(slots), stealing=rng.random() < 0.8))
-    for k in range(rng.choice((0, 0, 1, 2)) if dedicated else 0):  # on cores of their own, on their own clocks
+    least = 0 if cores else 1
+    for k in range(rng.choice((least, least, 1, 2)) if dedicated else 0):  # on cores of their own, on their own clocks
         name = f"d{k}"
         nodes = tuple(f"{name}n{i}" for i in range(rng.randint(1, 2)))
         period = rng.uniform(3.0, 30.0) * scale
@@ -78,7 +79,7 @@ def random_schedule(rng: random.Random, *, scale: float = 1.0, dedicated: bool =
 
 
 def rescheduled(schedule: RuntimeSchedule, rng: random.Random) -> RuntimeSchedule:
-    """The same subchains and cores, other periods, slices and latencies (a Stage II re-solve)."""
+    """The same subchains and cores, other periods, slices, latencies and threads (a Stage II re-solve)."""
     factor = rng.uniform(0.7, 1.3)
     cores = tuple(
         CoreSchedule(
@@ -100,7 +101,7 @@ def rescheduled(schedule: RuntimeSchedule, rng: random.Random) -> RuntimeSchedul
             run.latency_ms * rng.uniform(0.7, 1.3),
             run.runs,
             run.priority,
-            run.node_threads,
+            tuple((rng.choice((1, 2, 3)), 1.0) for _ in run.nodes) if rng.random() < 0.5 else run.node_threads,
         )
         for name, run in schedule.subchains.items()
     }
