@@ -107,6 +107,10 @@ def bench(
         ),
     ] = None,
     quiet: QuietOpt = False,
+    compiled_loop: Annotated[
+        bool,
+        typer.Option("--compiled-loop", help="Enforce catan with catanc run's compiled loop (numba, the sim extra)."),
+    ] = False,
 ) -> None:
     """Run the app's synthetic workers on this machine under catanc's plan and the baselines; compare them."""
     from catanc.cli.progress import progress
@@ -116,11 +120,13 @@ def bench(
 
     if plot is not None:
         require("matplotlib", "catanc bench --plot")
+    if compiled_loop:
+        require("numba", "catanc bench --compiled-loop")
     for option, folder in (("--plot", plot), ("--log", log)):  # before minutes of runs, not after them
         if folder is not None and folder.exists() and not folder.is_dir():
             raise UsageError(f"{option} {folder}: not a folder")
     spec, _ = load_problem(spec_path)
-    setup = BenchSetup(spec_path, spec, cores, duration, seed, log)
+    setup = BenchSetup(spec_path, spec, cores, duration, seed, log, compiled_loop=compiled_loop)
     chosen = policy or list(DEFAULT_POLICIES)
     err = stderr_console()
     try:

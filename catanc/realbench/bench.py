@@ -92,6 +92,7 @@ class BenchSetup:
     duration_s: float
     seed: int
     log_dir: Path | None = None  # --log: each enforced policy's run log, as <policy>.jsonl (catanc report reads it)
+    compiled_loop: bool = False  # --compiled-loop: the enforcer's compiled loop (catanc run --compiled-loop)
 
 
 @dataclass
@@ -323,6 +324,7 @@ def run_enforced(setup: BenchSetup, spec: Spec, folder: Path, workers: Workers) 
             log_path=log_path,
             cores=setup.cores,
             restorer=restorer,
+            compiled=setup.compiled_loop,
         )
     except BaseException:
         restorer.close()
