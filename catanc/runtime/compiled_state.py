@@ -28,8 +28,9 @@ from catanc.runtime.ring import SLOTS
 from catanc.runtime.runs import RunBook
 from catanc.spec.speedup import threads_and_speedup
 
-VERSIONS = 3
-"""Schedules kept at once: a core's current one, the latest, and one more while cores move over."""
+EXTRA_VERSIONS = 2
+"""Schedules kept beyond one a core: each core's current one (all may differ while cores move over at their own
+period ends), the latest, and a free one for the next update."""
 EVENTS = 8192
 
 KernelFd = Callable[[Endpoint], int | None]
@@ -67,6 +68,7 @@ def install(
     core_ids = tuple(core.core for core in cores)
     n_subs, n_cores = len(names), len(cores)
     most = max([len(run.nodes) for run in schedule.subchains.values()] + [1])
+    versions = n_cores + EXTRA_VERSIONS
     slots = max([len(core.slots) for core in cores] + [n_subs, 1])
 
     readers = [
@@ -120,15 +122,15 @@ def install(
     states = [book.state(name) for name in names]
     runs = [schedule.subchains[name] for name in names]
     walk = cw.Walk(
-        period=np.zeros((VERSIONS, n_cores)),
-        switch=np.zeros((VERSIONS, n_cores)),
-        nslots=np.ones((VERSIONS, n_cores), dtype=np.int64),
-        slot_start=np.zeros((VERSIONS, n_cores, slots)),
-        slot_length=np.zeros((VERSIONS, n_cores, slots)),
-        rule_sub=np.full((VERSIONS, n_cores, slots + 1), cw.NONE, dtype=np.int64),
-        rule_every=np.zeros((VERSIONS, n_cores, slots + 1), dtype=np.int64),
-        rule_thieves=np.full((VERSIONS, n_cores, slots + 1, slots), cw.NONE, dtype=np.int64),
-        core_every=np.ones((VERSIONS, n_cores), dtype=np.int64),
+        period=np.zeros((versions, n_cores)),
+        switch=np.zeros((versions, n_cores)),
+        nslots=np.ones((versions, n_cores), dtype=np.int64),
+        slot_start=np.zeros((versions, n_cores, slots)),
+        slot_length=np.zeros((versions, n_cores, slots)),
+        rule_sub=np.full((versions, n_cores, slots + 1), cw.NONE, dtype=np.int64),
+        rule_every=np.zeros((versions, n_cores, slots + 1), dtype=np.int64),
+        rule_thieves=np.full((versions, n_cores, slots + 1, slots), cw.NONE, dtype=np.int64),
+        core_every=np.ones((versions, n_cores), dtype=np.int64),
         latest=np.zeros(n_cores, dtype=np.int64),
         version=np.zeros(n_cores, dtype=np.int64),
         start=np.zeros(n_cores),
@@ -215,7 +217,7 @@ def update(walk: cw.Walk, schedule: RuntimeSchedule, names: tuple[str, ...], cor
     then :func:`~catanc.runtime.compiled_walk.rewake`).
 
     Raises ``ValueError`` if it is not the same allocation (another set of subchains or cores:
-    a new walk is installed then) or if every version is still in use.
+    a new walk is installed then).
     """
     if tuple(schedule.subchains) != names:
         raise ValueError("another set of subchains: install a new walk")
@@ -223,9 +225,7 @@ def update(walk: cw.Walk, schedule: RuntimeSchedule, names: tuple[str, ...], cor
     if tuple(by_core) != core_ids:
         raise ValueError("another set of shared cores: install a new walk")
     in_use = set(walk.version.tolist()) | set(walk.latest.tolist())
-    free = [v for v in range(VERSIONS) if v not in in_use]
-    if not free:
-        raise ValueError("every schedule version is in use")
+    free = [v for v in range(walk.period.shape[0]) if v not in in_use]  # there is one: cores + 2 versions
     cores = tuple(by_core[core_id] for core_id in core_ids)
     _lay_out(walk, free[0], schedule, cores, {name: s for s, name in enumerate(names)})
 
