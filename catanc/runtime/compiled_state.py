@@ -167,7 +167,9 @@ def install(
             [cw.NONE if e.kernel_mark_ns is None else e.kernel_mark_ns for _, _, e, _ in readers] or [cw.NONE],
             dtype=np.int64,
         ),
-        r_expected=np.array([book.expected.get(e.node, math.nan) for _, _, e, _ in readers] or [math.nan]),
+        r_expected=np.array(
+            [book.expected.get(e.node, math.nan) for _, _, e, _ in readers] or [math.nan], dtype=np.float64
+        ),
         r_speedup=r_speedup,
         r_address=np.array(addresses or [0], dtype=np.int64),
         entries=np.zeros(

@@ -11,8 +11,11 @@ by Python in between (as the enforcer's loop does between compiled waits) change
 from __future__ import annotations
 
 import heapq
+import math
+import os
 import random
 import time
+from typing import Any
 
 import pytest
 from hypothesis import given, settings
@@ -20,6 +23,7 @@ from hypothesis import strategies as st
 
 pytest.importorskip("numba", reason="the compiled loop needs numba (the sim extra)")
 
+from catanc.runtime import compiled_walk as cw
 from catanc.runtime import ring
 from catanc.runtime.compiled_loop import CompiledLoop, warm_up
 from tests.support.hot_path import (
@@ -150,3 +154,29 @@ def test_the_loop_warms_up_at_once_and_returns_when_its_time_is_past() -> None:
     started = time.monotonic()
     warm_up()
     assert time.monotonic() - started < 120.0  # a compile from scratch takes a minute on the development VM
+
+
+def test_a_real_walk_runs_what_the_warm_up_compiled() -> None:
+    """Any app's walk has the warm-up's types: a second compile would come in the loop thread, at SCHED_FIFO
+    (nodes whose estimates are whole numbers once made the expected times an integer array)."""
+    warm_up()
+    dispatcher: Any = cw.wait  # numba's dispatcher: the argument types it compiled for
+    compiled = list(dispatcher.signatures)
+    rng = random.Random(7)
+    schedule = random_schedule(rng, dedicated=True)
+    fds = {node: ring.create() for run in schedule.subchains.values() for node in run.nodes}
+    one = side(schedule, fds, rng)
+    one.book.expected = {node: 2 for run in schedule.subchains.values() for node in run.nodes}  # compute_ms: 2
+    loop = CompiledLoop(
+        one.cores, one.costs, one.seen, kernel_fd=lambda _e: None, gone=one.gone.extend, untaken=one.untaken.append
+    )
+    clocks = [(0.0, run.name) for run in schedule.clocked]
+    try:
+        assert loop.load(0.0, clocks)
+        loop.wait([], -math.inf)
+        assert list(dispatcher.signatures) == compiled
+    finally:
+        for thing in one.closing:
+            thing.close()  # type: ignore[attr-defined]
+        for fd in fds.values():
+            os.close(fd)
