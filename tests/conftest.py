@@ -41,6 +41,17 @@ def real_kernel(request: pytest.FixtureRequest) -> None:
     require_fifo(getattr(request.module, "REALTIME_PRIORITY", 1))
 
 
+@pytest.fixture(scope="session")
+def compiled_loop() -> None:
+    """numba's cache of ``catanc run --compiled-loop``'s loop, made here once: compiled from scratch it takes
+    about a minute (a fresh checkout), which an enforcer started in a test would spend before binding its
+    socket; from the cache it loads in a second.  Skips without numba."""
+    pytest.importorskip("numba", reason="--compiled-loop needs numba (the sim extra)")
+    from catanc.runtime.compiled_loop import warm_up
+
+    warm_up()
+
+
 @pytest.fixture(scope="module")
 def nobody(real_kernel: None) -> tuple[int, int]:
     """``nobody``'s uid and gid; skips unless the tests may switch to it (root, setpriv, prlimit)."""

@@ -718,9 +718,9 @@ def test_without_privilege_the_baseline_runs(shared_folder: Path) -> None:
 PROBE = "import subprocess, sys; subprocess.run([sys.executable, '-c', ''], check=True)"
 
 
-def test_a_bench_with_the_compiled_loop_runs_catans_plan(real_kernel: None, tmp_path: Path) -> None:
+@pytest.mark.usefixtures("real_kernel", "compiled_loop")
+def test_a_bench_with_the_compiled_loop_runs_catans_plan(tmp_path: Path) -> None:
     """``--compiled-loop`` reaches the enforcer: catan's head runs near its planned rate, its log says so."""
-    pytest.importorskip("numba", reason="--compiled-loop needs numba (the sim extra)")
     spec = tmp_path / "tiny.yaml"
     spec.write_text(TINY)
     argv = [sys.executable, "-c", BENCH_MAIN, "bench", str(spec), "-k", "1", "--duration", str(DURATION_S)]
