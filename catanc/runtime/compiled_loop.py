@@ -19,6 +19,7 @@ import select
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -36,12 +37,16 @@ from catanc.runtime.runs import ComputeSample, HopSample, RunBook, RunFlight, Ru
 
 def warm_up() -> None:
     """Load (or, on a machine's first run, compile) the walk's loop now: the first call costs 0.5-0.7 s of CPU
-    from numba's cache (a minute without one), which must not come at SCHED_FIFO in the loop thread."""
+    from numba's cache (a minute without one), which must not come at SCHED_FIFO in the loop thread.  Then
+    numba may compile it no more: a walk of other types would be a TypeError (:meth:`CompiledLoop.wait`
+    falls back to Python), never a compile in the loop thread."""
     empty = RuntimeSchedule(1, {}, ())
     walk, _, _ = compiled_state.install(
         empty, Wiring(0, empty, {}, {}, {}), RunBook([], {}, lambda _e: None), Levels(rt=False), 0.0
     )
-    cw.wait(walk, np.zeros(2, dtype=np.int32), -math.inf)
+    dispatcher: Any = cw.wait
+    dispatcher(walk, np.zeros(2, dtype=np.int32), -math.inf)
+    dispatcher.disable_compile()
 
 
 Untaken = Callable[[str], None]
@@ -78,6 +83,7 @@ class CompiledLoop:
         self.kernel_fd, self.gone, self.untaken = kernel_fd, gone, untaken
         self.fds_generation = fds_generation  # kernel_fd's descriptors changed: the walk's copies are stale
         self.layout: _Layout | None = None
+        self.broken = False  # the compiled wait refused the walk: Python's loop from then on
         self.polled = np.zeros(0, dtype=np.int32)
         self._fds: tuple[int, ...] = ()
 
@@ -87,7 +93,7 @@ class CompiledLoop:
         """Copy the Python state and the enforcer's ``clocks`` into the walk; False if the walk cannot take them
         (nothing to walk, or more than it holds): the loop stays in Python."""
         cores, wiring = self.cores, self.cores.wiring
-        if wiring is None or cores.schedule is None:
+        if wiring is None or cores.schedule is None or self.broken:
             return False
         layout = self.layout
         generation = self.fds_generation()
@@ -226,7 +232,11 @@ class CompiledLoop:
             self.polled = np.zeros(2 * len(fds), dtype=np.int32)
             self.polled[0::2] = fds
             self.polled[1::2] = select.POLLIN
-        status = cw.wait(layout.walk, self.polled, until_ms)
+        try:
+            status = cw.wait(layout.walk, self.polled, until_ms)
+        except TypeError:  # a walk of types warm_up did not compile (a bug): the loop stays in Python
+            self.broken = True
+            return []
         if status != cw.READY:
             return []
         return [fd for k, fd in enumerate(self._fds) if int(self.polled[2 * k + 1]) >> 16]

@@ -15,6 +15,7 @@ import math
 import os
 import random
 import time
+from dataclasses import replace
 from typing import Any
 
 import pytest
@@ -175,6 +176,32 @@ def test_a_real_walk_runs_what_the_warm_up_compiled() -> None:
         assert loop.load(0.0, clocks)
         loop.wait([], -math.inf)
         assert list(dispatcher.signatures) == compiled
+    finally:
+        for thing in one.closing:
+            thing.close()  # type: ignore[attr-defined]
+        for fd in fds.values():
+            os.close(fd)
+
+
+def test_a_walk_the_warm_up_did_not_compile_falls_back_to_python() -> None:
+    """numba may not compile the loop after the warm-up (it would, in the loop thread, at SCHED_FIFO): a walk
+    of other types makes the compiled loop give up, and the enforcer's Python loop goes on."""
+    warm_up()
+    rng = random.Random(11)
+    schedule = random_schedule(rng, dedicated=True)
+    fds = {node: ring.create() for run in schedule.subchains.values() for node in run.nodes}
+    one = side(schedule, fds, rng)
+    loop = CompiledLoop(
+        one.cores, one.costs, one.seen, kernel_fd=lambda _e: None, gone=one.gone.extend, untaken=one.untaken.append
+    )
+    clocks = [(0.0, run.name) for run in schedule.clocked]
+    try:
+        assert loop.load(0.0, clocks)
+        assert loop.layout is not None
+        loop.layout = replace(loop.layout, walk=loop.layout.walk._replace(latency=loop.layout.walk.latency.astype(int)))
+        assert loop.wait([], -math.inf) == []
+        assert loop.broken
+        assert not loop.load(0.0, clocks)  # the caller's Python loop from now on
     finally:
         for thing in one.closing:
             thing.close()  # type: ignore[attr-defined]
