@@ -19,11 +19,12 @@ from hypothesis import strategies as st
 
 from catanc.artifacts.runtime_table import plan_payload
 from catanc.core.build import build_problem
-from catanc.core.executor_thread import as_run_objective
+from catanc.core.executor_thread import as_run_objective, periods_as_run
 from catanc.core.metrics import Timing, bound_scale
 from catanc.core.problem import Problem
 from catanc.explain.executors import objective_as_run
 from catanc.planning.planner import plan_problem
+from catanc.planning.stage2 import turns as turns_module
 from catanc.planning.stage2.base import Layout, SharedCore
 from catanc.planning.stage2.turns import MOST_STEPS, LayoutTurns
 from catanc.planning.types import Plan
@@ -36,15 +37,35 @@ from tests.support.strategies import spec_of
 WINDOW = {2: 60, 3: 15}
 """Each member's ``k`` is enumerated from its least to this many above it, by the number of members."""
 
+WEIGHTLESS_APP = """\
+catan: 1
+app: weightless
+nodes:
+  s0n0: {compute_ms: 36.71, threads: {max: 3, speedup: [1.0, 1.102, 1.102]}}
+  s0n1: {compute_ms: 1.9, threads: {max: 3, speedup: [1.0, 1.589, 1.827]}}
+  s1n0: {compute_ms: 1.9, threads: {max: 2, speedup: [1.0, 1.0]}}
+  s2n0: {compute_ms: 0.5}
+  sink: {scheduled: false}
+edges: [[s0n0, s0n1], [s2n0, sink]]
+subchains: {s0: [s0n0, s0n1], s1: [s1n0], s2: [s2n0]}
+objective:
+  - {chains: {to: sink}, weight: 0.01}
+  - {node: s0n0, weight: 0.0}
+  - {node: s1n0, weight: 0.0}
+constraints:
+  - {chains: {to: sink}, max_response_ms: 5.0}
+executors: {e0: [s0n0, s2n0], e1: [s0n1, s1n0]}
+"""
+
 
 @st.composite
-def executor_apps(draw: st.DrawFn) -> dict[str, Any]:
+def executor_apps(draw: st.DrawFn, member_counts: st.SearchStrategy[int] = st.integers(2, 3)) -> dict[str, Any]:
     """One core: an executor of 2-3 single-node subchains (one long run, short ones) and 0-2 other subchains.
 
     The long member comes first or last: last, it is the member the search walks over last, which loses no
     trigger itself (nav2d's GM), so a hint's downhill walk is what finds its ``k``.
     """
-    members = draw(st.integers(2, 3))
+    members = draw(member_counts)
     others = draw(st.integers(0, 2))
     long_member = draw(st.sampled_from([0, members - 1]))
     weights = st.sampled_from([1.0, 0.5, 0.05, 0.005])
@@ -121,6 +142,82 @@ def test_the_trade_is_the_best_spacing_by_enumeration(document: dict[str, Any], 
     # A re-solve's hint (its last k, anywhere around the answer) changes how the search walks, not its answer.
     hint = {name: least[name] + offset for name, offset in zip(names, offsets, strict=False)}
     assert turns.best_spacing(problem, timings, dict.fromkeys(names, length), least, allowed, hint=hint) == found
+
+
+def trade_inputs(
+    document: dict[str, Any],
+) -> tuple[Problem, LayoutTurns, float, dict[str, int], dict[str, Timing], float]:
+    """The search's inputs as Stage II gives them on the app's one core: the problem, its turns, the core's
+    length, each member's least ``k``, the timings at those, and the bounds' allowed scale."""
+    spec = spec_of(document)
+    problem = build_problem(spec)
+    plan = plan_problem(problem, spec.schedule, 1)
+    (core,) = plan.shared_cores
+    turns = LayoutTurns.of(problem, Layout((), (SharedCore(core.core, core.order),)), spec.schedule)
+    assert turns is not None
+    least = least_spacing(plan, problem, turns.members)
+    timings = {name: Timing(sub.period_ms, sub.latency_ms) for name, sub in plan.subchains.items()}
+    for name in turns.members:
+        timings[name] = Timing(least[name] * core.period_ms, timings[name].latency_ms)
+    allowed = max(1.0, bound_scale(problem, timings)) * (1 + 1e-6)
+    return problem, turns, core.period_ms, least, timings, allowed
+
+
+@st.composite
+def apps_with_a_member_nothing_weighs(draw: st.DrawFn) -> dict[str, Any]:
+    """:func:`executor_apps` of two members, one of them weighted 0 (its own rate is worth nothing)."""
+    document = draw(executor_apps(member_counts=st.just(2)))
+    zero = draw(st.sampled_from(["m0", "m1"]))
+    document["objective"] = [
+        {**term, "weight": 0.0} if term.get("node") == zero else term for term in document["objective"]
+    ]
+    return document
+
+
+@settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(document=apps_with_a_member_nothing_weighs())
+def test_a_member_nothing_weighs_gets_the_least_k_as_good_as_any_up_to_the_cap(document: dict[str, Any]) -> None:
+    """Its every ``k`` up to the cap enumerated (the other member's in a window): the search's answer is as good
+    as the best, and no shorter ``k`` of it is (the search bisects where the enumeration walks)."""
+    problem, turns, length, least, timings, allowed = trade_inputs(document)
+    names = turns.members
+    (zero,) = (name for name in names if problem.importance()[name] == 0.0)
+    found = turns.best_spacing(problem, timings, dict.fromkeys(names, length), least, allowed)
+    assert found is not None
+    value, spacing = found
+    best, best_shorter = math.inf, math.inf
+    ranges = [range(least[n], least[n] + (MOST_STEPS if n == zero else WINDOW[3]) + 1) for n in names]
+    for ks in itertools.product(*ranges):
+        spaced = {name: Timing(k * length, timings[name].latency_ms) for name, k in zip(names, ks, strict=True)}
+        trial = {**timings, **spaced}
+        if bound_scale(problem, trial) > allowed:
+            continue
+        as_run = as_run_objective(problem, trial, turns.groups)
+        best = min(best, as_run)
+        if dict(zip(names, ks, strict=True))[zero] < spacing[zero]:
+            best_shorter = min(best_shorter, as_run)
+    assert value <= best * (1 + 1e-9)
+    assert best_shorter > value
+
+
+def test_members_nothing_weighs_are_searched_in_a_few_thousand_steps(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Three members of two executors on one core, two weighted 0 and one only through a 0.01 chain (a
+    hypothesis draw that took CI's simulator minutes a re-solve: two million objectives as run for one plan).
+    Counted, not timed: each member nothing weighs costs ~20 searches below it, not 1000."""
+    evaluated = 0
+
+    def counted(*args: Any, **kwargs: Any) -> dict[str, float]:
+        nonlocal evaluated
+        evaluated += 1
+        return periods_as_run(*args, **kwargs)
+
+    monkeypatch.setattr(turns_module, "periods_as_run", counted)
+    document = yaml.safe_load(WEIGHTLESS_APP)
+    spec = spec_of(document)
+    problem = build_problem(spec)
+    plan = plan_problem(problem, spec.schedule, 1)
+    assert plan.objective_as_run is not None
+    assert evaluated <= 2000
 
 
 def run_objective(problem: Problem, result: PolicyResult) -> float:
