@@ -1,7 +1,7 @@
 """Optional dependencies: the extra that installs each, and a clear error when one is missing.
 
 ``pip install catanc`` plans and compiles; the simulator's compiled loop
-needs numba (``catanc[sim]``) and the plots need matplotlib
+needs numba (a dependency; ``catanc[sim]`` names it too) and the plots need matplotlib
 (``catanc[plot]``).  A command that needs one calls :func:`require` before
 it starts work, so a missing extra is one line naming the fix, exit code 2.
 """
