@@ -152,7 +152,7 @@ def measure(  # noqa: PLR0917 - the benchmark's axes
         log = Path(folder) / "run.jsonl"
         command = [tree.python, "-m", "catanc", "run", str(table_path), "--quiet", "--start", "spec"]
         command += ["--duration", str(duration_s), "--socket", sock, "--log", str(log)]
-        command += ["--compiled-loop"] if loop == "compiled" else []
+        command += ["--loop", loop]
         began = time.monotonic()
         enforcer = subprocess.Popen(command, stdout=subprocess.DEVNULL, env=env, cwd=tree.cwd)
         deadline = time.monotonic() + 30
@@ -245,7 +245,7 @@ def main() -> None:
         "--loop",
         action="append",
         choices=("python", "compiled"),
-        help="the enforcer's loop: python, or compiled (--compiled-loop); repeat it to compare (default: python)",
+        help="the enforcer's loop: python, or compiled (catanc run --loop); repeat it to compare (default: python)",
     )
     parser.add_argument("--json", action="store_true")
     options = parser.parse_args()

@@ -16,6 +16,7 @@ executor trade.
 
 from __future__ import annotations
 
+import importlib.util
 import shutil
 import tempfile
 from collections.abc import Iterator
@@ -29,7 +30,7 @@ REALTIME_FIXTURES = frozenset({"real_kernel", "nobody"})
 
 
 @pytest.fixture(scope="module")
-def real_kernel(request: pytest.FixtureRequest) -> None:
+def real_kernel(request: pytest.FixtureRequest, compiled_loop_built: None) -> None:
     """Skips unless CPUs 0 and 1 are allowed and SCHED_FIFO is permitted here.
 
     A test module asks for more with module constants: ``REALTIME_PRIORITY``
@@ -42,14 +43,22 @@ def real_kernel(request: pytest.FixtureRequest) -> None:
 
 
 @pytest.fixture(scope="session")
-def compiled_loop() -> None:
-    """numba's cache of ``catanc run --compiled-loop``'s loop, made here once: compiled from scratch it takes
-    about a minute (a fresh checkout), which an enforcer started in a test would spend before binding its
-    socket; from the cache it loads in a second.  Skips without numba."""
-    pytest.importorskip("numba", reason="--compiled-loop needs numba (the sim extra)")
-    from catanc.runtime.compiled_loop import warm_up
+def compiled_loop_built() -> None:
+    """The compiled loop built on this machine (numba's cache and catanc's stamp), once, before any test starts an
+    enforcer: ``catanc run``'s default loop is then the compiled one, as on a machine that has run catanc before.
+    Compiled from scratch (a fresh checkout) it takes about a minute, from the cache a second.  Without numba it
+    does nothing: the enforcers run the Python loop."""
+    if importlib.util.find_spec("numba") is None:
+        return
+    from catanc.runtime.compiled_ready import build
 
-    warm_up()
+    assert build() is not None, "the compiled loop was built but not stamped: no writable stamp folder"
+
+
+@pytest.fixture(scope="session")
+def compiled_loop(compiled_loop_built: None) -> None:
+    """The compiled loop, for a test of it: skips without numba."""
+    pytest.importorskip("numba", reason="the compiled loop needs numba")
 
 
 @pytest.fixture(scope="module")

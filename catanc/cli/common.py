@@ -21,12 +21,13 @@ from typing import TYPE_CHECKING, Annotated, ParamSpec, TypeVar
 
 import typer
 
-from catanc.errors import CatancError, Diagnostic, ExitCode, SpecError
+from catanc.errors import CatancError, Diagnostic, ExitCode, SpecError, UsageError
 
 if TYPE_CHECKING:
     from rich.console import Console
 
     from catanc.core.problem import Problem
+    from catanc.runtime.compiled_ready import LoopChoice
     from catanc.spec.language import Spec
 
 P = ParamSpec("P")
@@ -59,6 +60,28 @@ PlotDirOpt = Annotated[
         help="Also write PNG plots into DIR (created if missing): responses-cdf.png, timeline.png, rates.png.",
     ),
 ]
+
+
+# run and bench: the enforcer's loop.
+LOOPS = ("auto", "compiled", "python")
+LoopOpt = Annotated[
+    str,
+    typer.Option(
+        help="The enforcer's loop: compiled (numba: less CPU), python, or auto: compiled where it is built on "
+        "this machine, else python while a child builds it for the next run.",
+    ),
+]
+
+
+def loop_option(text: str) -> LoopChoice:
+    """``--loop``'s value checked (a usage error, exit 2, names the choices)."""
+    if text == "auto":
+        return "auto"
+    if text == "compiled":
+        return "compiled"
+    if text == "python":
+        return "python"
+    raise UsageError(f"--loop {text!r}: expected {', '.join(LOOPS)}")
 
 
 PIPED_WIDTH = 160

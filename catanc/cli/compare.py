@@ -12,12 +12,14 @@ import typer
 
 from catanc.cli.common import (
     CoresOpt,
+    LoopOpt,
     PlotDirOpt,
     QuietOpt,
     SpecArg,
     TablesJsonOpt,
     WorkloadSeedOpt,
     load_problem,
+    loop_option,
     reporting,
     stderr_console,
     stdout_console,
@@ -107,26 +109,22 @@ def bench(
         ),
     ] = None,
     quiet: QuietOpt = False,
-    compiled_loop: Annotated[
-        bool,
-        typer.Option("--compiled-loop", help="Enforce catan with catanc run's compiled loop (numba, the sim extra)."),
-    ] = False,
+    loop: LoopOpt = "auto",
 ) -> None:
     """Run the app's synthetic workers on this machine under catanc's plan and the baselines; compare them."""
     from catanc.cli.progress import progress
     from catanc.errors import UsageError
     from catanc.extras import require
-    from catanc.realbench.bench import DEFAULT_POLICIES, BenchSetup, bench_policies
+    from catanc.realbench.bench import DEFAULT_POLICIES, BenchSetup, bench_loop, bench_policies
 
     if plot is not None:
         require("matplotlib", "catanc bench --plot")
-    if compiled_loop:
-        require("numba", "catanc bench --compiled-loop")
+    loop_choice = loop_option(loop)
     for option, folder in (("--plot", plot), ("--log", log)):  # before minutes of runs, not after them
         if folder is not None and folder.exists() and not folder.is_dir():
             raise UsageError(f"{option} {folder}: not a folder")
     spec, _ = load_problem(spec_path)
-    setup = BenchSetup(spec_path, spec, cores, duration, seed, log, compiled_loop=compiled_loop)
+    setup = BenchSetup(spec_path, spec, cores, duration, seed, log, loop=bench_loop(loop_choice))
     chosen = policy or list(DEFAULT_POLICIES)
     err = stderr_console()
     try:

@@ -9,6 +9,8 @@ from typing import Annotated
 import typer
 
 from catanc.cli.common import (
+    LoopOpt,
+    loop_option,
     reporting,
     stdout_console,
 )
@@ -38,12 +40,7 @@ def run_(
     ] = "bootstrap",
     cores: Annotated[int | None, typer.Option(min=1, help="Plan for this many cores instead of the table's.")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", help="No live status; a summary at the end.")] = False,
-    compiled_loop: Annotated[
-        bool,
-        typer.Option(
-            "--compiled-loop", help="Walk the shared cores in compiled code (numba, the sim extra): less CPU."
-        ),
-    ] = False,
+    loop: LoopOpt = "auto",
     observe: Annotated[
         bool,
         typer.Option(
@@ -70,6 +67,7 @@ def run_(
         raise UsageError("--demo and --launch both start the app: pick one")
     if start not in ("bootstrap", "spec"):
         raise UsageError(f"--start {start!r}: expected bootstrap or spec")
+    loop_choice = loop_option(loop)
     table = load_table(table_path)
     attached = parse_attach(attach or [], table.spec)
     if not no_rt:
@@ -86,7 +84,7 @@ def run_(
         log_path=log_path,
         cores=cores,
         restorer=restorer,
-        compiled=compiled_loop,
+        loop=loop_choice,
     )
 
     def begin(running: Enforcer) -> None:

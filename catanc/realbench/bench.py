@@ -50,7 +50,8 @@ from catanc.planning.order import priorities
 from catanc.planning.types import Plan
 from catanc.realbench.driver import BenchError, Driver, DriverSocket
 from catanc.realbench.replay import measured_result, replay, utilisation
-from catanc.runtime import protocol
+from catanc.runtime import compiled_ready, protocol
+from catanc.runtime.compiled_ready import LoopChoice, LoopState
 from catanc.runtime.processes import Children
 from catanc.runtime.sched import (
     Restorer,
@@ -92,7 +93,7 @@ class BenchSetup:
     duration_s: float
     seed: int
     log_dir: Path | None = None  # --log: each enforced policy's run log, as <policy>.jsonl (catanc report reads it)
-    compiled_loop: bool = False  # --compiled-loop: the enforcer's compiled loop (catanc run --compiled-loop)
+    loop: LoopChoice = "python"  # --loop: the enforcer's loop (catanc run --loop)
 
 
 @dataclass
@@ -107,6 +108,14 @@ class Measured:
     model: dict[tuple[str, ...], float] = field(default_factory=dict)
     promised: dict[str, float] = field(default_factory=dict)  # heads' rates as the last plan promises them run
     schedule: RuntimeSchedule | None = None
+
+
+def bench_loop(choice: LoopChoice) -> LoopChoice:
+    """The enforcer's loop for a bench's ``--loop``: ``auto`` is the compiled one wherever numba is, built before
+    the first run if it must be (a build beside the runs would disturb what they measure)."""
+    if choice == "auto":
+        return "python" if compiled_ready.state() is LoopState.NO_NUMBA else "compiled"
+    return choice
 
 
 def check_policies(names: Sequence[str]) -> tuple[str, ...]:
@@ -324,7 +333,7 @@ def run_enforced(setup: BenchSetup, spec: Spec, folder: Path, workers: Workers) 
             log_path=log_path,
             cores=setup.cores,
             restorer=restorer,
-            compiled=setup.compiled_loop,
+            loop=setup.loop,
         )
     except BaseException:
         restorer.close()

@@ -19,6 +19,7 @@ import select
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -47,6 +48,13 @@ def warm_up() -> None:
     dispatcher: Any = cw.wait
     dispatcher(walk, np.zeros(2, dtype=np.int32), -math.inf)
     dispatcher.disable_compile()
+
+
+def numba_cache_folder() -> Path | None:
+    """The folder numba keeps the loop's cache in (beside the source, or the user's cache where that is read-only)."""
+    cache = getattr(cw.wait, "_cache", None)  # numba keeps its cache object private; None if that ever changes
+    folder = getattr(cache, "cache_path", None)
+    return Path(folder) if isinstance(folder, str) else None
 
 
 Untaken = Callable[[str], None]

@@ -19,7 +19,7 @@ for the triggers, ``pread`` of a thread's opened ``schedstat`` for the kernel's 
 
 :func:`fire_clocks` does what ``Enforcer._on_time`` does with its clocks, and :func:`wait` is the
 ``ppoll`` loop around both; :mod:`catanc.runtime.compiled_loop` keeps the enforcer's Python state
-and these arrays in step (``catanc run --compiled-loop``).
+and these arrays in step (``catanc run --loop compiled``).
 """
 
 from __future__ import annotations

@@ -45,7 +45,8 @@ from catanc.control.policy import next_clock_ms
 from catanc.control.schedule import RuntimeSchedule, SubchainRun
 from catanc.errors import CatancError, ExitCode, PrivilegeError, SchedError
 from catanc.extras import require
-from catanc.runtime import protocol
+from catanc.runtime import compiled_ready, protocol
+from catanc.runtime.compiled_ready import BackgroundBuild, LoopChoice, LoopState
 from catanc.runtime.cores import SharedCores
 from catanc.runtime.costs import Costs
 from catanc.runtime.cpu_clocks import OpenCpuClocks
@@ -100,7 +101,7 @@ class Enforcer:
         cores: int | None = None,
         restorer: Restorer | None = None,
         clock: Callable[[], float] = now_ms,
-        compiled: bool = False,
+        loop: LoopChoice = "python",
     ) -> None:
         self.table = table
         self.spec = table.spec
@@ -163,7 +164,9 @@ class Enforcer:
             seen=self.reader.seen,
             gone=self.nodes.gone_tids,
         )
-        self.compiled = self._compiled_loop() if compiled else None
+        self.background_build: BackgroundBuild | None = None
+        self.loop_why = "asked for"  # why the loop is the one it is (the status and the log's start say)
+        self.compiled = self._compiled_loop(loop)
         self.wiring: Wiring | None = None
         self.clocks: list[tuple[float, str]] = []
         self.stopping = False
@@ -206,7 +209,12 @@ class Enforcer:
                     self.notes.log = RunLog(self.log_path)
                 self.own.raise_self(pin=None)
                 self.notes.write(
-                    "start", format=LOG_FORMAT, cores=self.schedule.cores, plan=self.replanning.answer.summary
+                    "start",
+                    format=LOG_FORMAT,
+                    cores=self.schedule.cores,
+                    plan=self.replanning.answer.summary,
+                    loop="python" if self.compiled is None else "compiled",
+                    loop_why=self.loop_why,
                 )
                 failure: list[BaseException] = []
                 loop = threading.Thread(
@@ -282,6 +290,8 @@ class Enforcer:
         self.registry.close()
         self.cpu_clocks.close()
         self.planner.close()
+        if self.background_build is not None:
+            self.background_build.stop()
         self._flush_samples()
         self.notes.flush()
         self.notes.write("stop", summary=self.final)
@@ -412,14 +422,35 @@ class Enforcer:
             self.cores.rewire(wiring)
         return wiring
 
-    def _compiled_loop(self) -> CompiledLoop:
-        """The shared cores walked compiled between the loop's visits to Python (needs numba: the sim extra)."""
+    def _compiled_loop(self, choice: LoopChoice) -> CompiledLoop | None:
+        """The shared cores walked compiled between the loop's visits to Python, or None: Python's loop.
+
+        ``auto`` takes the compiled loop where it is built on this machine (loaded in ~0.6 s); elsewhere it
+        runs Python's and builds it in a child at nice 19 for the next run.  ``compiled`` builds it here
+        if it must (about a minute, before the socket is bound)."""
+        if choice == "python":
+            return None
+        if choice == "auto":
+            built = compiled_ready.state()
+            if built is LoopState.NO_NUMBA:
+                self.loop_why = "numba is not installed (the compiled loop needs it)"
+                self.notes.note(f"the Python loop: {self.loop_why}")
+                return None
+            if built is LoopState.UNBUILT:
+                self.background_build = BackgroundBuild()
+                self.loop_why = (
+                    "the compiled loop is not built on this machine yet: building it for the next run "
+                    f"(pid {self.background_build.pid}, nice 19, about a minute of one CPU)"
+                )
+                self.notes.note(f"the Python loop: {self.loop_why}")
+                return None
+            self.loop_why = "built on this machine"
         # numpy's BLAS would start a thread per CPU at import: the enforcer multiplies no matrices.
         os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-        require("numba", "catanc run --compiled-loop")
-        from catanc.runtime.compiled_loop import CompiledLoop, warm_up  # noqa: PLC0415 - numba only when asked for
+        require("numba", "catanc run --loop compiled")
+        from catanc.runtime.compiled_loop import CompiledLoop  # noqa: PLC0415 - numba only when asked for
 
-        warm_up()  # here, at SCHED_OTHER, before the loop thread is raised
+        compiled_ready.build()  # here, at SCHED_OTHER, before the loop thread is raised
 
         def untaken(name: str) -> None:
             head = self.wiring.heads.get(name) if self.wiring is not None else None

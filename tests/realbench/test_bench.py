@@ -720,11 +720,11 @@ PROBE = "import subprocess, sys; subprocess.run([sys.executable, '-c', ''], chec
 
 @pytest.mark.usefixtures("real_kernel", "compiled_loop")
 def test_a_bench_with_the_compiled_loop_runs_catans_plan(tmp_path: Path) -> None:
-    """``--compiled-loop`` reaches the enforcer: catan's head runs near its planned rate, its log says so."""
+    """``--loop compiled`` reaches the enforcer: catan's head runs near its planned rate, its log says so."""
     spec = tmp_path / "tiny.yaml"
     spec.write_text(TINY)
     argv = [sys.executable, "-c", BENCH_MAIN, "bench", str(spec), "-k", "1", "--duration", str(DURATION_S)]
-    argv += ["--json", "--policy", "catan", "--compiled-loop", "--log", str(tmp_path / "logs")]
+    argv += ["--json", "--policy", "catan", "--loop", "compiled", "--log", str(tmp_path / "logs")]
     finished = subprocess.run(argv, capture_output=True, text=True, timeout=120, check=False)
     assert finished.returncode == 0, finished.stderr
     nodes = json.loads(finished.stdout)["policies"]["catan"]["nodes"]

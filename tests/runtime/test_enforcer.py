@@ -328,10 +328,10 @@ class MixedRun:
 
 @pytest.fixture(scope="module", params=["python", "compiled"])
 def mixed(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Iterator[MixedRun]:
-    """The run, with the enforcer's Python loop and with its compiled one (``--compiled-loop``)."""
-    loop = ["--compiled-loop"] if request.param == "compiled" else []
-    if loop:
-        request.getfixturevalue("compiled_loop")  # numba's cache made (skips without numba)
+    """The run, with the enforcer's Python loop and with its compiled one (``--loop``)."""
+    if request.param == "compiled":
+        request.getfixturevalue("compiled_loop")  # skips without numba
+    loop = ["--loop", request.param]
     folder = tmp_path_factory.mktemp("mixed")
     table = compile_table(MIXED_SPEC, folder, 2)
     with harness_in(folder) as run:
