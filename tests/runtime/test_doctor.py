@@ -40,6 +40,7 @@ from catanc.doctor import (
     render,
 )
 from catanc.errors import ExitCode
+from catanc.runtime.compiled_ready import LoopState
 from catanc.runtime.sched import format_cpus
 from tests.support.linux import as_user, missing_tools, nobody_ids, require_fifo
 
@@ -59,6 +60,7 @@ GOOD = Machine(
     online_cpus=frozenset({0, 1}),
     isolated_cpus=frozenset(),
     missing_tools=(),
+    loop=LoopState.READY,
 )
 USER = replace(GOOD, euid=1000, cap_sys_nice=False)
 
@@ -187,6 +189,22 @@ def test_missing_tools_fail() -> None:
     assert "util-linux" in fix
 
 
+@pytest.mark.parametrize(
+    ("state", "verdict", "fix"),
+    [
+        (LoopState.READY, Verdict.OK, ""),
+        (LoopState.UNBUILT, Verdict.WARN, "catanc run --loop compiled builds it"),
+        (LoopState.NO_NUMBA, Verdict.WARN, "pip install numba"),
+    ],
+)
+def test_a_compiled_loop_not_built_warns_with_how_to_build_it(state: LoopState, verdict: Verdict, fix: str) -> None:
+    result, found, how = finding(NEEDS, replace(GOOD, loop=state), "loop")
+    assert result is verdict
+    assert ("Python loop" in found) == (verdict is Verdict.WARN)
+    assert fix in how
+    assert render(diagnose(NEEDS, replace(GOOD, loop=state)), "t").splitlines()[-1] == "this machine can run the plan"
+
+
 def test_render_counts_the_failures_and_shows_fixes_only_where_needed() -> None:
     machine = replace(USER, rtprio=0, fifo_refused="Operation not permitted", allowed_cpus=frozenset({0}))
     text = render(diagnose(NEEDS, machine), "title")
@@ -198,6 +216,7 @@ def test_render_counts_the_failures_and_shows_fixes_only_where_needed() -> None:
         "ok",
         "ok",
         "FAIL",
+        "ok",
         "ok",
     ]
     assert sum(line.lstrip().startswith("fix:") for line in lines) == 3
