@@ -450,7 +450,8 @@ class Enforcer:
         require("numba", "catanc run --loop compiled")
         from catanc.runtime.compiled_loop import CompiledLoop  # noqa: PLC0415 - numba only when asked for
 
-        compiled_ready.build()  # here, at SCHED_OTHER, before the loop thread is raised
+        with compiled_ready.scipy_out_of_reach():
+            compiled_ready.build()  # here, at SCHED_OTHER, before the loop thread is raised
 
         def untaken(name: str) -> None:
             head = self.wiring.heads.get(name) if self.wiring is not None else None

@@ -134,6 +134,26 @@ def test_an_edit_of_the_loops_source_is_not_built(
     assert (stamps / STAMP_NAME).exists()
 
 
+OUT_OF_REACH = """
+import importlib, sys
+from catanc.runtime.compiled_ready import scipy_out_of_reach
+with scipy_out_of_reach():
+    try:
+        importlib.import_module("scipy.linalg")
+    except ImportError:
+        print("refused")
+print("scipy.linalg" in sys.modules, importlib.import_module("scipy.linalg").__name__)
+with scipy_out_of_reach():
+    print(importlib.import_module("scipy.linalg").__name__)
+"""
+
+
+def test_scipy_is_out_of_reach_only_within_and_only_where_it_was_not_imported() -> None:
+    """In a fresh interpreter: refused within, importable after; once imported, left alone."""
+    done = subprocess.run([sys.executable, "-c", OUT_OF_REACH], capture_output=True, text=True, check=True)
+    assert done.stdout.split() == ["refused", "False", "scipy.linalg", "scipy.linalg"]
+
+
 # --------------------------------------------------------------------------- catanc run --loop auto, real kernel
 
 
