@@ -221,15 +221,18 @@ def _build_in_background(parent: int) -> int:
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     with contextlib.suppress(OSError):
         os.nice(19)
-    folder = stamp_folders()[0]
-    with contextlib.suppress(OSError):
-        folder.mkdir(parents=True, exist_ok=True)
-    try:
-        lock = os.open(folder / (STAMP_NAME + ".lock"), os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
-        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
-        return 0  # another build holds it (or no folder for a lock): that one will stamp
-    return 0 if build() is not None else 1
+    for folder in stamp_folders():  # the lock beside the first stamp folder this user may write
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            lock = os.open(folder / (STAMP_NAME + ".lock"), os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+        except OSError:
+            continue
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            return 0  # another build holds it: that one will stamp
+        return 0 if build() is not None else 1
+    return 1  # nowhere to write a stamp
 
 
 if __name__ == "__main__":

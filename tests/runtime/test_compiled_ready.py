@@ -8,6 +8,7 @@ the enforcer (its end, or its SIGKILL), and the next run takes the compiled loop
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import shutil
@@ -152,6 +153,33 @@ def test_scipy_is_out_of_reach_only_within_and_only_where_it_was_not_imported() 
     """In a fresh interpreter: refused within, importable after; once imported, left alone."""
     done = subprocess.run([sys.executable, "-c", OUT_OF_REACH], capture_output=True, text=True, check=True)
     assert done.stdout.split() == ["refused", "False", "scipy.linalg", "scipy.linalg"]
+
+
+def build_child(stamps: Path, parent: int) -> subprocess.CompletedProcess[str]:
+    """``python -m catanc.runtime.compiled_ready PARENT``: the background build, as the enforcer starts it."""
+    argv = [sys.executable, "-m", "catanc.runtime.compiled_ready", str(parent)]
+    env = {**os.environ, compiled_ready.CACHE_ENV: str(stamps)}
+    return subprocess.run(argv, env=env, capture_output=True, text=True, timeout=300, check=False)
+
+
+@pytest.mark.usefixtures("compiled_loop")
+def test_one_build_at_a_time_and_only_for_its_parent(tmp_path: Path) -> None:
+    stamps = tmp_path / "stamps"
+    stamps.mkdir()
+    held = os.open(stamps / (STAMP_NAME + ".lock"), os.O_RDWR | os.O_CREAT)
+    fcntl.flock(held, fcntl.LOCK_EX)
+    try:
+        busy = build_child(stamps, os.getpid())  # another build holds the lock: this one leaves it
+        assert (busy.returncode, busy.stderr) == (0, "")
+        assert not (stamps / STAMP_NAME).exists()
+    finally:
+        os.close(held)
+    orphan = build_child(stamps, os.getpid() + 1_000_000)  # not its parent's child: nothing to build for
+    assert orphan.returncode == 0
+    assert not (stamps / STAMP_NAME).exists()
+    done = build_child(stamps, os.getpid())
+    assert (done.returncode, done.stderr) == (0, "")
+    assert json.loads((stamps / STAMP_NAME).read_text())["files"]
 
 
 # --------------------------------------------------------------------------- catanc run --loop auto, real kernel
