@@ -437,11 +437,17 @@ class Enforcer:
                 self.notes.note(f"the Python loop: {self.loop_why}")
                 return None
             if built is LoopState.UNBUILT:
-                self.background_build = BackgroundBuild()
-                self.loop_why = (
-                    "the compiled loop is not built on this machine yet: building it for the next run "
-                    f"(pid {self.background_build.pid}, nice 19, about a minute of one CPU)"
-                )
+                try:
+                    self.background_build = BackgroundBuild()
+                except OSError as exc:
+                    self.loop_why = (
+                        f"the compiled loop is not built on this machine, and its build did not start: {exc}"
+                    )
+                else:
+                    self.loop_why = (
+                        "the compiled loop is not built on this machine yet: building it for the next run "
+                        f"(pid {self.background_build.pid}, nice 19, about a minute of one CPU)"
+                    )
                 self.notes.note(f"the Python loop: {self.loop_why}")
                 return None
             self.loop_why = "built on this machine"
