@@ -453,10 +453,10 @@ class Enforcer:
             self.loop_why = "built on this machine"
         # numpy's BLAS would start a thread per CPU at import: the enforcer multiplies no matrices.
         os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-        require("numba", "catanc run --loop compiled")
-        from catanc.runtime.compiled_loop import CompiledLoop  # noqa: PLC0415 - numba only when asked for
-
         with compiled_ready.scipy_out_of_reach():
+            require("numba", "catanc run --loop compiled")
+            from catanc.runtime.compiled_loop import CompiledLoop  # noqa: PLC0415 - numba only when asked for
+
             compiled_ready.build()  # here, at SCHED_OTHER, before the loop thread is raised
 
         def untaken(name: str) -> None:
