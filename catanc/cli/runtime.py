@@ -76,16 +76,20 @@ def run_(
     log_path = log or Path(f"catanc-run-{table.app}.jsonl")
     children = Children()
     restorer = Restorer(Watchdog().start()) if not no_rt else Restorer()
-    enforcer = Enforcer(
-        table,
-        socket_path=socket_path,
-        rt=not no_rt,
-        start="bootstrap" if start == "bootstrap" else "spec",
-        log_path=log_path,
-        cores=cores,
-        restorer=restorer,
-        loop=loop_choice,
-    )
+    try:
+        enforcer = Enforcer(
+            table,
+            socket_path=socket_path,
+            rt=not no_rt,
+            start="bootstrap" if start == "bootstrap" else "spec",
+            log_path=log_path,
+            cores=cores,
+            restorer=restorer,
+            loop=loop_choice,
+        )
+    except BaseException:
+        restorer.close()  # nothing was raised yet: the watchdog goes without a word
+        raise
 
     def begin(running: Enforcer) -> None:
         for node, pid in attached.items():
@@ -118,6 +122,7 @@ def run_(
         if live is not None:
             live.stop()
         children.stop()
+        restorer.close()  # done by the run unless it failed before taking it over (its socket in use)
     stdout_console().print(
         status_view(
             table.app,

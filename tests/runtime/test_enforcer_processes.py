@@ -498,3 +498,19 @@ def test_moving_to_another_cpu_re_pins_every_node(run: Run, one_core_table: Path
     pinned_as(threads, plan, [1])
     set_cpus_of_every_thread(run.pid, frozenset({0}))
     pinned_as(threads, plan, [0])  # the enforcer looks at its CPU set once a second
+
+
+def test_a_run_that_cannot_bind_its_socket_lets_the_watchdog_go_quietly(run: Run, tmp_path: Path) -> None:
+    """A second enforcer on a socket in use exits with the reason alone: it had started its watchdog, which
+    must not report a death ("closed its pipe without restoring its threads") for a run that raised nothing."""
+    table = compile_table(SPEC, tmp_path / "table", 1)
+    run.start(table, duration=6.0)
+    run.first("start")  # the first one's socket is up
+    argv = [sys.executable, "-c", ENFORCER_MAIN, "run", str(table), "--quiet", "--loop", "python"]
+    argv += ["--socket", str(run.socket), "--log", str(tmp_path / "second.jsonl"), "--duration", "1"]
+    second = subprocess.run(argv, capture_output=True, text=True, timeout=60, check=False)
+    assert second.returncode == ExitCode.BAD_INPUT, second.stderr
+    assert "another catanc enforcer is running" in second.stderr
+    assert "watchdog" not in second.stderr, second.stderr
+    os.kill(run.pid, signal.SIGINT)
+    assert run.wait() == ExitCode.OK
