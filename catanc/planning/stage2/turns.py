@@ -125,14 +125,18 @@ class LayoutTurns:
             spacing[name] = every
             trial[name] = Timing(every * lengths[name], trial[name].latency_ms)
 
+        def as_run_now() -> tuple[float, dict[str, float]]:
+            """The objective as run at ``trial``, and the periods as run it scores."""
+            periods = periods_as_run(problem, trial, self.groups)
+            return objective(problem, {key: Timing(periods[key], t.latency_ms) for key, t in trial.items()}), periods
+
         def as_run_at(name: str, every: int) -> tuple[float, bool] | None:
             """The objective as run with ``name`` at ``every`` and whether ``name`` loses no trigger there
             (None: a bound no longer holds, nor for any longer ``k``)."""
             place(name, every)
             if bound_scale(problem, trial) > allowed_scale:
                 return None
-            periods = periods_as_run(problem, trial, self.groups)
-            value = objective(problem, {key: Timing(periods[key], t.latency_ms) for key, t in trial.items()})
+            value, periods = as_run_now()
             return value, periods[name] <= trial[name].period_ms
 
         def offer(value: float) -> None:
@@ -177,8 +181,7 @@ class LayoutTurns:
             """The least objective as run over the members below ``level``, the others placed (no outer bound)."""
             nonlocal best
             if level == len(names) - 1:
-                periods = periods_as_run(problem, trial, self.groups)
-                return objective(problem, {key: Timing(periods[key], t.latency_ms) for key, t in trial.items()})
+                return as_run_now()[0]
             outer, best = best, None
             visit(level + 1)
             found, best = best, outer
@@ -237,8 +240,7 @@ class LayoutTurns:
                         break  # and every longer k: the planned objective grows, the one as run is above it
                     visit(level + 1)
                     continue
-                periods = periods_as_run(problem, trial, self.groups)
-                value = objective(problem, {key: Timing(periods[key], t.latency_ms) for key, t in trial.items()})
+                value, periods = as_run_now()
                 if best is None or value < best[0]:
                     offer(value)  # its planned objective is below it: no need to look
                 elif objective(problem, trial) >= best[0]:
