@@ -4,7 +4,7 @@ The Python objects stay the enforcer's state: :class:`~catanc.runtime.cores.Shar
 cursors, who is raised), :class:`~catanc.runtime.runs.RunBook` (runs in flight),
 :class:`~catanc.runtime.levels.Levels`, the rings' readers and the cost figures.  Before the loop
 sleeps, :meth:`CompiledLoop.load` copies what may have changed into the walk's arrays
-(:mod:`catanc.runtime.compiled_walk`), laid out again only when the schedule or the node threads
+(:mod:`catanc.runtime.walk_arrays`), laid out again only when the schedule or the node threads
 changed; :meth:`CompiledLoop.wait` sleeps and walks compiled until Python's next own time
 (housekeeping, a clock, the end), a readable descriptor, or something only Python can act on;
 :meth:`CompiledLoop.store` copies the walk back and replays its log (samples, threads gone,
@@ -27,6 +27,7 @@ import numpy as np
 from catanc.control.schedule import RuntimeSchedule
 from catanc.runtime import compiled_state
 from catanc.runtime import compiled_walk as cw
+from catanc.runtime import walk_arrays as wa
 from catanc.runtime.cores import SharedCores
 from catanc.runtime.costs import SAMPLES, Costs
 from catanc.runtime.endpoints import Endpoint
@@ -63,7 +64,7 @@ Untaken = Callable[[str], None]
 
 @dataclass
 class _Layout:
-    walk: cw.Walk
+    walk: wa.Walk
     names: tuple[str, ...]
     core_ids: tuple[int, ...]
     wiring: Wiring
@@ -123,31 +124,31 @@ class CompiledLoop:
             state = book.state(name)
             walk.seq[s], walk.late[s], walk.skipped[s] = state.seq, state.late, state.skipped
             walk.unmatched[s], walk.steals[s] = state.unmatched, state.steals
-            walk.pending[s] = cw.NONE if state.pending is None else state.pending
+            walk.pending[s] = wa.NONE if state.pending is None else state.pending
             flights = state.in_flight
-            if len(flights) >= cw.FLIGHTS:
+            if len(flights) >= wa.FLIGHTS:
                 return False  # more than the walk holds: this wake-up stays in Python
             k = 0
             for seq, flight in flights.items():
                 walk.fl_seq[s, k], walk.fl_index[s, k], walk.fl_triggered[s, k] = seq, flight.index, flight.triggered_ms
                 walk.fl_last_end[s, k] = math.nan if flight.last_end_ms is None else flight.last_end_ms
                 walk.fl_until[s, k] = math.nan if flight.until_ms is None else flight.until_ms
-                walk.fl_kernel[s, k] = cw.NONE if flight.kernel_ns is None else flight.kernel_ns
+                walk.fl_kernel[s, k] = wa.NONE if flight.kernel_ns is None else flight.kernel_ns
                 k += 1
             walk.flying[s] = k
         for r, (_, endpoint, reader) in enumerate(self._readers(layout)):
             walk.r_last[r], walk.r_overrun[r] = reader.last, reader.overrun
-            walk.r_kernel_mark[r] = cw.NONE if endpoint.kernel_mark_ns is None else endpoint.kernel_mark_ns
+            walk.r_kernel_mark[r] = wa.NONE if endpoint.kernel_mark_ns is None else endpoint.kernel_mark_ns
             walk.r_expected[r] = book.expected.get(endpoint.node, math.nan)
         index = {name: s for s, name in enumerate(names)}
         where = dict(enumerate(layout.core_ids))
         raised_on = {tid: c for c, core in where.items() for tid in levels.raised.get(core, ())}
         for h, tid in enumerate(walk.th_tid.tolist()):
             level = levels.level(tid)
-            walk.th_level[h] = cw.NONE if level is None else level
+            walk.th_level[h] = wa.NONE if level is None else level
             resting = levels.resting.get(tid)
-            walk.th_resting[h] = cw.NONE if resting is None else resting
-            walk.th_raised[h] = raised_on.get(tid, cw.NONE)
+            walk.th_resting[h] = wa.NONE if resting is None else resting
+            walk.th_raised[h] = raised_on.get(tid, wa.NONE)
         for c, core_id in where.items():
             python = cores.cores[core_id]
             cursor = python.cursor
@@ -160,11 +161,11 @@ class CompiledLoop:
             )
             walk.wake[c] = python.wake_ms
             owner = cores.raised.get(core_id)
-            walk.raised[c] = cw.NONE if owner is None else index[owner]
-            walk.raised_from[c] = cores._raised_from.get(core_id, cw.NONE)
+            walk.raised[c] = wa.NONE if owner is None else index[owner]
+            walk.raised_from[c] = cores._raised_from.get(core_id, wa.NONE)
             walk.raised_count[c] = len(levels.raised.get(core_id, ()))
-        walk.flags[cw.CALLS] = levels.calls
-        walk.flags[cw.NEEDS_PYTHON] = 0
+        walk.flags[wa.CALLS] = levels.calls
+        walk.flags[wa.NEEDS_PYTHON] = 0
         try:
             compiled_state.set_clocks(walk, clocks, cores.schedule, names)
         except ValueError:
@@ -224,10 +225,10 @@ class CompiledLoop:
             return False
         assert self.layout is not None
         status = cw.run_due(self.layout.walk, now_ms)
-        if status == cw.DONE:
+        if status == wa.DONE:
             status = cw.fire_clocks(self.layout.walk, now_ms)
         self.store(clocks)
-        return status == cw.DONE
+        return status == wa.DONE
 
     # ------------------------------------------------------------------ the wait
 
@@ -245,7 +246,7 @@ class CompiledLoop:
         except TypeError:  # a walk of types warm_up did not compile (a bug): the loop stays in Python
             self.broken = True
             return []
-        if status != cw.READY:
+        if status != wa.READY:
             return []
         return [fd for k, fd in enumerate(self._fds) if int(self.polled[2 * k + 1]) >> 16]
 
@@ -262,7 +263,7 @@ class CompiledLoop:
             state = book.state(name)
             state.seq, state.late, state.skipped = int(walk.seq[s]), int(walk.late[s]), int(walk.skipped[s])
             state.unmatched, state.steals = int(walk.unmatched[s]), int(walk.steals[s])
-            state.pending = None if walk.pending[s] == cw.NONE else int(walk.pending[s])
+            state.pending = None if walk.pending[s] == wa.NONE else int(walk.pending[s])
             old = state.in_flight
             flights = {}
             for k in sorted(range(int(walk.flying[s])), key=lambda k: int(walk.fl_seq[s, k])):
@@ -272,28 +273,28 @@ class CompiledLoop:
                 last_end, until, kernel = walk.fl_last_end[s, k], walk.fl_until[s, k], int(walk.fl_kernel[s, k])
                 flight.last_end_ms = None if math.isnan(last_end) else float(last_end)
                 flight.until_ms = None if math.isnan(until) else float(until)
-                flight.kernel_ns = None if kernel == cw.NONE else kernel
+                flight.kernel_ns = None if kernel == wa.NONE else kernel
                 flights[seq] = flight
             state.in_flight = flights
         for r, (_, endpoint, reader) in enumerate(self._readers(layout)):
             reader.last, reader.overrun = int(walk.r_last[r]), int(walk.r_overrun[r])
             mark = int(walk.r_kernel_mark[r])
-            endpoint.kernel_mark_ns = None if mark == cw.NONE else mark
+            endpoint.kernel_mark_ns = None if mark == wa.NONE else mark
         raised: dict[int, set[int]] = {}
         for h, tid in enumerate(walk.th_tid.tolist()):
             level = int(walk.th_level[h])
-            if level == cw.NONE:
+            if level == wa.NONE:
                 levels._level.pop(tid, None)
             else:
                 levels._level[tid] = level
             c = int(walk.th_raised[h])
-            if c != cw.NONE:
+            if c != wa.NONE:
                 raised.setdefault(layout.core_ids[c], set()).add(tid)
         for core_id in layout.core_ids:
             levels.raised.pop(core_id, None)
         for core_id, tids in raised.items():
             levels.raised[core_id] = tids
-        levels.calls = int(walk.flags[cw.CALLS])
+        levels.calls = int(walk.flags[wa.CALLS])
         for c, core_id in enumerate(layout.core_ids):
             python = cores.cores[core_id]
             cursor = python.cursor
@@ -313,15 +314,15 @@ class CompiledLoop:
             cursor.position, cursor.due = int(walk.position[c]), float(walk.due[c])
             python.wake_ms = float(walk.wake[c])
             owner = int(walk.raised[c])
-            cores.raised[core_id] = None if owner == cw.NONE else names[owner]
+            cores.raised[core_id] = None if owner == wa.NONE else names[owner]
             first = int(walk.raised_from[c])
-            if first == cw.NONE:
+            if first == wa.NONE:
                 cores._raised_from.pop(core_id, None)
             else:
                 cores._raised_from[core_id] = first
         cores.wake_ms = min((core.wake_ms for core in cores.cores.values()), default=math.inf)
-        self.costs.wakes += int(walk.flags[cw.WAKES])
-        walk.flags[cw.WAKES] = 0
+        self.costs.wakes += int(walk.flags[wa.WAKES])
+        walk.flags[wa.WAKES] = 0
         self._replay(layout)
 
     def _replay(self, layout: _Layout) -> None:
@@ -329,27 +330,27 @@ class CompiledLoop:
         gone = []
         for record in compiled_state.events(walk):
             kind = record[0]
-            if kind == cw.EV_COMPUTE:
+            if kind == wa.EV_COMPUTE:
                 ms, reported, kernel = (None if math.isnan(x) else x for x in record[3:6])
                 node = layout.reader_nodes[int(record[2])]
                 seen.computes.append(ComputeSample(record[1], node, ms, reported, kernel, int(record[6])))
-            elif kind == cw.EV_RUN:
+            elif kind == wa.EV_RUN:
                 name = names[int(record[2])]
                 self.book.state(name).ends_ms.append(record[1])
                 seen.runs.append(RunSample(record[1], name, int(record[3]), record[4]))
-            elif kind == cw.EV_HOP:
+            elif kind == wa.EV_HOP:
                 seen.hops.append(HopSample(names[int(record[1])], layout.reader_nodes[int(record[2])], record[3]))
-            elif kind == cw.EV_SWITCH:
+            elif kind == wa.EV_SWITCH:
                 core_id = layout.core_ids[int(record[1])]
                 switches = self.costs.switches.get(core_id)
                 if switches is None:
                     switches = self.costs.switches[core_id] = deque(maxlen=SAMPLES)
                 switches.append(record[2])
-            elif kind == cw.EV_GONE:
+            elif kind == wa.EV_GONE:
                 tid = int(walk.th_tid[int(record[1])])
                 if not self.levels.set(tid, int(record[2])):  # refused for another reason: Levels says why (raises)
                     gone.append(tid)
-            elif kind == cw.EV_UNTAKEN:
+            elif kind == wa.EV_UNTAKEN:
                 self.untaken(names[int(record[1])])
         if gone:
             self.gone(gone)

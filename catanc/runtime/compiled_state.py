@@ -1,4 +1,4 @@
-"""The compiled walk's arrays (:class:`~catanc.runtime.compiled_walk.Walk`) from the enforcer's Python objects.
+"""The compiled walk's arrays (:class:`~catanc.runtime.walk_arrays.Walk`) from the enforcer's Python objects.
 
 :func:`install` lays a :class:`~catanc.control.schedule.RuntimeSchedule` out as a new walk of its
 shared cores, as :meth:`SharedCores.install <catanc.runtime.cores.SharedCores.install>` starts
@@ -19,7 +19,7 @@ import numpy as np
 
 from catanc.control.policy import CoreCursor, SlotRule, slot_rules
 from catanc.control.schedule import CoreSchedule, RuntimeSchedule
-from catanc.runtime import compiled_walk as cw
+from catanc.runtime import walk_arrays as wa
 from catanc.runtime.endpoints import Endpoint
 from catanc.runtime.levels import Levels
 from catanc.runtime.nodes import Wiring
@@ -56,7 +56,7 @@ def install(
     now_ms: float,
     *,
     kernel_fd: KernelFd = lambda _endpoint: None,
-) -> tuple[cw.Walk, tuple[str, ...], tuple[int, ...]]:
+) -> tuple[wa.Walk, tuple[str, ...], tuple[int, ...]]:
     """A walk of ``schedule``'s shared cores from ``now_ms``: the walk, its subchains' names and its cores
     (its wake-ups are worked out by :func:`~catanc.runtime.compiled_walk.rewake`, or copied in).
 
@@ -96,7 +96,7 @@ def install(
         for first, chain in enumerate(wiring.tids.get(name, ())):
             sub_threads[s, first] = (len(order), len(chain))
             order += [thread[tid] for tid in chain]
-    th_raised = np.full(len(tids), cw.NONE, dtype=np.int64)
+    th_raised = np.full(len(tids), wa.NONE, dtype=np.int64)
     raised_count = np.zeros(n_cores, dtype=np.int64)
     for c, core_id in enumerate(core_ids):
         for tid in levels.raised.get(core_id, ()):
@@ -104,10 +104,10 @@ def install(
                 th_raised[thread[tid]] = c
                 raised_count[c] += 1
 
-    datagram = np.zeros((n_subs, cw.DATAGRAM), dtype=np.uint8)
+    datagram = np.zeros((n_subs, wa.DATAGRAM), dtype=np.uint8)
     prefix = np.zeros(n_subs, dtype=np.int64)
-    head_fd = np.full(n_subs, cw.NONE, dtype=np.int64)
-    head_kernel_fd = np.full(n_subs, cw.NONE, dtype=np.int64)
+    head_fd = np.full(n_subs, wa.NONE, dtype=np.int64)
+    head_kernel_fd = np.full(n_subs, wa.NONE, dtype=np.int64)
     for s, name in enumerate(names):
         head = wiring.heads.get(name)
         if head is None:
@@ -117,19 +117,19 @@ def install(
         prefix[s] = len(text)
         head_fd[s] = head.sock.fileno() if head.sock is not None else -2
         fd = kernel_fd(head)
-        head_kernel_fd[s] = cw.NONE if fd is None else fd
+        head_kernel_fd[s] = wa.NONE if fd is None else fd
 
     states = [book.state(name) for name in names]
     runs = [schedule.subchains[name] for name in names]
-    walk = cw.Walk(
+    walk = wa.Walk(
         period=np.zeros((versions, n_cores)),
         switch=np.zeros((versions, n_cores)),
         nslots=np.ones((versions, n_cores), dtype=np.int64),
         slot_start=np.zeros((versions, n_cores, slots)),
         slot_length=np.zeros((versions, n_cores, slots)),
-        rule_sub=np.full((versions, n_cores, slots + 1), cw.NONE, dtype=np.int64),
+        rule_sub=np.full((versions, n_cores, slots + 1), wa.NONE, dtype=np.int64),
         rule_every=np.zeros((versions, n_cores, slots + 1), dtype=np.int64),
-        rule_thieves=np.full((versions, n_cores, slots + 1, slots), cw.NONE, dtype=np.int64),
+        rule_thieves=np.full((versions, n_cores, slots + 1, slots), wa.NONE, dtype=np.int64),
         core_every=np.ones((versions, n_cores), dtype=np.int64),
         latest=np.zeros(n_cores, dtype=np.int64),
         version=np.zeros(n_cores, dtype=np.int64),
@@ -138,33 +138,33 @@ def install(
         position=np.zeros(n_cores, dtype=np.int64),
         due=np.zeros(n_cores),
         wake=np.zeros(n_cores),
-        raised=np.full(n_cores, cw.NONE, dtype=np.int64),
-        raised_from=np.full(n_cores, cw.NONE, dtype=np.int64),
+        raised=np.full(n_cores, wa.NONE, dtype=np.int64),
+        raised_from=np.full(n_cores, wa.NONE, dtype=np.int64),
         raised_count=raised_count,
         latency=np.zeros(n_subs),
         length=np.array([len(schedule.subchains[name].nodes) for name in names], dtype=np.int64),
         shared=np.array([int(schedule.subchains[name].shared) for name in names], dtype=np.int64),
         seq=np.array([state.seq for state in states], dtype=np.int64),
-        pending=np.array([cw.NONE if state.pending is None else state.pending for state in states], dtype=np.int64),
+        pending=np.array([wa.NONE if state.pending is None else state.pending for state in states], dtype=np.int64),
         late=np.array([state.late for state in states], dtype=np.int64),
         skipped=np.array([state.skipped for state in states], dtype=np.int64),
         unmatched=np.array([state.unmatched for state in states], dtype=np.int64),
         steals=np.array([state.steals for state in states], dtype=np.int64),
         flying=np.zeros(n_subs, dtype=np.int64),
-        fl_seq=np.zeros((n_subs, cw.FLIGHTS), dtype=np.int64),
-        fl_index=np.zeros((n_subs, cw.FLIGHTS), dtype=np.int64),
-        fl_triggered=np.zeros((n_subs, cw.FLIGHTS)),
-        fl_last_end=np.full((n_subs, cw.FLIGHTS), math.nan),
-        fl_until=np.full((n_subs, cw.FLIGHTS), math.nan),
-        fl_kernel=np.full((n_subs, cw.FLIGHTS), cw.NONE, dtype=np.int64),
+        fl_seq=np.zeros((n_subs, wa.FLIGHTS), dtype=np.int64),
+        fl_index=np.zeros((n_subs, wa.FLIGHTS), dtype=np.int64),
+        fl_triggered=np.zeros((n_subs, wa.FLIGHTS)),
+        fl_last_end=np.full((n_subs, wa.FLIGHTS), math.nan),
+        fl_until=np.full((n_subs, wa.FLIGHTS), math.nan),
+        fl_kernel=np.full((n_subs, wa.FLIGHTS), wa.NONE, dtype=np.int64),
         sub_readers=sub_readers,
         r_index=np.array([index for _, index, _, _ in readers] or [0], dtype=np.int64),
         r_last=np.array([reader.last for _, _, _, reader in readers] or [0], dtype=np.int64),
         r_slots=np.array([reader.slots for _, _, _, reader in readers] or [SLOTS], dtype=np.int64),
         r_overrun=np.array([reader.overrun for _, _, _, reader in readers] or [0], dtype=np.int64),
-        r_kernel_fd=np.array([_fd(kernel_fd(endpoint)) for _, _, endpoint, _ in readers] or [cw.NONE], dtype=np.int64),
+        r_kernel_fd=np.array([_fd(kernel_fd(endpoint)) for _, _, endpoint, _ in readers] or [wa.NONE], dtype=np.int64),
         r_kernel_mark=np.array(
-            [cw.NONE if e.kernel_mark_ns is None else e.kernel_mark_ns for _, _, e, _ in readers] or [cw.NONE],
+            [wa.NONE if e.kernel_mark_ns is None else e.kernel_mark_ns for _, _, e, _ in readers] or [wa.NONE],
             dtype=np.int64,
         ),
         r_expected=np.array(
@@ -173,7 +173,7 @@ def install(
         r_speedup=r_speedup,
         r_address=np.array(addresses or [0], dtype=np.int64),
         entries=np.zeros(
-            max([reader.slots for _, _, _, reader in readers] + [SLOTS]) * cw.ENTRY_WORDS, dtype=np.uint64
+            max([reader.slots for _, _, _, reader in readers] + [SLOTS]) * wa.ENTRY_WORDS, dtype=np.uint64
         ),
         th_tid=np.array(tids, dtype=np.int64),
         th_level=np.array([_level(levels.level(tid)) for tid in tids], dtype=np.int64),
@@ -191,11 +191,11 @@ def install(
         clk_period=np.zeros(max(n_subs, 1)),
         clk_rank=np.zeros(max(n_subs, 1), dtype=np.int64),
         sub_core=np.array(
-            [core_ids.index(run.cores[0]) if run.shared and run.cores[0] in core_ids else cw.NONE for run in runs],
+            [core_ids.index(run.cores[0]) if run.shared and run.cores[0] in core_ids else wa.NONE for run in runs],
             dtype=np.int64,
         ),
         flags=np.array([int(levels.rt), 0, 0, _room(len(readers)), 0, 0, 0], dtype=np.int64),
-        events=np.zeros((EVENTS, cw.EVENT_FIELDS)),
+        events=np.zeros((EVENTS, wa.EVENT_FIELDS)),
         scratch=np.zeros(8, dtype=np.int64),
         text=np.zeros(64, dtype=np.uint8),
     )
@@ -205,7 +205,7 @@ def install(
             walk.fl_seq[s, k], walk.fl_index[s, k], walk.fl_triggered[s, k] = seq, flight.index, flight.triggered_ms
             walk.fl_last_end[s, k] = math.nan if flight.last_end_ms is None else flight.last_end_ms
             walk.fl_until[s, k] = math.nan if flight.until_ms is None else flight.until_ms
-            walk.fl_kernel[s, k] = cw.NONE if flight.kernel_ns is None else flight.kernel_ns
+            walk.fl_kernel[s, k] = wa.NONE if flight.kernel_ns is None else flight.kernel_ns
             walk.flying[s] = k + 1
     _lay_out(walk, 0, schedule, cores, sub)
     for c, core in enumerate(cores):
@@ -214,7 +214,7 @@ def install(
     return walk, names, core_ids
 
 
-def update(walk: cw.Walk, schedule: RuntimeSchedule, names: tuple[str, ...], core_ids: tuple[int, ...]) -> None:
+def update(walk: wa.Walk, schedule: RuntimeSchedule, names: tuple[str, ...], core_ids: tuple[int, ...]) -> None:
     """A new schedule on the same allocation: each core takes it at its next period (:meth:`SharedCores.update`;
     then :func:`~catanc.runtime.compiled_walk.rewake`).
 
@@ -233,7 +233,7 @@ def update(walk: cw.Walk, schedule: RuntimeSchedule, names: tuple[str, ...], cor
 
 
 def _lay_out(
-    walk: cw.Walk, v: int, schedule: RuntimeSchedule, cores: tuple[CoreSchedule, ...], sub: dict[str, int]
+    walk: wa.Walk, v: int, schedule: RuntimeSchedule, cores: tuple[CoreSchedule, ...], sub: dict[str, int]
 ) -> None:
     for c, core in enumerate(cores):
         lay_out_core(walk, v, c, core, rules=slot_rules(core, schedule.subchains), sub=sub)
@@ -244,16 +244,16 @@ def _lay_out(
 
 
 def lay_out_core(
-    walk: cw.Walk, v: int, c: int, core: CoreSchedule, *, rules: tuple[SlotRule, ...], sub: dict[str, int]
+    walk: wa.Walk, v: int, c: int, core: CoreSchedule, *, rules: tuple[SlotRule, ...], sub: dict[str, int]
 ) -> None:
     """Core ``c``'s schedule ``core`` with its slot ``rules`` as version ``v``."""
     width = walk.slot_start.shape[2]
     if len(core.slots) > width:
         raise ValueError(f"core {core.core} has {len(core.slots)} slots, the walk room for {width}")
     walk.period[v, c], walk.switch[v, c], walk.nslots[v, c] = core.period_ms, core.switch_ms, len(core.slots)
-    walk.rule_sub[v, c] = cw.NONE
+    walk.rule_sub[v, c] = wa.NONE
     walk.rule_every[v, c] = 0
-    walk.rule_thieves[v, c] = cw.NONE
+    walk.rule_thieves[v, c] = wa.NONE
     for j, slot in enumerate(core.slots):
         walk.slot_start[v, c, j], walk.slot_length[v, c, j] = slot.start_ms, slot.length_ms
     for j, rule in enumerate(rules):
@@ -267,11 +267,11 @@ def lay_out_core(
 
 
 def _fd(fd: int | None) -> int:
-    return cw.NONE if fd is None else fd
+    return wa.NONE if fd is None else fd
 
 
 def _level(level: int | None) -> int:
-    return cw.NONE if level is None else level
+    return wa.NONE if level is None else level
 
 
 def _room(readers: int) -> int:
@@ -280,7 +280,7 @@ def _room(readers: int) -> int:
 
 
 def set_clocks(
-    walk: cw.Walk, clocks: list[tuple[float, str]], schedule: RuntimeSchedule, names: tuple[str, ...]
+    walk: wa.Walk, clocks: list[tuple[float, str]], schedule: RuntimeSchedule, names: tuple[str, ...]
 ) -> None:
     """The enforcer's clocks (a heap of (due, subchain)) into the walk: those of subchains still on a clock."""
     sub = {name: s for s, name in enumerate(names)}
@@ -299,17 +299,17 @@ def set_clocks(
             rank[name],
         )
         k += 1
-    walk.flags[cw.CLOCKS] = k
+    walk.flags[wa.CLOCKS] = k
 
 
-def get_clocks(walk: cw.Walk, names: tuple[str, ...]) -> list[tuple[float, str]]:
+def get_clocks(walk: wa.Walk, names: tuple[str, ...]) -> list[tuple[float, str]]:
     """The walk's clocks as the enforcer's heap."""
-    clocks = [(float(walk.clk_due[k]), names[int(walk.clk_sub[k])]) for k in range(int(walk.flags[cw.CLOCKS]))]
+    clocks = [(float(walk.clk_due[k]), names[int(walk.clk_sub[k])]) for k in range(int(walk.flags[wa.CLOCKS]))]
     heapq.heapify(clocks)
     return clocks
 
 
-def runs_in_flight(walk: cw.Walk, s: int) -> dict[int, Flight]:
+def runs_in_flight(walk: wa.Walk, s: int) -> dict[int, Flight]:
     """Subchain ``s``'s runs in flight, by seq."""
     found = {}
     for k in range(int(walk.flying[s])):
@@ -320,14 +320,14 @@ def runs_in_flight(walk: cw.Walk, s: int) -> dict[int, Flight]:
             float(walk.fl_triggered[s, k]),
             None if math.isnan(last_end) else float(last_end),
             None if math.isnan(until) else float(until),
-            None if kernel == cw.NONE else kernel,
+            None if kernel == wa.NONE else kernel,
         )
     return dict(sorted(found.items()))
 
 
-def events(walk: cw.Walk) -> list[tuple[float, ...]]:
+def events(walk: wa.Walk) -> list[tuple[float, ...]]:
     """The records the walk logged since the last call (the log is emptied)."""
-    count = int(walk.flags[cw.LOGGED])
+    count = int(walk.flags[wa.LOGGED])
     found = [tuple(float(x) for x in row) for row in walk.events[:count]]
-    walk.flags[cw.LOGGED] = 0
+    walk.flags[wa.LOGGED] = 0
     return found

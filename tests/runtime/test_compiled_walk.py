@@ -25,6 +25,7 @@ pytest.importorskip("numba", reason="the compiled walk needs numba (the sim extr
 from catanc.control.schedule import RuntimeSchedule
 from catanc.runtime import compiled_state, ring
 from catanc.runtime import compiled_walk as cw
+from catanc.runtime import walk_arrays as wa
 from catanc.runtime.levels import Levels
 from catanc.runtime.nodes import Wiring
 from catanc.runtime.runs import RunBook
@@ -38,7 +39,7 @@ class Both:
 
     schedule: RuntimeSchedule
     side: Side
-    walk: cw.Walk
+    walk: wa.Walk
     names: tuple[str, ...]
     core_ids: tuple[int, ...]
     writers: dict[str, ring.RingWriter]
@@ -82,7 +83,7 @@ def compare(both: Both, step: str) -> None:
         }
         assert got == want, f"{step}: {name}'s runs in flight"
         counters = (state.seq, state.pending, state.late, state.skipped, state.unmatched, state.steals)
-        pending = None if walk.pending[s] == cw.NONE else int(walk.pending[s])
+        pending = None if walk.pending[s] == wa.NONE else int(walk.pending[s])
         mine = (
             int(walk.seq[s]),
             pending,
@@ -93,24 +94,24 @@ def compare(both: Both, step: str) -> None:
         )
         assert mine == counters, f"{step}: {name}'s counters (seq, pending, late, skipped, unmatched, steals)"
     for c, core in enumerate(both.core_ids):
-        raised = None if walk.raised[c] == cw.NONE else names[walk.raised[c]]
+        raised = None if walk.raised[c] == wa.NONE else names[walk.raised[c]]
         assert raised == python.cores.raised.get(core), f"{step}: the subchain raised on core {core}"
         threads = {int(walk.th_tid[h]) for h in range(walk.th_tid.size) if walk.th_raised[h] == c}
         assert threads == python.levels.raised.get(core, set()), f"{step}: the threads raised on core {core}"
-    assert cw.wake_ms(walk) == python.cores.wake_ms, f"{step}: the next wake-up"
+    assert wa.wake_ms(walk) == python.cores.wake_ms, f"{step}: the next wake-up"
     events = compiled_state.events(walk)
     computes = [
         (e[1], both.reader_nodes[int(e[2])], _none(e[3]), _none(e[4]), _none(e[5]), int(e[6]))
         for e in events
-        if e[0] == cw.EV_COMPUTE
+        if e[0] == wa.EV_COMPUTE
     ]
     seen = python.seen
     assert computes == [tuple(c) for c in seen.computes], f"{step}: compute samples"
-    runs = [(e[1], names[int(e[2])], int(e[3]), e[4]) for e in events if e[0] == cw.EV_RUN]
+    runs = [(e[1], names[int(e[2])], int(e[3]), e[4]) for e in events if e[0] == wa.EV_RUN]
     assert runs == [tuple(r) for r in seen.runs], f"{step}: runs done"
-    hops = [(names[int(e[1])], both.reader_nodes[int(e[2])], e[3]) for e in events if e[0] == cw.EV_HOP]
+    hops = [(names[int(e[1])], both.reader_nodes[int(e[2])], e[3]) for e in events if e[0] == wa.EV_HOP]
     assert hops == [tuple(h) for h in seen.hops], f"{step}: hop delays"
-    switches = [int(e[1]) for e in events if e[0] == cw.EV_SWITCH]
+    switches = [int(e[1]) for e in events if e[0] == wa.EV_SWITCH]
     for c, core in enumerate(both.core_ids):
         assert switches.count(c) == len(python.costs.switches.get(core, ())), f"{step}: switch samples"
         python.costs.switches.pop(core, None)
@@ -137,7 +138,7 @@ def test_the_compiled_walk_does_what_the_python_one_does(seed: int) -> None:
         for step in range(120):
             now = next_wake_up(rng, now, both.side.cores.wake_ms)
             report_runs(both.schedule, both.side.book, both.writers, rng, now)
-            assert cw.run_due(both.walk, now) == cw.DONE
+            assert cw.run_due(both.walk, now) == wa.DONE
             both.side.cores.run_due(now)
             compare(both, f"step {step} at {now:.3f} ms")
             if rng.random() < 0.1:  # the housekeeping reads every busy subchain, then the cores wake again
@@ -180,6 +181,6 @@ def test_a_schedstat_line_is_read_as_the_python_side_reads_it() -> None:
         got = cw.kernel_ns(walk, fd)
         after = parse_schedstat(os.pread(fd, 128, 0).decode())
         assert before <= got <= after
-        assert cw.kernel_ns(walk, -1) == cw.NONE
+        assert cw.kernel_ns(walk, -1) == wa.NONE
     finally:
         os.close(fd)
