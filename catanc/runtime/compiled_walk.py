@@ -67,8 +67,12 @@ F = TypeVar("F", bound=Callable[..., Any])
 
 
 def compiled(function: F) -> F:
-    """numba's no-Python mode, cached on disk beside the module."""
-    return cast(F, numba.njit(cache=True, nogil=True)(function))
+    """numba's no-Python mode, cached on disk beside the module.
+
+    numpy's error model: a division by zero gives inf or nan instead of raising, so the walk has no
+    path that needs Python's exception machinery (the object code the enforcer loads runs without
+    numba: :mod:`catanc.runtime.compiled_entry`)."""
+    return cast(F, numba.njit(cache=True, nogil=True, error_model="numpy")(function))
 
 
 drop_stale_cache(Path(__file__))
