@@ -139,6 +139,12 @@ class SchedError(CatancError):
     """A scheduling call failed for a reason other than privileges or a vanished thread."""
 
 
+class LoopError(CatancError):
+    """The compiled loop is not built here, or its object file does not link into this process."""
+
+    exit_code = ExitCode.MACHINE
+
+
 class OutputError(CatancError):
     """An output folder cannot be written or read."""
 

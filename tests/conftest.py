@@ -21,10 +21,14 @@ import shutil
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
 
 from tests.support.linux import missing_tools, nobody_ids, require_fifo
+
+if TYPE_CHECKING:
+    from catanc.runtime.compiled_entry import WalkEntry
 
 REALTIME_FIXTURES = frozenset({"real_kernel", "nobody"})
 
@@ -44,21 +48,27 @@ def real_kernel(request: pytest.FixtureRequest, compiled_loop_built: None) -> No
 
 @pytest.fixture(scope="session")
 def compiled_loop_built() -> None:
-    """The compiled loop built on this machine (numba's cache and catanc's stamp), once, before any test starts an
+    """The compiled loop built on this machine (its object file and stamp), once, before any test starts an
     enforcer: ``catanc run``'s default loop is then the compiled one, as on a machine that has run catanc before.
-    Compiled from scratch (a fresh checkout) it takes about a minute, from the cache a second.  Without numba it
-    does nothing: the enforcers run the Python loop."""
+    Compiled from scratch (a fresh checkout) it takes about a minute, with numba's cache of the walk a few
+    seconds.  Without numba it does nothing: the enforcers run the Python loop."""
     if importlib.util.find_spec("numba") is None:
         return
-    from catanc.runtime.compiled_ready import build
+    from catanc.runtime.compiled_ready import LoopState, build, state
 
-    assert build() is not None, "the compiled loop was built but not stamped: no writable stamp folder"
+    if state() is LoopState.READY:
+        return
+    _, stamp = build()
+    assert stamp is not None, "the compiled loop was built but not stamped: no writable stamp folder"
 
 
 @pytest.fixture(scope="session")
-def compiled_loop(compiled_loop_built: None) -> None:
-    """The compiled loop, for a test of it: skips without numba."""
+def compiled_loop(compiled_loop_built: None) -> WalkEntry:
+    """The compiled loop's entry linked into this process, for a test of it: skips without numba."""
     pytest.importorskip("numba", reason="the compiled loop needs numba")
+    from catanc.runtime.compiled_ready import load
+
+    return load()
 
 
 @pytest.fixture(scope="module")

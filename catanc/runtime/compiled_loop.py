@@ -19,44 +19,19 @@ import select
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from catanc.control.schedule import RuntimeSchedule
 from catanc.runtime import compiled_state
-from catanc.runtime import compiled_walk as cw
 from catanc.runtime import walk_arrays as wa
+from catanc.runtime.compiled_entry import WalkEntry
 from catanc.runtime.cores import SharedCores
 from catanc.runtime.costs import SAMPLES, Costs
 from catanc.runtime.endpoints import Endpoint
-from catanc.runtime.levels import Levels
 from catanc.runtime.nodes import Wiring
 from catanc.runtime.ring import RingReader
-from catanc.runtime.runs import ComputeSample, HopSample, RunBook, RunFlight, RunSample, Seen
-
-
-def warm_up() -> None:
-    """Load (or, on a machine's first run, compile) the walk's loop now: the first call costs 0.5-0.7 s of CPU
-    from numba's cache (a minute without one), which must not come at SCHED_FIFO in the loop thread.  Then
-    numba may compile it no more: a walk of other types would be a TypeError (:meth:`CompiledLoop.wait`
-    falls back to Python), never a compile in the loop thread."""
-    empty = RuntimeSchedule(1, {}, ())
-    walk, _, _ = compiled_state.install(
-        empty, Wiring(0, empty, {}, {}, {}), RunBook([], {}, lambda _e: None), Levels(rt=False), 0.0
-    )
-    dispatcher: Any = cw.wait
-    dispatcher(walk, np.zeros(2, dtype=np.int32), -math.inf)
-    dispatcher.disable_compile()
-
-
-def numba_cache_folder() -> Path | None:
-    """The folder numba keeps the loop's cache in (beside the source, or the user's cache where that is read-only)."""
-    cache = getattr(cw.wait, "_cache", None)  # numba keeps its cache object private; None if that ever changes
-    folder = getattr(cache, "cache_path", None)
-    return Path(folder) if isinstance(folder, str) else None
-
+from catanc.runtime.runs import ComputeSample, HopSample, RunFlight, RunSample, Seen
 
 Untaken = Callable[[str], None]
 """A subchain whose head did not take its trigger (the send failed)."""
@@ -83,12 +58,14 @@ class CompiledLoop:
         costs: Costs,
         seen: Seen,
         *,
+        entry: WalkEntry,
         kernel_fd: compiled_state.KernelFd,
         gone: Callable[[list[int]], None],
         untaken: Untaken,
         fds_generation: Callable[[], int] = lambda: 0,
     ) -> None:
         self.cores, self.book, self.levels, self.costs, self.seen = cores, cores.book, cores.levels, costs, seen
+        self.entry = entry
         self.kernel_fd, self.gone, self.untaken = kernel_fd, gone, untaken
         self.fds_generation = fds_generation  # kernel_fd's descriptors changed: the walk's copies are stale
         self.layout: _Layout | None = None
@@ -224,9 +201,11 @@ class CompiledLoop:
         if not self.load(now_ms, clocks):
             return False
         assert self.layout is not None
-        status = cw.run_due(self.layout.walk, now_ms)
-        if status == wa.DONE:
-            status = cw.fire_clocks(self.layout.walk, now_ms)
+        try:
+            status = self.entry.run_due(self.layout.walk, now_ms)
+        except TypeError:  # as in wait: the walk's Python state is as it was, for the caller's Python walk
+            self.broken = True
+            return False
         self.store(clocks)
         return status == wa.DONE
 
@@ -242,8 +221,8 @@ class CompiledLoop:
             self.polled[0::2] = fds
             self.polled[1::2] = select.POLLIN
         try:
-            status = cw.wait(layout.walk, self.polled, until_ms)
-        except TypeError:  # a walk of types warm_up did not compile (a bug): the loop stays in Python
+            status = self.entry.wait(layout.walk, self.polled, until_ms)
+        except TypeError:  # a walk not laid out as the object file was compiled for (a bug): the loop stays in Python
             self.broken = True
             return []
         if status != wa.READY:

@@ -1,16 +1,17 @@
-"""Whether this machine has the compiled loop built, and building it off the enforcer's path.
+"""Whether this machine has the compiled loop built, building it off the enforcer's path, and loading it.
 
-numba compiles the loop (:mod:`catanc.runtime.compiled_walk`) once per machine and catanc version:
-about a minute of one CPU, then ~0.6 s to load from its on-disk cache.  ``catanc run``'s default
-(``--loop auto``) takes the compiled loop only where that cache is known to be there, so a run never
-spends the minute before its socket is up (nodes give up after 5 s); elsewhere it runs the Python
-loop and builds the cache in a child process at SCHED_OTHER, nice 19, for the next run.
+numba compiles the loop (:mod:`catanc.runtime.compiled_walk`, behind the C entry of
+:mod:`catanc.runtime.compiled_build`) into an object file once per machine and catanc version:
+about a minute of one CPU.  ``catanc run`` then links that file in without numba
+(:class:`~catanc.runtime.compiled_entry.WalkEntry`: ~0.03 s of CPU).  Its default (``--loop
+auto``) takes the compiled loop only where the file is built, so a run never spends the minute
+before its socket is up (nodes give up after 5 s); elsewhere it runs the Python loop and builds
+the file in a child process at SCHED_OTHER, nice 19, for the next run.
 
-numba cannot say whether a function is in its cache without loading it, so a *stamp* file says so:
-written after a process loaded (or compiled) the loop, it names what numba keys its cache on (its
-version, Python's, the CPU, the source file's size and time) and the cache files numba wrote, with
-their sizes and times.  A stamp that no longer matches (an upgrade, an edit, a deleted
-``__pycache__``, another CPU) is "not built".
+Beside the object file a *stamp* says what it was built for: numba's and llvmlite's versions,
+Python's, the CPU (the code uses its features), a digest of the modules compiled, and the file's
+size, digest, entry symbol and the walk's layout.  A stamp that no longer matches (an upgrade, an
+edit, another CPU, a changed or missing file) is "not built".
 """
 
 from __future__ import annotations
@@ -26,20 +27,24 @@ import platform
 import signal
 import subprocess
 import sys
-from collections.abc import Iterator
 from enum import Enum
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
-from catanc.errors import OutputError
+from catanc.errors import LoopError, OutputError
 from catanc.files import write_files
+
+if TYPE_CHECKING:  # the entry imports numpy, which the enforcer must not before its planner's fork
+    from catanc.runtime.compiled_entry import Layout, WalkEntry
 
 CACHE_ENV = "CATANC_CACHE_DIR"
 """A folder for the stamp instead of the default places (tests; read-only installs)."""
 
 STAMP_NAME = "compiled_walk.ready.json"
-SOURCE = Path(__file__).with_name("compiled_walk.py")  # the module numba compiles and keys its cache on
-NUMBA_FILES = (".nbi", ".nbc")
+OBJECT_NAME = "compiled_walk.o"
+SOURCES = tuple(
+    Path(__file__).with_name(name) for name in ("compiled_walk.py", "walk_arrays.py", "compiled_build.py")
+)  # what the object file is compiled from
 PR_SET_PDEATHSIG = 1
 CPU_FIELDS = ("model name", "flags", "Features", "CPU implementer", "CPU part")  # x86-64 and aarch64
 
@@ -49,25 +54,25 @@ LoopChoice = Literal["auto", "compiled", "python"]
 
 
 class LoopState(Enum):
-    READY = "ready"  # built: loads in ~0.6 s
-    UNBUILT = "unbuilt"  # numba is here, its cache of the loop is not (or is stale)
+    READY = "ready"  # built: loads in ~0.03 s
+    UNBUILT = "unbuilt"  # numba is here, the loop's object file is not (or is stale)
     NO_NUMBA = "no numba"  # the Python loop only
 
 
 def stamp_folders() -> list[Path]:
-    """Where a stamp may be, in order: ``$CATANC_CACHE_DIR`` alone if set; else beside the source (where numba
-    caches when it may write there), then the user's cache folder (where numba caches otherwise)."""
+    """Where the object file and its stamp may be, in order: ``$CATANC_CACHE_DIR`` alone if set; else beside the
+    source (an install this user may write), then the user's cache folder."""
     chosen = os.environ.get(CACHE_ENV)
     if chosen:
         return [Path(chosen)]
     user = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "catanc"
-    return [SOURCE.parent / "__pycache__", user]
+    return [SOURCES[0].parent / "__pycache__", user]
 
 
-def numba_version() -> str | None:
-    """The installed numba's version (read from its metadata: numba is not imported), None without numba."""
+def version_of(package: str) -> str | None:
+    """An installed package's version (read from its metadata: it is not imported), None if it is not installed."""
     try:
-        return importlib.metadata.version("numba")
+        return importlib.metadata.version(package)
     except importlib.metadata.PackageNotFoundError:
         return None
 
@@ -85,103 +90,106 @@ def cpu_identity(cpuinfo: str) -> str:
 
 
 def machine_key(numba: str) -> dict[str, Any]:
-    """What numba's cache of the loop depends on, here and now (``numba``: its version)."""
+    """What the object file depends on, here and now (``numba``: its version)."""
     try:
         cpuinfo = Path("/proc/cpuinfo").read_text(errors="replace")
     except OSError:
         cpuinfo = ""
-    source = SOURCE.stat()
+    sources = hashlib.sha256()
+    for source in SOURCES:
+        sources.update(source.read_bytes())
     return {
         "numba": numba,
+        "llvmlite": version_of("llvmlite"),
         "python": sys.version,
         "machine": platform.machine(),
         "cpu": cpu_identity(cpuinfo),
-        "source": [source.st_mtime_ns, source.st_size],
+        "sources": sources.hexdigest(),
     }
 
 
-def _file_stats(folder: Path) -> dict[str, list[int]]:
-    """numba's cache files of the loop's module in ``folder``: name -> [mtime_ns, size]."""
-    stats: dict[str, list[int]] = {}
-    for path in sorted(folder.glob(f"{SOURCE.stem}.*")):
-        if path.suffix in NUMBA_FILES:
-            with contextlib.suppress(OSError):
-                stat = path.stat()
-                stats[path.name] = [stat.st_mtime_ns, stat.st_size]
-    return stats
+def _built(stamp: dict[str, Any], key: dict[str, Any], folder: Path) -> tuple[bytes, str, Layout] | None:
+    """The object file ``stamp`` (a parsed stamp file in ``folder``) names, if it was built for ``key`` and is as
+    built: its bytes, entry symbol and walk layout."""
+    symbol, layout, digest = stamp.get("symbol"), stamp.get("layout"), stamp.get("sha256")
+    if stamp.get("key") != key or not isinstance(symbol, str) or not isinstance(layout, list):
+        return None
+    try:
+        code = (folder / OBJECT_NAME).read_bytes()
+    except OSError:
+        return None
+    if hashlib.sha256(code).hexdigest() != digest:
+        return None
+    try:
+        return code, symbol, tuple((str(dtype), int(ndim)) for dtype, ndim in layout)
+    except (TypeError, ValueError):
+        return None
 
 
-def stamp_matches(stamp: dict[str, Any], key: dict[str, Any]) -> bool:
-    """Whether ``stamp`` (a parsed stamp file) was written for ``key`` and its cache files are still as written."""
-    if stamp.get("key") != key:
-        return False
-    files = stamp.get("files")
-    folder = stamp.get("folder")
-    if not isinstance(files, dict) or not files or not isinstance(folder, str):
-        return False
-    now = _file_stats(Path(folder))
-    return all(now.get(name) == stat for name, stat in files.items())
-
-
-def state() -> LoopState:
-    """Whether the compiled loop is built on this machine (a few stat calls: numba is not imported)."""
-    numba = numba_version()
+def find() -> tuple[bytes, str, Layout] | None:
+    """The compiled loop's object file built for this machine (its bytes, entry symbol, walk layout), or None."""
+    numba = version_of("numba")
     if numba is None:
-        return LoopState.NO_NUMBA
+        return None
     key = machine_key(numba)
     for folder in stamp_folders():
         try:
             stamp = json.loads((folder / STAMP_NAME).read_text())
         except (OSError, ValueError):
             continue
-        if isinstance(stamp, dict) and stamp_matches(stamp, key):
-            return LoopState.READY
-    return LoopState.UNBUILT
-
-
-def write_stamp(cache_folder: Path) -> Path | None:
-    """Record that this process has the loop from numba's cache in ``cache_folder``: the stamp written (atomically,
-    in the first stamp folder that takes it), or None where none does (the next run builds again)."""
-    numba = numba_version()
-    files = _file_stats(cache_folder)
-    if numba is None or not files:
-        return None
-    stamp = {"key": machine_key(numba), "folder": str(cache_folder), "files": files}
-    text = json.dumps(stamp, indent=1, sort_keys=True) + "\n"
-    for folder in stamp_folders():
-        with contextlib.suppress(OutputError):
-            return write_files(folder, {STAMP_NAME: text.encode()}, kind="compiled loop's stamp")[0]
+        found = _built(stamp, key, folder) if isinstance(stamp, dict) else None
+        if found is not None:
+            return found
     return None
 
 
-@contextlib.contextmanager
-def scipy_out_of_reach() -> Iterator[None]:
-    """Within it, importing scipy's linear algebra fails at once (unless this process has it already).
-
-    numba imports scipy when it is imported (a version check) and ``scipy.linalg`` when it first loads its
-    numpy support (a BLAS check for ``np.dot``): ~0.2 s of CPU together, a quarter of loading the compiled
-    loop, which multiplies no matrices.  Both treat an ImportError as "not installed"."""
-    blocked = next((name for name in ("scipy", "scipy.linalg") if name not in sys.modules), None)
-    if blocked is None:
-        yield
-        return
-    sys.modules[blocked] = None  # type: ignore[assignment]  # None here: an import raises ImportError
-    try:
-        yield
-    finally:
-        if blocked in sys.modules and sys.modules[blocked] is None:
-            del sys.modules[blocked]
+def state() -> LoopState:
+    """Whether the compiled loop is built on this machine (numba is not imported)."""
+    if version_of("numba") is None:
+        return LoopState.NO_NUMBA
+    return LoopState.READY if find() is not None else LoopState.UNBUILT
 
 
-def build() -> Path | None:
-    """Load the compiled loop into this process (compiling it where numba's cache lacks it) and stamp it; the stamp.
+def load() -> WalkEntry:
+    """The compiled loop's entry, linked into this process; :class:`LoopError` if it is not built or does not link."""
+    from catanc.runtime.compiled_entry import WalkEntry  # noqa: PLC0415 - numpy and LLVM only where it runs
+
+    found = find()
+    if found is None:
+        raise LoopError("the compiled loop is not built on this machine")
+    return WalkEntry(*found)
+
+
+def write_built(code: bytes, symbol: str, layout: Layout) -> Path | None:
+    """Write the object file ``code`` and its stamp (atomically, the file first, in the first stamp folder that takes
+    them): the stamp, or None where no folder does (the next run builds again)."""
+    numba = version_of("numba")
+    if numba is None:
+        return None
+    stamp = {
+        "key": machine_key(numba),
+        "layout": [list(field) for field in layout],
+        "sha256": hashlib.sha256(code).hexdigest(),
+        "symbol": symbol,
+    }
+    text = json.dumps(stamp, sort_keys=True) + "\n"
+    for folder in stamp_folders():
+        with contextlib.suppress(OutputError):  # the object first: a stamp never names an older file
+            return write_files(folder, {OBJECT_NAME: code, STAMP_NAME: text.encode()}, kind="compiled loop")[1]
+    return None
+
+
+def build() -> tuple[WalkEntry, Path | None]:
+    """Compile the loop's object file, link it into this process and write it with its stamp: the entry, and the
+    stamp or None (:func:`write_built`).  A file that does not link is not written (:class:`LoopError`).
 
     Imports numba: call it at SCHED_OTHER, never from a real-time thread."""
-    from catanc.runtime.compiled_loop import numba_cache_folder, warm_up  # noqa: PLC0415 - numba's import
+    from catanc.runtime.compiled_build import object_code  # noqa: PLC0415 - numba's import
+    from catanc.runtime.compiled_entry import WalkEntry  # noqa: PLC0415 - as in load
 
-    warm_up()
-    folder = numba_cache_folder()
-    return write_stamp(folder) if folder is not None else None
+    code, symbol, layout = object_code()
+    entry = WalkEntry(code, symbol, layout)
+    return entry, write_built(code, symbol, layout)
 
 
 class BackgroundBuild:
@@ -199,7 +207,8 @@ class BackgroundBuild:
         return self.process.pid if self.process is not None else None
 
     def stop(self) -> None:
-        """End the build if it is still running (numba writes each cache file whole: nothing half-written stays)."""
+        """End the build if it is still running (each file is written whole, the stamp last: nothing half-written
+        stays)."""
         process, self.process = self.process, None
         if process is None:
             return
@@ -233,7 +242,11 @@ def _build_in_background(parent: int) -> int:
             fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
             return 0  # another build holds it: that one will stamp
-        return 0 if build() is not None else 1
+        try:
+            _, stamp = build()
+        except LoopError:
+            return 1
+        return 0 if stamp is not None else 1
     return 1  # nowhere to write a stamp
 
 

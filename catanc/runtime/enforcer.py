@@ -43,7 +43,7 @@ from typing import TYPE_CHECKING, Any, Literal
 from catanc.artifacts.runtime_table import RuntimeTable
 from catanc.control.policy import next_clock_ms
 from catanc.control.schedule import RuntimeSchedule, SubchainRun
-from catanc.errors import CatancError, ExitCode, PrivilegeError, SchedError
+from catanc.errors import CatancError, ExitCode, LoopError, PrivilegeError, SchedError
 from catanc.extras import require
 from catanc.runtime import compiled_ready, protocol
 from catanc.runtime.compiled_ready import BackgroundBuild, LoopChoice, LoopState
@@ -425,7 +425,7 @@ class Enforcer:
     def _compiled_loop(self, choice: LoopChoice) -> CompiledLoop | None:
         """The shared cores walked compiled between the loop's visits to Python, or None: Python's loop.
 
-        ``auto`` takes the compiled loop where it is built on this machine (loaded in ~0.6 s); elsewhere it
+        ``auto`` takes the compiled loop where it is built on this machine (linked in ~0.03 s); elsewhere it
         runs Python's and builds it in a child at nice 19 for the next run.  ``compiled`` builds it here
         if it must (about a minute, before the socket is bound)."""
         if choice == "python":
@@ -453,11 +453,20 @@ class Enforcer:
             self.loop_why = "built on this machine"
         # numpy's BLAS would start a thread per CPU at import: the enforcer multiplies no matrices.
         os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-        with compiled_ready.scipy_out_of_reach():
-            require("numba", "catanc run --loop compiled")
-            from catanc.runtime.compiled_loop import CompiledLoop  # noqa: PLC0415 - numba only when asked for
+        from catanc.runtime.compiled_loop import CompiledLoop  # noqa: PLC0415 - numpy only when asked for
 
-            compiled_ready.build()  # here, at SCHED_OTHER, before the loop thread is raised
+        try:
+            if choice == "compiled" and compiled_ready.state() is not LoopState.READY:
+                require("numba", "catanc run --loop compiled")
+                entry, _ = compiled_ready.build()  # here, at SCHED_OTHER, before the loop thread is raised
+            else:
+                entry = compiled_ready.load()
+        except LoopError as exc:
+            if choice == "compiled":
+                raise LoopError(f"catanc run --loop compiled: {exc}") from None
+            self.loop_why = f"the compiled loop does not load here: {exc}"
+            self.notes.note(f"the Python loop: {self.loop_why}")
+            return None
 
         def untaken(name: str) -> None:
             head = self.wiring.heads.get(name) if self.wiring is not None else None
@@ -468,6 +477,7 @@ class Enforcer:
             self.cores,
             self.costs,
             self.reader.seen,
+            entry=entry,
             kernel_fd=lambda endpoint: self.cpu_clocks.opened_fd(endpoint.tid),
             gone=self.nodes.gone_tids,
             untaken=untaken,

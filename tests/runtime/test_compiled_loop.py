@@ -14,19 +14,21 @@ import heapq
 import math
 import os
 import random
-import time
 from dataclasses import replace
-from typing import Any
 
+import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 pytest.importorskip("numba", reason="the compiled loop needs numba (the sim extra)")
 
-from catanc.runtime import compiled_walk as cw
-from catanc.runtime import ring
-from catanc.runtime.compiled_loop import CompiledLoop, warm_up
+from catanc.errors import LoopError
+from catanc.runtime import compiled_ready, ring
+from catanc.runtime import walk_arrays as wa
+from catanc.runtime.compiled_build import sample_walk
+from catanc.runtime.compiled_entry import WalkEntry, describe, layout_of
+from catanc.runtime.compiled_loop import CompiledLoop
 from tests.support.hot_path import (
     Side,
     drained,
@@ -100,7 +102,9 @@ def agree(python: Side, compiled: Side, step: str) -> None:
 
 @settings(max_examples=40, deadline=None)
 @given(st.integers(0, 2**32 - 1))
-def test_the_compiled_loop_keeps_the_enforcers_state_as_the_python_walk_does(seed: int) -> None:
+def test_the_compiled_loop_keeps_the_enforcers_state_as_the_python_walk_does(
+    compiled_loop: WalkEntry, seed: int
+) -> None:
     rng = random.Random(seed)
     schedule = random_schedule(rng, dedicated=True)
     fds = {node: ring.create(slots=rng.choice((4, 8, 64))) for run in schedule.subchains.values() for node in run.nodes}
@@ -111,6 +115,7 @@ def test_the_compiled_loop_keeps_the_enforcers_state_as_the_python_walk_does(see
         compiled.cores,
         compiled.costs,
         compiled.seen,
+        entry=compiled_loop,
         kernel_fd=lambda _endpoint: None,
         gone=compiled.gone.extend,
         untaken=compiled.untaken.append,
@@ -149,33 +154,39 @@ def test_the_compiled_loop_keeps_the_enforcers_state_as_the_python_walk_does(see
                 thing.close()  # type: ignore[attr-defined]
 
 
-def test_the_loop_warms_up_at_once_and_returns_when_its_time_is_past() -> None:
-    """warm_up (the enforcer calls it at SCHED_OTHER, before raising its loop) loads or compiles ``wait`` and
-    comes back: its time (-inf) is past."""
-    started = time.monotonic()
-    warm_up()
-    assert time.monotonic() - started < 120.0  # a compile from scratch takes a minute on the development VM
+def test_the_entry_returns_at_once_when_its_time_is_past(compiled_loop: WalkEntry) -> None:
+    """The object file's entry, linked without numba, walks a walk of nothing and comes back: its time is past."""
+    from catanc.runtime.compiled_build import sample_walk
+
+    walk = sample_walk()
+    assert compiled_loop.wait(walk, np.zeros(0, dtype=np.int32), -math.inf) == wa.TIME
+    assert compiled_loop.run_due(walk, 0.0) == wa.DONE
 
 
-def test_a_real_walk_runs_what_the_warm_up_compiled() -> None:
-    """Any app's walk has the warm-up's types: a second compile would come in the loop thread, at SCHED_FIFO
-    (nodes whose estimates are whole numbers once made the expected times an integer array)."""
-    warm_up()
-    dispatcher: Any = cw.wait  # numba's dispatcher: the argument types it compiled for
-    compiled = list(dispatcher.signatures)
+def test_a_real_walk_has_the_layout_the_object_file_was_compiled_for(compiled_loop: WalkEntry) -> None:
+    """Any app's walk is laid out as the build's sample walk (nodes whose estimates are whole numbers once made
+    the expected times an integer array: numba compiled again, in the loop thread, at SCHED_FIFO)."""
     rng = random.Random(7)
     schedule = random_schedule(rng, dedicated=True)
     fds = {node: ring.create() for run in schedule.subchains.values() for node in run.nodes}
     one = side(schedule, fds, rng)
     one.book.expected = {node: 2 for run in schedule.subchains.values() for node in run.nodes}  # compute_ms: 2
     loop = CompiledLoop(
-        one.cores, one.costs, one.seen, kernel_fd=lambda _e: None, gone=one.gone.extend, untaken=one.untaken.append
+        one.cores,
+        one.costs,
+        one.seen,
+        entry=compiled_loop,
+        kernel_fd=lambda _e: None,
+        gone=one.gone.extend,
+        untaken=one.untaken.append,
     )
     clocks = [(0.0, run.name) for run in schedule.clocked]
     try:
         assert loop.load(0.0, clocks)
+        assert loop.layout is not None
+        assert layout_of(loop.layout.walk) == compiled_loop.layout
         loop.wait([], -math.inf)
-        assert list(dispatcher.signatures) == compiled
+        assert not loop.broken
     finally:
         for thing in one.closing:
             thing.close()  # type: ignore[attr-defined]
@@ -183,16 +194,21 @@ def test_a_real_walk_runs_what_the_warm_up_compiled() -> None:
             os.close(fd)
 
 
-def test_a_walk_the_warm_up_did_not_compile_falls_back_to_python() -> None:
-    """numba may not compile the loop after the warm-up (it would, in the loop thread, at SCHED_FIFO): a walk
-    of other types makes the compiled loop give up, and the enforcer's Python loop goes on."""
-    warm_up()
+def test_a_walk_laid_out_otherwise_falls_back_to_python(compiled_loop: WalkEntry) -> None:
+    """The object file reads each array as the dtype it was compiled for: a walk of other types makes the compiled
+    loop give up (never a read of int64 as float64), and the enforcer's Python loop goes on."""
     rng = random.Random(11)
     schedule = random_schedule(rng, dedicated=True)
     fds = {node: ring.create() for run in schedule.subchains.values() for node in run.nodes}
     one = side(schedule, fds, rng)
     loop = CompiledLoop(
-        one.cores, one.costs, one.seen, kernel_fd=lambda _e: None, gone=one.gone.extend, untaken=one.untaken.append
+        one.cores,
+        one.costs,
+        one.seen,
+        entry=compiled_loop,
+        kernel_fd=lambda _e: None,
+        gone=one.gone.extend,
+        untaken=one.untaken.append,
     )
     clocks = [(0.0, run.name) for run in schedule.clocked]
     try:
@@ -207,3 +223,21 @@ def test_a_walk_the_warm_up_did_not_compile_falls_back_to_python() -> None:
             thing.close()  # type: ignore[attr-defined]
         for fd in fds.values():
             os.close(fd)
+
+
+def test_a_walk_whose_array_is_not_contiguous_is_refused() -> None:
+    """The entry reads each array as C-contiguous memory: a strided view would be read wrongly, so it is refused."""
+    walk = sample_walk()
+    layout = layout_of(walk)
+    assert describe(walk, layout).size == sum(1 + array.ndim for array in walk)  # an address, then the shape
+    strided = walk._replace(period=np.zeros((2, 4))[:, ::2])
+    with pytest.raises(TypeError, match="contiguous"):
+        describe(strided, layout)
+
+
+def test_an_object_file_without_the_entry_is_a_load_error(compiled_loop: WalkEntry) -> None:
+    found = compiled_ready.find()
+    assert found is not None
+    code, _, layout = found
+    with pytest.raises(LoopError, match="has no no_such_entry"):
+        WalkEntry(code, "no_such_entry", layout)

@@ -1,7 +1,7 @@
 """Whether the compiled loop is built here (catanc.runtime.compiled_ready), and ``catanc run --loop auto``.
 
-The stamp's checks are tested on folders made here (an upgrade, an edit, a removed or rewritten cache
-file each make it "not built").  ``--loop auto`` is tested on the real kernel as a robot meets it: a
+The stamp's checks are tested on folders made here (an upgrade, an edit, another CPU, a removed or
+rewritten object file each make it "not built").  ``--loop auto`` is tested on the real kernel as a robot meets it: a
 machine where the loop is not built runs the Python loop and builds it in a child that leaves with
 the enforcer (its end, or its SIGKILL), and the next run takes the compiled loop.
 """
@@ -21,8 +21,9 @@ from pathlib import Path
 
 import pytest
 
+from catanc.errors import LoopError
 from catanc.runtime import compiled_ready
-from catanc.runtime.compiled_ready import STAMP_NAME, LoopState, cpu_identity, state, write_stamp
+from catanc.runtime.compiled_ready import OBJECT_NAME, STAMP_NAME, LoopState, cpu_identity, find, load, state
 from catanc.runtime.watchdog import WATCHDOG_PRIORITY
 from tests.support.enforcer_runs import ENFORCER_MAIN, EnforcerRun, compile_table, kill_groups, of_kind
 from tests.support.linux import alive, poll
@@ -52,13 +53,14 @@ def stamps(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     return folder
 
 
-def numba_files(folder: Path) -> Path:
-    """A folder holding what numba's cache of the loop looks like (an index and its data)."""
-    folder.mkdir(parents=True, exist_ok=True)
-    (folder / "compiled_walk.wait-712.py311.nbi").write_bytes(b"index")
-    (folder / "compiled_walk.wait-712.py311.1.nbc").write_bytes(b"code")
-    (folder / "kernel.run-476.py311.nbi").write_bytes(b"another module's")
-    return folder
+LAYOUT = (("float64", 2), ("int64", 1))
+
+
+def built(folder: Path, code: bytes = b"machine code") -> Path:
+    """What a build writes (an object file, and the stamp naming it), here with bytes of the test's own."""
+    stamp = compiled_ready.write_built(code, "entry", LAYOUT)
+    assert stamp == folder / STAMP_NAME
+    return folder / OBJECT_NAME
 
 
 # --------------------------------------------------------------------------- the stamp
@@ -73,93 +75,86 @@ def test_the_cpu_is_the_first_processors_model_and_flags() -> None:
     assert cpu_identity("") == cpu_identity("\n")
 
 
-@pytest.mark.usefixtures("stamps")
-def test_nothing_is_built_until_a_stamp_says_so(tmp_path: Path) -> None:
+def test_nothing_is_built_until_a_stamp_says_so(stamps: Path) -> None:
     assert state() is LoopState.UNBUILT
-    assert write_stamp(tmp_path / "empty-cache") is None  # no cache files: nothing to vouch for
-    assert state() is LoopState.UNBUILT
-    assert write_stamp(numba_files(tmp_path / "cache")) is not None
+    assert find() is None
+    built(stamps)
     assert state() is LoopState.READY
+    assert find() == (b"machine code", "entry", LAYOUT)
 
 
-def test_the_stamp_names_the_loops_cache_files_only(stamps: Path, tmp_path: Path) -> None:
-    write_stamp(numba_files(tmp_path / "cache"))
-    stamp = json.loads((stamps / STAMP_NAME).read_text())
-    assert sorted(stamp["files"]) == ["compiled_walk.wait-712.py311.1.nbc", "compiled_walk.wait-712.py311.nbi"]
-    assert stamp["key"]["source"][1] == compiled_ready.SOURCE.stat().st_size
-
-
-@pytest.mark.parametrize("change", ["rewritten", "removed", "touched"])
-@pytest.mark.usefixtures("stamps")
-def test_a_cache_file_changed_since_the_stamp_is_not_built(tmp_path: Path, change: str) -> None:
-    cache = numba_files(tmp_path / "cache")
-    write_stamp(cache)
-    index = cache / "compiled_walk.wait-712.py311.nbi"
+@pytest.mark.parametrize("change", ["rewritten", "same size", "removed"])
+def test_an_object_file_changed_since_the_stamp_is_not_built(stamps: Path, change: str) -> None:
+    code = built(stamps)
     if change == "rewritten":
-        index.write_bytes(b"a longer index")
-    elif change == "removed":
-        index.unlink()
+        code.write_bytes(b"other machine code")
+    elif change == "same size":
+        code.write_bytes(b"machine kode")
     else:
-        stat = index.stat()
-        os.utime(index, ns=(stat.st_atime_ns, stat.st_mtime_ns + 1_000_000_000))
+        code.unlink()
     assert state() is LoopState.UNBUILT
 
 
-@pytest.mark.usefixtures("stamps")
-def test_another_numba_or_no_numba_is_not_built(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    write_stamp(numba_files(tmp_path / "cache"))
-    assert state() is LoopState.READY
-    monkeypatch.setattr(compiled_ready, "numba_version", lambda: "0.1.0")
-    assert state() is LoopState.UNBUILT
-    monkeypatch.setattr(compiled_ready, "numba_version", lambda: None)
-    assert state() is LoopState.NO_NUMBA
-
-
-@pytest.mark.parametrize("text", ["", "{", "[1, 2]", '{"key": 1}', '{"key": {}, "files": {}, "folder": "/"}'])
-def test_a_broken_stamp_is_not_built(stamps: Path, text: str) -> None:
-    stamps.mkdir()
-    (stamps / STAMP_NAME).write_text(text)
-    assert state() is LoopState.UNBUILT
-
-
-def test_an_edit_of_the_loops_source_is_not_built(
-    stamps: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+@pytest.mark.parametrize("package", ["numba", "llvmlite"])
+def test_another_numba_or_llvmlite_or_no_numba_is_not_built(
+    stamps: Path, monkeypatch: pytest.MonkeyPatch, package: str
 ) -> None:
-    source = tmp_path / "compiled_walk.py"
-    shutil.copy2(compiled_ready.SOURCE, source)
-    monkeypatch.setattr(compiled_ready, "SOURCE", source)
-    write_stamp(numba_files(tmp_path / "cache"))
+    built(stamps)
     assert state() is LoopState.READY
-    source.write_text(source.read_text() + "# an edit\n")
+    installed = compiled_ready.version_of
+    monkeypatch.setattr(compiled_ready, "version_of", lambda name: "0.1.0" if name == package else installed(name))
+    assert state() is LoopState.UNBUILT
+    if package == "numba":
+        monkeypatch.setattr(compiled_ready, "version_of", lambda name: None if name == package else installed(name))
+        assert state() is LoopState.NO_NUMBA
+
+
+def test_another_cpu_is_not_built(stamps: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    built(stamps)
+    monkeypatch.setattr(compiled_ready, "cpu_identity", lambda _text: "another CPU")
+    assert state() is LoopState.UNBUILT
+
+
+@pytest.mark.parametrize(
+    "text",
+    ["", "{", "[1, 2]", '{"key": 1}', '{"key": {}, "symbol": "e", "layout": [], "sha256": ""}', "STAMP-BAD-LAYOUT"],
+)
+def test_a_broken_stamp_is_not_built(stamps: Path, text: str) -> None:
+    code = built(stamps)
+    stamp = json.loads((stamps / STAMP_NAME).read_text())
+    if text == "STAMP-BAD-LAYOUT":  # the right key and file, a layout that is not (dtype, dimensions) pairs
+        text = json.dumps({**stamp, "layout": [["float64"]]})
+    (stamps / STAMP_NAME).write_text(text)
+    assert code.exists()
+    assert state() is LoopState.UNBUILT
+
+
+@pytest.mark.parametrize("source", range(len(compiled_ready.SOURCES)))
+def test_an_edit_of_a_module_compiled_is_not_built(
+    stamps: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, source: int
+) -> None:
+    copies = []
+    for original in compiled_ready.SOURCES:
+        copies.append(tmp_path / original.name)
+        shutil.copy2(original, copies[-1])
+    monkeypatch.setattr(compiled_ready, "SOURCES", tuple(copies))
+    built(stamps)
+    assert state() is LoopState.READY
+    copies[source].write_text(copies[source].read_text() + "# an edit\n")
     assert state() is LoopState.UNBUILT
     assert (stamps / STAMP_NAME).exists()
 
 
-OUT_OF_REACH = """
-import importlib, sys
-from catanc.runtime.compiled_ready import scipy_out_of_reach
-if sys.argv[1] == "scipy":
-    import scipy  # numba's own import does this (a version check)
-def attempt(name):
-    try:
-        return importlib.import_module(name).__name__
-    except ImportError:
-        return "refused"
-with scipy_out_of_reach():
-    print(attempt("scipy.linalg"), attempt("scipy.linalg.cython_blas"))
-print(attempt("scipy.linalg"))
-with scipy_out_of_reach():
-    print(attempt("scipy.linalg.cython_blas"))
-"""
+def test_bytes_that_are_no_object_file_are_a_load_error(stamps: Path) -> None:
+    """A stamp vouching for bytes that are no object file: ``load`` says so, LLVM's loader never sees them."""
+    built(stamps, b"not an object file")
+    with pytest.raises(LoopError, match="not an object file"):
+        load()
 
 
-@pytest.mark.parametrize("first", ["nothing", "scipy"])
-def test_scipys_linear_algebra_is_out_of_reach_only_within_and_only_where_not_imported(first: str) -> None:
-    """In a fresh interpreter (with scipy's top level imported first, as numba's import does, or not):
-    refused within, importable after; once imported, left alone."""
-    argv = [sys.executable, "-c", OUT_OF_REACH, first]
-    done = subprocess.run(argv, capture_output=True, text=True, check=True)
-    assert done.stdout.split() == ["refused", "refused", "scipy.linalg", "scipy.linalg.cython_blas"]
+def test_nothing_built_is_a_load_error(stamps: Path) -> None:
+    with pytest.raises(LoopError, match="not built"):
+        load()
 
 
 def build_child(stamps: Path, parent: int) -> subprocess.CompletedProcess[str]:
@@ -186,7 +181,7 @@ def test_one_build_at_a_time_and_only_for_its_parent(tmp_path: Path) -> None:
     assert not (stamps / STAMP_NAME).exists()
     done = build_child(stamps, os.getpid())
     assert (done.returncode, done.stderr) == (0, "")
-    assert json.loads((stamps / STAMP_NAME).read_text())["files"]
+    assert json.loads((stamps / STAMP_NAME).read_text())["sha256"]
 
 
 # --------------------------------------------------------------------------- catanc run --loop auto, real kernel
@@ -229,9 +224,7 @@ def builder_pid(start: dict[str, object]) -> int:
 
 
 @pytest.mark.usefixtures("real_kernel", "compiled_loop")
-def test_an_unbuilt_loop_runs_python_builds_it_and_the_next_run_is_compiled(
-    tmp_path: Path, runs: list[Run]
-) -> None:
+def test_an_unbuilt_loop_runs_python_builds_it_and_the_next_run_is_compiled(tmp_path: Path, runs: list[Run]) -> None:
     stamps = tmp_path / "stamps"
     env = {compiled_ready.CACHE_ENV: str(stamps)}
     table = compile_table(SPEC, tmp_path / "table", 1)
@@ -242,13 +235,16 @@ def test_an_unbuilt_loop_runs_python_builds_it_and_the_next_run_is_compiled(
     builder = builder_pid(start)
     assert first.wait(20) == 0, first.stderr()
     assert not alive(builder)
-    assert json.loads((stamps / STAMP_NAME).read_text())["files"]
+    assert json.loads((stamps / STAMP_NAME).read_text())["sha256"]
 
     second = new_run(runs, tmp_path)
-    second.start(table, duration=0.5, env=env)
-    assert second.wait(20) == 0, second.stderr()
+    second.start(table, duration=2.0, env=env)
     assert second.start_event()["loop"] == "compiled"
     assert second.start_event()["loop_why"] == "built on this machine"
+    mapped = Path(f"/proc/{second.pid}/maps").read_text()  # the object file linked by llvmlite, numba never loaded
+    assert "libllvmlite" in mapped
+    assert "/numba/" not in mapped
+    assert second.wait(20) == 0, second.stderr()
 
 
 @pytest.mark.parametrize("end", ["duration", "sigkill"])
