@@ -10,10 +10,12 @@ by Python in between (as the enforcer's loop does between compiled waits) change
 
 from __future__ import annotations
 
+import contextlib
 import heapq
 import math
 import os
 import random
+from collections.abc import Iterator
 from dataclasses import replace
 
 import numpy as np
@@ -163,30 +165,24 @@ def test_the_entry_returns_at_once_when_its_time_is_past(compiled_loop: WalkEntr
     assert compiled_loop.run_due(walk, 0.0) == wa.DONE
 
 
-def test_a_real_walk_has_the_layout_the_object_file_was_compiled_for(compiled_loop: WalkEntry) -> None:
-    """Any app's walk is laid out as the build's sample walk (nodes whose estimates are whole numbers once made
-    the expected times an integer array: numba compiled again, in the loop thread, at SCHED_FIFO)."""
-    rng = random.Random(7)
+@contextlib.contextmanager
+def one_loop(entry: WalkEntry, seed: int) -> Iterator[tuple[Side, CompiledLoop, list[tuple[float, str]]]]:
+    """A random app's enforcer state with its compiled loop, and its clocks (its rings closed after)."""
+    rng = random.Random(seed)
     schedule = random_schedule(rng, dedicated=True)
     fds = {node: ring.create() for run in schedule.subchains.values() for node in run.nodes}
     one = side(schedule, fds, rng)
-    one.book.expected = {node: 2 for run in schedule.subchains.values() for node in run.nodes}  # compute_ms: 2
     loop = CompiledLoop(
         one.cores,
         one.costs,
         one.seen,
-        entry=compiled_loop,
+        entry=entry,
         kernel_fd=lambda _e: None,
         gone=one.gone.extend,
         untaken=one.untaken.append,
     )
-    clocks = [(0.0, run.name) for run in schedule.clocked]
     try:
-        assert loop.load(0.0, clocks)
-        assert loop.layout is not None
-        assert layout_of(loop.layout.walk) == compiled_loop.layout
-        loop.wait([], -math.inf)
-        assert not loop.broken
+        yield one, loop, [(0.0, run.name) for run in schedule.clocked]
     finally:
         for thing in one.closing:
             thing.close()  # type: ignore[attr-defined]
@@ -194,35 +190,29 @@ def test_a_real_walk_has_the_layout_the_object_file_was_compiled_for(compiled_lo
             os.close(fd)
 
 
+def test_a_real_walk_has_the_layout_the_object_file_was_compiled_for(compiled_loop: WalkEntry) -> None:
+    """Any app's walk is laid out as the build's sample walk (nodes whose estimates are whole numbers once made
+    the expected times an integer array: numba compiled again, in the loop thread, at SCHED_FIFO)."""
+    with one_loop(compiled_loop, 7) as (one, loop, clocks):
+        nodes = [node for run in one.wiring.schedule.subchains.values() for node in run.nodes]
+        one.book.expected = dict.fromkeys(nodes, 2)  # every node's compute_ms: 2
+        assert loop.load(0.0, clocks)
+        assert loop.layout is not None
+        assert layout_of(loop.layout.walk) == compiled_loop.layout
+        loop.wait([], -math.inf)
+        assert not loop.broken
+
+
 def test_a_walk_laid_out_otherwise_falls_back_to_python(compiled_loop: WalkEntry) -> None:
     """The object file reads each array as the dtype it was compiled for: a walk of other types makes the compiled
     loop give up (never a read of int64 as float64), and the enforcer's Python loop goes on."""
-    rng = random.Random(11)
-    schedule = random_schedule(rng, dedicated=True)
-    fds = {node: ring.create() for run in schedule.subchains.values() for node in run.nodes}
-    one = side(schedule, fds, rng)
-    loop = CompiledLoop(
-        one.cores,
-        one.costs,
-        one.seen,
-        entry=compiled_loop,
-        kernel_fd=lambda _e: None,
-        gone=one.gone.extend,
-        untaken=one.untaken.append,
-    )
-    clocks = [(0.0, run.name) for run in schedule.clocked]
-    try:
+    with one_loop(compiled_loop, 11) as (_, loop, clocks):
         assert loop.load(0.0, clocks)
         assert loop.layout is not None
         loop.layout = replace(loop.layout, walk=loop.layout.walk._replace(latency=loop.layout.walk.latency.astype(int)))
         assert loop.wait([], -math.inf) == []
         assert loop.broken
         assert not loop.load(0.0, clocks)  # the caller's Python loop from now on
-    finally:
-        for thing in one.closing:
-            thing.close()  # type: ignore[attr-defined]
-        for fd in fds.values():
-            os.close(fd)
 
 
 def test_a_walk_whose_array_is_not_contiguous_is_refused() -> None:
