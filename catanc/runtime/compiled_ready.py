@@ -11,7 +11,8 @@ the file in a child process at SCHED_OTHER, nice 19, for the next run.
 Beside the object file a *stamp* says what it was built for: numba's and llvmlite's versions,
 Python's, the CPU (the code uses its features), a digest of the modules compiled, and the file's
 size, digest, entry symbol and the walk's layout.  A stamp that no longer matches (an upgrade, an
-edit, another CPU, a changed or missing file) is "not built".
+edit, another CPU, a changed or missing file) is "not built", and so is a stamp or object file
+that someone other than this user or root could have written (:func:`read_own`).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ import json
 import os
 import platform
 import signal
+import stat
 import subprocess
 import sys
 from enum import Enum
@@ -108,17 +110,35 @@ def machine_key(numba: str) -> dict[str, Any]:
     }
 
 
+def read_own(path: Path) -> bytes | None:
+    """``path``'s bytes if it is a file (not a link) of this user's or root's that no one else may write; else None.
+
+    The object file is machine code ``catanc run`` executes, often as root and at SCHED_FIFO: one that another
+    user could have written (or swapped in, in a folder others may write) is never read."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
+    except OSError:
+        return None
+    try:
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode) or info.st_uid not in {0, os.geteuid()} or info.st_mode & 0o022:
+            return None
+        with os.fdopen(fd, "rb", closefd=False) as stream:
+            return stream.read()
+    except OSError:
+        return None
+    finally:
+        os.close(fd)
+
+
 def _built(stamp: dict[str, Any], key: dict[str, Any], folder: Path) -> tuple[bytes, str, Layout] | None:
     """The object file ``stamp`` (a parsed stamp file in ``folder``) names, if it was built for ``key`` and is as
     built: its bytes, entry symbol and walk layout."""
     symbol, layout, digest = stamp.get("symbol"), stamp.get("layout"), stamp.get("sha256")
     if stamp.get("key") != key or not isinstance(symbol, str) or not isinstance(layout, list):
         return None
-    try:
-        code = (folder / OBJECT_NAME).read_bytes()
-    except OSError:
-        return None
-    if hashlib.sha256(code).hexdigest() != digest:
+    code = read_own(folder / OBJECT_NAME)
+    if code is None or hashlib.sha256(code).hexdigest() != digest:
         return None
     try:
         return code, symbol, tuple((str(dtype), int(ndim)) for dtype, ndim in layout)
@@ -133,9 +153,10 @@ def find() -> tuple[bytes, str, Layout] | None:
         return None
     key = machine_key(numba)
     for folder in stamp_folders():
+        text = read_own(folder / STAMP_NAME)
         try:
-            stamp = json.loads((folder / STAMP_NAME).read_text())
-        except (OSError, ValueError):
+            stamp = json.loads(text) if text is not None else None
+        except ValueError:
             continue
         found = _built(stamp, key, folder) if isinstance(stamp, dict) else None
         if found is not None:
@@ -174,8 +195,11 @@ def write_built(code: bytes, symbol: str, layout: Layout) -> Path | None:
     }
     text = json.dumps(stamp, sort_keys=True) + "\n"
     for folder in stamp_folders():
-        with contextlib.suppress(OutputError):  # the object first: a stamp never names an older file
-            return write_files(folder, {OBJECT_NAME: code, STAMP_NAME: text.encode()}, kind="compiled loop")[1]
+        with contextlib.suppress(OutputError, OSError):  # the object first: a stamp never names an older file
+            written = write_files(folder, {OBJECT_NAME: code, STAMP_NAME: text.encode()}, kind="compiled loop")
+            for path in written:  # writable by this user alone, whatever the umask (read_own refuses others)
+                path.chmod(path.stat().st_mode & 0o755)
+            return written[1]
     return None
 
 

@@ -145,6 +145,42 @@ def test_an_edit_of_a_module_compiled_is_not_built(
     assert (stamps / STAMP_NAME).exists()
 
 
+@pytest.mark.parametrize("change", ["object writable by the group", "stamp writable by all", "object a link"])
+def test_files_others_could_have_written_are_not_built(stamps: Path, change: str) -> None:
+    """The object file is machine code the enforcer runs (as root, at SCHED_FIFO): never one another user could have
+    written, nor one reached through a link."""
+    code = built(stamps)
+    if change == "object writable by the group":
+        code.chmod(0o664)
+    elif change == "stamp writable by all":
+        (stamps / STAMP_NAME).chmod(0o646)
+    else:
+        real = stamps / "elsewhere.o"
+        code.rename(real)
+        code.symlink_to(real)
+    assert state() is LoopState.UNBUILT
+
+
+def test_files_of_another_user_are_not_built(stamps: Path) -> None:
+    if os.geteuid() != 0:
+        pytest.skip("needs root to give a file away")
+    code = built(stamps)
+    assert state() is LoopState.READY
+    os.chown(code, 65534, -1)  # nobody's now
+    assert state() is LoopState.UNBUILT
+
+
+def test_a_loose_umask_still_writes_files_only_their_owner_may_write(stamps: Path) -> None:
+    loose = os.umask(0o002)  # a desktop's user-private-group default: new files group-writable
+    try:
+        code = built(stamps)
+    finally:
+        os.umask(loose)
+    assert code.stat().st_mode & 0o777 == 0o644
+    assert (stamps / STAMP_NAME).stat().st_mode & 0o777 == 0o644
+    assert state() is LoopState.READY
+
+
 def test_bytes_that_are_no_object_file_are_a_load_error(stamps: Path) -> None:
     """A stamp vouching for bytes that are no object file: ``load`` says so, LLVM's loader never sees them."""
     built(stamps, b"not an object file")
