@@ -215,13 +215,9 @@ def serve(conn: Connection) -> None:
             if request.kind == "resolve":
                 replanner.resolve(request.compute_ms)
             elif request.kind == "reconfigure" and request.costs is not None:
-                # The runtime's own costs, measured: a Replanner of its own (its models hold switch_ms and slack).
-                switch_ms, slack = request.costs
-                schedule = spec.schedule.model_copy(update={"switch_ms": switch_ms, "slack": slack})
-                raised = spec.model_copy(update={"schedule": schedule})
-                fresh = Replanner(raised, replanner.plan.cores)
-                fresh.reallocate(request.compute_ms or None)
-                spec, replanner = raised, fresh
+                switch_ms, slack = request.costs  # the runtime's own costs, measured
+                replanner.reconfigure(switch_ms, slack, request.compute_ms or None)
+                spec = replanner.spec
             else:
                 replanner.reallocate(request.compute_ms or None, cores=request.cores)
         except Exception as exc:  # a bad measurement must not end the run: keep the last plan

@@ -27,10 +27,10 @@ COSTS_RISE = 0.10
 """Re-plan with the runtime's measured costs when they call for a switch_ms or slack 10% above the plan's: the
 plan no longer covers them."""
 COSTS_FALL = 0.25
-"""... or 25% below it: the plan reserves more than the runtime costs.  Lower than the rise's band so that a plan
-raised to a measurement is not re-planned at the next one a little below it (the enforcer's CPU share moves by
-10-20% between re-solves in a busy minute, and each re-plan with new costs builds the re-optimiser's models
-again: ~0.08 s of CPU on nav2d)."""
+"""... or 25% below it: the plan reserves more than the runtime costs.  Wider than the rise's band so that a plan
+raised to a measurement is not re-planned at the next one a little below it: the enforcer's CPU share moves by
+10-20% between re-solves in a busy minute, and each re-plan with new costs searches both stages with Stage II's
+models built again and moves the rates and slots a little."""
 
 
 @dataclass(frozen=True)
@@ -90,7 +90,7 @@ class Replanning:
 
         ``costs``: the ``(switch_ms, slack)`` the runtime's measured costs call for (asked only when a
         re-solve is due); when they rise above the plan's by more than :data:`COSTS_RISE` or fall below
-        it by more than :data:`COSTS_FALL`, the re-solve is a reconfigure (both stages, a fresh model)
+        it by more than :data:`COSTS_FALL`, the re-solve is a reconfigure (both stages, the models built again)
         with them instead.
         """
         if self.asked is not None:
@@ -128,7 +128,7 @@ class Replanning:
         )
 
     def reconfigure(self, switch_ms: float, slack: float, estimates: dict[str, float]) -> Request:
-        """Plan with the runtime's measured costs from now on (a fresh model in the re-optimiser)."""
+        """Plan with the runtime's measured costs from now on (``Replanner.reconfigure`` in the re-optimiser)."""
         return self._request("reconfigure", estimates, None, "costs", (switch_ms, slack))
 
     def _request(

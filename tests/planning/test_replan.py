@@ -9,6 +9,7 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
+from catanc.core.build import build_problem
 from catanc.core.load import load_spec
 from catanc.core.metrics import Timing, bound_scale, objective
 from catanc.core.problem import Problem
@@ -189,6 +190,42 @@ def test_reallocate_stays_within_the_gap_of_a_fresh_exact_plan(factors: list[flo
         assert here is not None
         lengths = {name: here.lengths[core.core] for core in here.layout.shared for name in core.subchains}
         exact = at_least_spacing(replanner.problem, here.timings, here.runs, lengths)
+    assert exact <= found * (1 + 1e-6)
+    assert found * (1 - RUNTIME_GAP) <= exact * (1 + 1e-6)
+
+
+@settings(max_examples=10, deadline=None)
+@given(
+    factors=st.lists(drift, min_size=8, max_size=8),
+    cores=st.sampled_from([1, 2]),
+    switch_ms=st.floats(0.12, 0.6),
+    slack=st.floats(0.05, 0.25),
+)
+@example(factors=[1.0] * 8, cores=2, switch_ms=0.12, slack=0.0856)  # the runtime's first re-plan on nav2d
+def test_reconfigure_plans_with_the_new_costs_within_the_gap_of_a_fresh_exact_plan(
+    factors: list[float], cores: int, switch_ms: float, slack: float
+) -> None:
+    """The runtime's measured costs, re-planned on the warm replanner (its models built again): a fresh exact plan
+    of the spec with those costs bounds it, as for :meth:`Replanner.reallocate`."""
+    spec = load_spec(SPECS / "nav2d.yaml")
+    replanner = Replanner(spec, cores)
+    new = {node: c * factor for (node, c), factor in zip(spec_times(replanner).items(), factors, strict=False)}
+    near = replanner.reconfigure(switch_ms, slack, new)
+    raised = spec.schedule.model_copy(update={"switch_ms": switch_ms, "slack": slack})
+    assert replanner.spec.schedule == raised
+    problem = replanner.problem
+    assert problem.slack == slack
+    assert problem == build_problem(spec.model_copy(update={"schedule": raised})).with_compute(new)
+    best = plan_problem(problem, raised, cores, backend="conic")  # gap 0, no start, fresh models
+    if best.constraint_scale > 1.0 + 1e-6 or near.constraint_scale > 1.0 + 1e-6:
+        assert near.constraint_scale == pytest.approx(best.constraint_scale, rel=1e-5)
+    exact, found = searched(best, problem), searched(near, problem)
+    if near.allocation != best.allocation:  # within the allocation chosen, as in the test above
+        layout = layout_of(near)
+        here = solve_layout(problem, layout, raised, RelaxedStage2(problem, layout, raised))
+        assert here is not None
+        lengths = {name: here.lengths[core.core] for core in here.layout.shared for name in core.subchains}
+        exact = at_least_spacing(problem, here.timings, here.runs, lengths)
     assert exact <= found * (1 + 1e-6)
     assert found * (1 - RUNTIME_GAP) <= exact * (1 + 1e-6)
 
