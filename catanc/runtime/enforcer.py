@@ -64,6 +64,7 @@ from catanc.runtime.sched import Restorer, allowed_cpus, at_sched_other, name_th
 from catanc.runtime.status import status_rows
 
 if TYPE_CHECKING:
+    from catanc.runtime.compiled_entry import WalkEntry
     from catanc.runtime.compiled_loop import CompiledLoop
 
 Start = Literal["bootstrap", "spec"]
@@ -126,6 +127,9 @@ class Enforcer:
         if planned_cores < wanted:
             self.notes.note(f"planning for {planned_cores} core(s), not {wanted}: CPUs {sorted(cpus)} only")
         bootstrap = self.spec.runtime.bootstrap_ms if start == "bootstrap" else None
+        self.background_build: BackgroundBuild | None = None
+        self.loop_why = "asked for"  # why the loop is the one it is (the status and the log's start say)
+        entry = self._compiled_entry(loop)
         self.planner = PlannerProcess(
             table.spec.model_dump(mode="json", by_alias=True), planned_cores, bootstrap_ms=bootstrap
         )
@@ -164,9 +168,7 @@ class Enforcer:
             seen=self.reader.seen,
             gone=self.nodes.gone_tids,
         )
-        self.background_build: BackgroundBuild | None = None
-        self.loop_why = "asked for"  # why the loop is the one it is (the status and the log's start say)
-        self.compiled = self._compiled_loop(loop)
+        self.compiled = self._compiled_loop(entry)
         self.wiring: Wiring | None = None
         self.clocks: list[tuple[float, str]] = []
         self.stopping = False
@@ -422,12 +424,13 @@ class Enforcer:
             self.cores.rewire(wiring)
         return wiring
 
-    def _compiled_loop(self, choice: LoopChoice) -> CompiledLoop | None:
-        """The shared cores walked compiled between the loop's visits to Python, or None: Python's loop.
+    def _compiled_entry(self, choice: LoopChoice) -> WalkEntry | None:
+        """The compiled walk's entry linked into this process, or None: Python's loop.
 
         ``auto`` takes the compiled loop where it is built on this machine (linked in ~0.03 s); elsewhere it
         runs Python's and builds it in a child at nice 19 for the next run.  ``compiled`` builds it here
-        if it must (about a minute, before the socket is bound)."""
+        if it must (about a minute, before the socket is bound).  Called before the re-optimiser is forked,
+        which then inherits numpy instead of importing it."""
         if choice == "python":
             return None
         if choice == "auto":
@@ -451,10 +454,9 @@ class Enforcer:
                 self.notes.note(f"the Python loop: {self.loop_why}")
                 return None
             self.loop_why = "built on this machine"
-        # numpy's BLAS would start a thread per CPU at import: the enforcer multiplies no matrices.
+        # numpy's BLAS would start a thread per CPU at import (and the re-optimiser would not be forked): the
+        # enforcer multiplies no matrices.
         os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-        from catanc.runtime.compiled_loop import CompiledLoop  # noqa: PLC0415 - numpy only when asked for
-
         try:
             if choice == "compiled" and compiled_ready.state() is not LoopState.READY:
                 require("numba", "catanc run --loop compiled")
@@ -467,6 +469,13 @@ class Enforcer:
             self.loop_why = f"the compiled loop does not load here: {exc}"
             self.notes.note(f"the Python loop: {self.loop_why}")
             return None
+        return entry
+
+    def _compiled_loop(self, entry: WalkEntry | None) -> CompiledLoop | None:
+        """The shared cores walked by ``entry`` between the loop's visits to Python, or None: Python's loop."""
+        if entry is None:
+            return None
+        from catanc.runtime.compiled_loop import CompiledLoop  # noqa: PLC0415 - numpy only when asked for
 
         def untaken(name: str) -> None:
             head = self.wiring.heads.get(name) if self.wiring is not None else None
