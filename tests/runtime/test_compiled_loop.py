@@ -102,6 +102,19 @@ def agree(python: Side, compiled: Side, step: str) -> None:
     assert (compiled.untaken, compiled.gone) == (python.untaken, python.gone), f"{step}: untaken triggers, gone threads"
 
 
+def loop_of(one: Side, entry: WalkEntry) -> CompiledLoop:
+    """``one``'s state walked by ``entry`` (no kernel CPU clocks; gone threads and untaken triggers noted)."""
+    return CompiledLoop(
+        one.cores,
+        one.costs,
+        one.seen,
+        entry=entry,
+        kernel_fd=lambda _endpoint: None,
+        gone=one.gone.extend,
+        untaken=one.untaken.append,
+    )
+
+
 @settings(max_examples=40, deadline=None)
 @given(st.integers(0, 2**32 - 1))
 def test_the_compiled_loop_keeps_the_enforcers_state_as_the_python_walk_does(
@@ -113,15 +126,7 @@ def test_the_compiled_loop_keeps_the_enforcers_state_as_the_python_walk_does(
     writers = {node: ring.RingWriter(fd) for node, fd in fds.items()}
     python = side(schedule, fds, random.Random(seed + 1))
     compiled = side(schedule, fds, random.Random(seed + 1))
-    loop = CompiledLoop(
-        compiled.cores,
-        compiled.costs,
-        compiled.seen,
-        entry=compiled_loop,
-        kernel_fd=lambda _endpoint: None,
-        gone=compiled.gone.extend,
-        untaken=compiled.untaken.append,
-    )
+    loop = loop_of(compiled, compiled_loop)
     clocks = ([(0.0, run.name) for run in schedule.clocked], [(0.0, run.name) for run in schedule.clocked])
     for heap in clocks:
         heapq.heapify(heap)
@@ -172,15 +177,7 @@ def one_loop(entry: WalkEntry, seed: int) -> Iterator[tuple[Side, CompiledLoop, 
     schedule = random_schedule(rng, dedicated=True)
     fds = {node: ring.create() for run in schedule.subchains.values() for node in run.nodes}
     one = side(schedule, fds, rng)
-    loop = CompiledLoop(
-        one.cores,
-        one.costs,
-        one.seen,
-        entry=entry,
-        kernel_fd=lambda _e: None,
-        gone=one.gone.extend,
-        untaken=one.untaken.append,
-    )
+    loop = loop_of(one, entry)
     try:
         yield one, loop, [(0.0, run.name) for run in schedule.clocked]
     finally:
