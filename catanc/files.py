@@ -14,8 +14,9 @@ from pathlib import Path
 from catanc.errors import OutputError
 
 
-def write_files(folder: Path, files: Mapping[str, bytes], kind: str = "plot") -> list[Path]:
-    """Write each file into ``folder`` (created if missing) atomically; ``kind`` names them in errors."""
+def write_files(folder: Path, files: Mapping[str, bytes], kind: str = "plot", mode: int = 0o666) -> list[Path]:
+    """Write each file into ``folder`` (created if missing) atomically, with ``mode`` less the umask; ``kind``
+    names them in errors."""
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except FileExistsError:
@@ -26,14 +27,14 @@ def write_files(folder: Path, files: Mapping[str, bytes], kind: str = "plot") ->
     for name, data in files.items():
         path = folder / name
         try:
-            _replace(path, data)
+            _replace(path, data, mode)
         except OSError as exc:
             raise OutputError(f"{path}: cannot write the {kind}: {exc.strerror or exc}") from None
         written.append(path)
     return written
 
 
-def _replace(path: Path, data: bytes) -> None:
+def _replace(path: Path, data: bytes, mode: int) -> None:
     fd, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as stream:
@@ -42,7 +43,7 @@ def _replace(path: Path, data: bytes) -> None:
             os.fsync(stream.fileno())
         umask = os.umask(0o022)
         os.umask(umask)
-        Path(temporary).chmod(0o666 & ~umask)  # mkstemp made it private
+        Path(temporary).chmod(mode & ~umask)  # mkstemp made it private
         Path(temporary).replace(path)
     except BaseException:
         Path(temporary).unlink(missing_ok=True)

@@ -194,12 +194,10 @@ def write_built(code: bytes, symbol: str, layout: Layout) -> Path | None:
         "symbol": symbol,
     }
     text = json.dumps(stamp, sort_keys=True) + "\n"
+    files = {OBJECT_NAME: code, STAMP_NAME: text.encode()}  # the object first: a stamp never names an older file
     for folder in stamp_folders():
-        with contextlib.suppress(OutputError, OSError):  # the object first: a stamp never names an older file
-            written = write_files(folder, {OBJECT_NAME: code, STAMP_NAME: text.encode()}, kind="compiled loop")
-            for path in written:  # writable by this user alone, whatever the umask (read_own refuses others)
-                path.chmod(path.stat().st_mode & 0o755)
-            return written[1]
+        with contextlib.suppress(OutputError):  # 0644 whatever the umask: read_own refuses files others may write
+            return write_files(folder, files, kind="compiled loop", mode=0o644)[1]
     return None
 
 
