@@ -171,11 +171,12 @@ def state() -> LoopState:
     return LoopState.READY if find() is not None else LoopState.UNBUILT
 
 
-def load() -> WalkEntry:
-    """The compiled loop's entry, linked into this process; :class:`LoopError` if it is not built or does not link."""
+def load(found: tuple[bytes, str, Layout] | None = None) -> WalkEntry:
+    """The compiled loop's entry (``found``, or what :func:`find` finds), linked into this process; :class:`LoopError`
+    if it is not built or does not link."""
     from catanc.runtime.compiled_entry import WalkEntry  # noqa: PLC0415 - numpy and LLVM only where it runs
 
-    found = find()
+    found = found or find()
     if found is None:
         raise LoopError("the compiled loop is not built on this machine")
     return WalkEntry(*found)

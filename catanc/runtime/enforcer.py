@@ -46,7 +46,7 @@ from catanc.control.schedule import RuntimeSchedule, SubchainRun
 from catanc.errors import CatancError, ExitCode, LoopError, PrivilegeError, SchedError
 from catanc.extras import require
 from catanc.runtime import compiled_ready, protocol
-from catanc.runtime.compiled_ready import BackgroundBuild, LoopChoice, LoopState
+from catanc.runtime.compiled_ready import BackgroundBuild, LoopChoice
 from catanc.runtime.cores import SharedCores
 from catanc.runtime.costs import Costs
 from catanc.runtime.cpu_clocks import OpenCpuClocks
@@ -433,13 +433,13 @@ class Enforcer:
         which then inherits numpy instead of importing it."""
         if choice == "python":
             return None
+        found = compiled_ready.find()  # the stamp and the object file read and checked once
         if choice == "auto":
-            built = compiled_ready.state()
-            if built is LoopState.NO_NUMBA:
+            if found is None and compiled_ready.version_of("numba") is None:
                 self.loop_why = "numba is not installed (the compiled loop needs it)"
                 self.notes.note(f"the Python loop: {self.loop_why}")
                 return None
-            if built is LoopState.UNBUILT:
+            if found is None:
                 try:
                     self.background_build = BackgroundBuild()
                 except OSError as exc:
@@ -458,11 +458,11 @@ class Enforcer:
         # enforcer multiplies no matrices.
         os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
         try:
-            if choice == "compiled" and compiled_ready.state() is not LoopState.READY:
+            if found is None:  # --loop compiled, not built here
                 require("numba", "catanc run --loop compiled")
                 entry, _ = compiled_ready.build()  # here, at SCHED_OTHER, before the loop thread is raised
             else:
-                entry = compiled_ready.load()
+                entry = compiled_ready.load(found)
         except LoopError as exc:
             if choice == "compiled":
                 raise LoopError(f"catanc run --loop compiled: {exc}") from None
