@@ -141,12 +141,16 @@ class Replanner:
         dropped if they no longer fit), stopping within the gap, as :meth:`reallocate` does: a fresh
         :class:`Replanner` would plan exactly, with every runner-up, ~20x the CPU (nav2d)."""
         schedule = self.spec.schedule.model_copy(update={"switch_ms": switch_ms, "slack": slack})
-        self.spec = self.spec.model_copy(update={"schedule": schedule})
-        self._problem = replace(self._problem, slack=slack)
+        problem = replace(self._problem, slack=slack)
         if compute_ms:
-            self._problem = self._problem.with_compute(compute_ms)
-        self._models = {}
-        self.plan = self._allocate(self.plan.cores)
+            problem = problem.with_compute(compute_ms)
+        kept = self.spec, self._problem, self._models
+        self.spec, self._problem, self._models = self.spec.model_copy(update={"schedule": schedule}), problem, {}
+        try:
+            self.plan = self._allocate(self.plan.cores)
+        except Exception:  # no plan with the new costs: the replanner stays as it was, as its plan does
+            self.spec, self._problem, self._models = kept
+            raise
         return self.plan
 
     def _allocate(self, cores: int, *, first: bool = False) -> Plan:

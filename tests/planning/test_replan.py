@@ -230,6 +230,27 @@ def test_reconfigure_plans_with_the_new_costs_within_the_gap_of_a_fresh_exact_pl
     assert found * (1 - RUNTIME_GAP) <= exact * (1 + 1e-6)
 
 
+def test_a_reconfigure_that_fails_leaves_the_replanner_as_it_was(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The re-optimiser answers a failed re-plan with its last plan: its costs, problem and models must stay that
+    plan's (a fresh Replanner was only swapped in on success)."""
+    spec = load_spec(SPECS / "nav2d.yaml")
+    replanner = Replanner(spec, 1)
+    before = (replanner.spec, replanner.problem, dict(replanner.models), replanner.plan)
+    with pytest.raises(UsageError):
+        replanner.reconfigure(0.3, 0.1, {"nowhere": 1.0})  # a bad time: refused before anything changes
+    assert (replanner.spec, replanner.problem, dict(replanner.models), replanner.plan) == before
+
+    def no_plan(_cores: int) -> Plan:
+        raise RuntimeError("the solver failed")
+
+    monkeypatch.setattr(replanner, "_allocate", no_plan)
+    with pytest.raises(RuntimeError):
+        replanner.reconfigure(0.3, 0.1)  # the search fails after the new costs are in place
+    assert (replanner.spec, replanner.problem, dict(replanner.models), replanner.plan) == before
+    monkeypatch.undo()
+    assert replanner.resolve({}).objective == pytest.approx(before[3].objective)
+
+
 def test_the_first_plan_is_exact_whatever_the_gap() -> None:
     spec = load_spec(SPECS / "nav2d.yaml")
     coarse = Replanner(spec, 2, gap=0.5)
