@@ -202,7 +202,7 @@ def serve(conn: Connection) -> None:
     except Exception as exc:  # the parent re-raises it
         conn.send(exc)
         return
-    conn.send(_answer(replanner, spec, began))
+    conn.send(_answer(replanner, began))
     while True:
         try:
             request = conn.recv()
@@ -217,19 +217,18 @@ def serve(conn: Connection) -> None:
             elif request.kind == "reconfigure" and request.costs is not None:
                 switch_ms, slack = request.costs  # the runtime's own costs, measured
                 replanner.reconfigure(switch_ms, slack, request.compute_ms or None)
-                spec = replanner.spec
             else:
                 replanner.reallocate(request.compute_ms or None, cores=request.cores)
         except Exception as exc:  # a bad measurement must not end the run: keep the last plan
-            conn.send(_answer(replanner, spec, began, error=f"{type(exc).__name__}: {exc}"))
+            conn.send(_answer(replanner, began, error=f"{type(exc).__name__}: {exc}"))
             continue
-        conn.send(_answer(replanner, spec, began))
+        conn.send(_answer(replanner, began))
 
 
-def _answer(replanner: Any, spec: Any, began: float, error: str | None = None) -> Answer:
+def _answer(replanner: Any, began: float, error: str | None = None) -> Answer:
     from catanc.control.schedule import runtime_schedule  # noqa: PLC0415
 
-    plan = replanner.plan
+    plan, spec = replanner.plan, replanner.spec  # the spec with the costs the plan was made with
     return Answer(
         schedule=runtime_schedule(plan, replanner.problem, spec.schedule),
         layout=tuple((name, sub.cores, sub.shared) for name, sub in sorted(plan.subchains.items())),
