@@ -3,12 +3,11 @@
 The solvers run in a child process (:class:`~catanc.runtime.planning.PlannerProcess`); the
 enforcer's loop never waits for them.  :class:`Replanning` decides what to ask and when: Stage I
 for a new number of cores (``set-cores``, or the process's CPU set changed), a re-pin for other
-CPUs of the same number, and otherwise the :class:`~catanc.control.policy.Cadence`'s Stage II
-and Stage I re-solves, one request at a time; and when the runtime's measured costs call for
-a switch_ms or slack 10% above the plan's or 25% below it, a re-plan with them (never below the
-spec's).  The
-loop sends the request, reads the answer when the child's descriptor is readable, and swaps the
-new schedule in (an answer with an error keeps the last good plan and its slots).
+CPUs of the same number, and otherwise the :class:`~catanc.control.policy.Cadence`'s Stage II and
+Stage I re-solves, one request at a time; and when the runtime's measured costs call for a
+switch_ms or slack 10% above the plan's or 25% below it, a re-plan with them (never below the
+spec's).  The loop sends the request, reads the answer when the child's descriptor is readable, and
+swaps the new schedule in (an answer with an error keeps the last good plan and its slots).
 """
 
 from __future__ import annotations
