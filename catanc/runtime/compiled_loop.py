@@ -305,31 +305,63 @@ class CompiledLoop:
         self._replay(layout)
 
     def _replay(self, layout: _Layout) -> None:
-        walk, names, seen = layout.walk, layout.names, self.seen
+        """Hand the walk's log on, a kind at a time: a few hundred records a store, each kind in its order."""
+        records = compiled_state.events(layout.walk)
+        if not len(records):
+            return
+        kinds = records[:, 0]
+        names, nodes, seen = layout.names, layout.reader_nodes, self.seen
+        switches = records[kinds == wa.EV_SWITCH]
+        for c, core_id in enumerate(layout.core_ids):
+            latencies = switches[switches[:, 1] == c, 2]
+            if len(latencies):
+                samples = self.costs.switches.get(core_id)
+                if samples is None:
+                    samples = self.costs.switches[core_id] = deque(maxlen=SAMPLES)
+                samples.extend(latencies.tolist())
+        computes = records[kinds == wa.EV_COMPUTE]
+        if len(computes):
+            at, reader, threads = computes[:, 1].tolist(), computes[:, 2].astype(np.int64).tolist(), computes[:, 6]
+            # NaN (unknown) as None, as the Python walk has it; object arrays keep the rows' floats as they are.
+            values = computes[:, 3:6].astype(object)
+            values[np.isnan(computes[:, 3:6])] = None
+            seen.computes.extend(
+                ComputeSample(t, nodes[r], ms, reported, kernel, k)
+                for t, r, (ms, reported, kernel), k in zip(
+                    at, reader, values.tolist(), threads.astype(np.int64).tolist(), strict=True
+                )
+            )
+        runs = records[kinds == wa.EV_RUN]
+        if len(runs):
+            book = self.book
+            for t, s, seq, took in zip(
+                runs[:, 1].tolist(),
+                runs[:, 2].astype(np.int64).tolist(),
+                runs[:, 3].astype(np.int64).tolist(),
+                runs[:, 4].tolist(),
+                strict=True,
+            ):
+                book.state(names[s]).ends_ms.append(t)
+                seen.runs.append(RunSample(t, names[s], seq, took))
+        hops = records[kinds == wa.EV_HOP]
+        if len(hops):
+            seen.hops.extend(
+                HopSample(names[s], nodes[r], delay)
+                for s, r, delay in zip(
+                    hops[:, 1].astype(np.int64).tolist(),
+                    hops[:, 2].astype(np.int64).tolist(),
+                    hops[:, 3].tolist(),
+                    strict=True,
+                )
+            )
+        rare = records[(kinds == wa.EV_GONE) | (kinds == wa.EV_UNTAKEN)]
         gone = []
-        for record in compiled_state.events(walk):
-            kind = record[0]
-            if kind == wa.EV_COMPUTE:
-                ms, reported, kernel = (None if math.isnan(x) else x for x in record[3:6])
-                node = layout.reader_nodes[int(record[2])]
-                seen.computes.append(ComputeSample(record[1], node, ms, reported, kernel, int(record[6])))
-            elif kind == wa.EV_RUN:
-                name = names[int(record[2])]
-                self.book.state(name).ends_ms.append(record[1])
-                seen.runs.append(RunSample(record[1], name, int(record[3]), record[4]))
-            elif kind == wa.EV_HOP:
-                seen.hops.append(HopSample(names[int(record[1])], layout.reader_nodes[int(record[2])], record[3]))
-            elif kind == wa.EV_SWITCH:
-                core_id = layout.core_ids[int(record[1])]
-                switches = self.costs.switches.get(core_id)
-                if switches is None:
-                    switches = self.costs.switches[core_id] = deque(maxlen=SAMPLES)
-                switches.append(record[2])
-            elif kind == wa.EV_GONE:
-                tid = int(walk.th_tid[int(record[1])])
-                if not self.levels.set(tid, int(record[2])):  # refused for another reason: Levels says why (raises)
+        for kind, a, b in rare[:, :3].tolist():
+            if kind == wa.EV_GONE:
+                tid = int(layout.walk.th_tid[int(a)])
+                if not self.levels.set(tid, int(b)):  # refused for another reason: Levels says why (raises)
                     gone.append(tid)
-            elif kind == wa.EV_UNTAKEN:
-                self.untaken(names[int(record[1])])
+            else:
+                self.untaken(names[int(a)])
         if gone:
             self.gone(gone)

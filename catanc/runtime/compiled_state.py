@@ -16,6 +16,7 @@ from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
+import numpy.typing as npt
 
 from catanc.control.policy import CoreCursor, SlotRule, slot_rules
 from catanc.control.schedule import CoreSchedule, RuntimeSchedule
@@ -325,9 +326,9 @@ def runs_in_flight(walk: wa.Walk, s: int) -> dict[int, Flight]:
     return dict(sorted(found.items()))
 
 
-def events(walk: wa.Walk) -> list[tuple[float, ...]]:
-    """The records the walk logged since the last call (the log is emptied)."""
+def events(walk: wa.Walk) -> npt.NDArray[np.float64]:
+    """The records the walk logged since the last call, a row each (the log is emptied)."""
     count = int(walk.flags[wa.LOGGED])
-    found = [tuple(float(x) for x in row) for row in walk.events[:count]]
+    found = walk.events[:count].copy()
     walk.flags[wa.LOGGED] = 0
     return found
