@@ -14,6 +14,7 @@ import os
 import shutil
 import signal
 import socket
+import struct
 import subprocess
 import sys
 import threading
@@ -220,6 +221,30 @@ def test_a_trigger_from_anyone_else_is_ignored(enforcer: FakeEnforcer) -> None:
         enforcer.send(node, Stop())
     assert [trigger.seq for trigger in a.join()] == [1]
     assert [trigger.seq for trigger in b.join()] == [1]
+
+
+def test_descriptors_sent_to_a_registered_node_are_not_kept(enforcer: FakeEnforcer) -> None:
+    """A peer that sends open files to a node cannot make it leak descriptors: none stays open in the node."""
+    a, b, _ = two_nodes(enforcer)
+    before = set(Path("/proc/self/fd").iterdir())
+    with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as stranger, Path(os.devnull).open() as sent:
+        stranger.bind("")
+        for _ in range(20):
+            for message in (trigger_datagram("B", 97), b"catanc/2 route B 0 - 1 - -", b"junk"):
+                stranger.sendmsg(
+                    [message],
+                    [(socket.SOL_SOCKET, socket.SCM_RIGHTS, struct.pack("i", sent.fileno()))],
+                    0,
+                    enforcer.address("B"),
+                )
+    enforcer.trigger("A", 1)
+    assert [entry.seq for entry in enforcer.runs("B")] == [1]
+    opened = set(Path("/proc/self/fd").iterdir()) - before
+    assert not opened, f"descriptors left open in the nodes' process: {sorted(opened)}"
+    for node in ("A", "B"):
+        enforcer.send(node, Stop())
+    assert [trigger.seq for trigger in b.join()] == [1]
+    a.join()
 
 
 def test_a_route_that_asks_for_it_gets_a_done_per_run(enforcer: FakeEnforcer) -> None:
