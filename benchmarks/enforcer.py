@@ -25,7 +25,10 @@ For each app, in one run:
   counts the children it reaped), start-up and re-solves included, in cores (the issue: under
   0.08 on nav2d);
 - **switch latency** (a boundary's due time to its owner raised and head triggered) and **hop
-  delay** (a node's end, or a trigger, to the next node's start), p50 and p95, from the log;
+  delay** (a node's end, or a trigger, to the next node's start), p50 and p95, from the log; the
+  hop both ways, and apart: node to node inside a subchain (issue 31's hop: at most 0.1 ms at the
+  p50) and a head's trigger to its start (the enforcer's send, its own next steps on the CPU, the
+  head's wake-up);
 - the load average before and after (the VM is shared: compare within one run).
 
 ``--tree`` (repeatable; default: this tree) names the catanc source trees to measure, each app
@@ -221,6 +224,8 @@ def measure(  # noqa: PLR0917 - the benchmark's axes
         "whole_run_ratio": round(whole / floor_cores, 2),
         "switch": costs.get("switch") or _old_switches(fields),
         "hop": costs.get("hop"),
+        "hop_inside": costs.get("hop_inside"),
+        "hop_head": costs.get("hop_head"),
         "wakes": costs.get("wakes"),
         "cpu_per_wake_ms": costs.get("cpu_per_wake_ms"),
         "resolves": len(resolves),
@@ -284,8 +289,9 @@ def main() -> None:
         print(f" ({r['steady_ratio_loaded']}x the floor beside the app)")
         resolves = f"{r['resolves']} re-solves, {r['cost_replans']} with new costs"
         print(f"  whole run:    {r['whole_run_cores']:.4f} cores = {r['whole_run_ratio']}x ({resolves})")
-        for label in ("switch", "hop"):
-            stats = r[label]
+        labels = {"switch": "switch", "hop": "hop", "hop_inside": "  node to node", "hop_head": "  trigger to head"}
+        for key, label in labels.items():
+            stats = r.get(key)
             if stats:
                 quantiles = f"p50 {stats['p50_ms']:.3f} ms, p95 {stats['p95_ms']:.3f} ms, max {stats['max_ms']:.3f} ms"
                 print(f"  {label}: {quantiles}")

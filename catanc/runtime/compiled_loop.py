@@ -47,6 +47,7 @@ class _Layout:
     generation: int  # of the kernel descriptors laid out
     versions: list[dict[int, object]]  # per version, per core: the CoreSchedule laid out there
     reader_nodes: list[str]
+    reader_inside: list[bool]  # the reader's node is not its subchain's head (its hops are node to node)
 
 
 class CompiledLoop:
@@ -188,8 +189,10 @@ class CompiledLoop:
             if current is not latest:  # the cursor's period still runs an older schedule, with its rules
                 compiled_state.lay_out_core(walk, 1, c, current, rules=python.rules, sub=sub)
                 versions[1][core_id] = current
-        reader_nodes = [endpoint.node for name in names for _, endpoint, _ in wiring.readers.get(name, ())]
-        return _Layout(walk, names, core_ids, wiring, schedule, generation, versions, reader_nodes)
+        readers = [reader for name in names for reader in wiring.readers.get(name, ())]
+        reader_nodes = [endpoint.node for _, endpoint, _ in readers]
+        reader_inside = [index > 0 for index, _, _ in readers]
+        return _Layout(walk, names, core_ids, wiring, schedule, generation, versions, reader_nodes, reader_inside)
 
     @staticmethod
     def _readers(layout: _Layout) -> list[tuple[int, Endpoint, RingReader]]:
@@ -345,8 +348,9 @@ class CompiledLoop:
                 seen.runs.append(RunSample(t, names[s], seq, took))
         hops = records[kinds == wa.EV_HOP]
         if len(hops):
+            inside = layout.reader_inside
             seen.hops.extend(
-                HopSample(names[s], nodes[r], delay)
+                HopSample(names[s], nodes[r], delay, inside[r])
                 for s, r, delay in zip(
                     hops[:, 1].astype(np.int64).tolist(),
                     hops[:, 2].astype(np.int64).tolist(),

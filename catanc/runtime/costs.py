@@ -51,7 +51,9 @@ class Costs:
     """The enforcer's measured costs so far."""
 
     switches: dict[int, deque[float]] = field(default_factory=dict)  # core -> switch latencies (ms)
-    hops: deque[float] = field(default_factory=lambda: deque(maxlen=SAMPLES))
+    hops: deque[float] = field(default_factory=lambda: deque(maxlen=SAMPLES))  # both kinds: what a slot pays
+    inside: deque[float] = field(default_factory=lambda: deque(maxlen=SAMPLES))  # node to node in a subchain
+    heads: deque[float] = field(default_factory=lambda: deque(maxlen=SAMPLES))  # a head's trigger to its start
     wakes: int = 0
     cpu_ns: int = 0  # the loop thread's CPU time at the last reading
     wall_ns: int = 0  # when it was read
@@ -64,8 +66,10 @@ class Costs:
             samples = self.switches[core] = deque(maxlen=SAMPLES)
         samples.append(latency_ms)
 
-    def hop(self, delay_ms: float) -> None:
+    def hop(self, delay_ms: float, inside: bool) -> None:
+        """A node's end to the next node's start in its subchain (``inside``), or a head's trigger to its start."""
         self.hops.append(delay_ms)
+        (self.inside if inside else self.heads).append(delay_ms)
 
     def cpu(self, wall_ns: int, cpu_ns: int) -> None:
         """A reading of the loop thread's CPU clock (once a second or so)."""
@@ -91,6 +95,8 @@ class Costs:
             "switch": quantiles(everything),
             "switch_by_core": {str(core): quantiles(samples) for core, samples in sorted(self.switches.items())},
             "hop": quantiles(self.hops),
+            "hop_inside": quantiles(self.inside),
+            "hop_head": quantiles(self.heads),
             "overhead": overhead,
             "cpu_per_wake_ms": None if per_wake is None else round(per_wake, 5),
             "wakes": self.wakes,

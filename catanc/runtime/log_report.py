@@ -113,6 +113,8 @@ def _costs_json(costs: CostsSummary | None) -> dict[str, Any] | None:
     return {
         "switch_ms": quantiles(costs.switch),
         "hop_ms": quantiles(costs.hop),
+        "hop_inside_ms": quantiles(costs.hop_inside),
+        "hop_head_ms": quantiles(costs.hop_head),
         "core_share": _round(costs.share, 5),
         "cpu_per_wake_ms": _round(costs.cpu_per_wake_ms, 5),
     }
@@ -223,13 +225,17 @@ def render_summary(summary: RunSummary) -> tuple[Table, ...]:
 
 
 def _costs_table(costs: CostsSummary) -> Table:
-    """The enforcer's own costs: switch latency, hop delay (a node's end to the next's start), its CPU."""
+    """The enforcer's own costs: switch latency, hop delay (a node's end, or a head's trigger, to the next start;
+    then the two apart where the log has them), its CPU."""
     share = "-" if costs.share is None else f"{costs.share:.2%} of its core"
     per_wake = "-" if costs.cpu_per_wake_ms is None else f"{1000 * costs.cpu_per_wake_ms:.0f} us per wake-up"
     table = Table(title=f"the enforcer's own costs: {share}, {per_wake}", title_justify="left")
     for column in ("ms", "samples", "p50", "p95", "max"):
         table.add_column(column, justify="left" if column == "ms" else "right")
-    for label, value in (("switch latency", costs.switch), ("hop delay", costs.hop)):
+    rows = [("switch latency", costs.switch), ("hop delay", costs.hop)]
+    if costs.hop_inside is not None or costs.hop_head is not None:  # a log of a catanc that tells them apart
+        rows += [("  node to node", costs.hop_inside), ("  trigger to head", costs.hop_head)]
+    for label, value in rows:
         if value is None:
             table.add_row(label, "0", "-", "-", "-")
         else:

@@ -117,6 +117,8 @@ class CostsSummary:
 
     switch: Quantiles | None  # a boundary's due time to its owner raised and its head triggered
     hop: Quantiles | None  # a node's end (or a trigger) to the next node's start
+    hop_inside: Quantiles | None  # a node's end to the next node's start in its subchain (None: an older log)
+    hop_head: Quantiles | None  # a head's trigger to its start (None: an older log)
     share: float | None  # the enforcer's CPU share of the core its loop runs on
     cpu_per_wake_ms: float | None
 
@@ -245,6 +247,8 @@ def _costs(row: Mapping[str, Any]) -> CostsSummary | None:
     return CostsSummary(
         switch=_quantiles(_mapping(row.get("switch"))),
         hop=_quantiles(_mapping(row.get("hop"))),
+        hop_inside=_quantiles(_mapping(row.get("hop_inside"))),
+        hop_head=_quantiles(_mapping(row.get("hop_head"))),
         share=max(shares) if shares else None,
         cpu_per_wake_ms=_number(row.get("cpu_per_wake_ms")),
     )

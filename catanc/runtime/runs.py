@@ -92,6 +92,7 @@ class HopSample(NamedTuple):
     subchain: str
     node: str  # the node that started
     delay_ms: float  # the previous node's end (or the head's trigger) to its start
+    inside: bool  # a node's end to the next node's start, in one subchain (not the head's trigger to its start)
 
 
 @dataclass
@@ -216,7 +217,7 @@ class RunBook:
         end_ms = min(max(entry.end_ns / 1e6, start_ms), now_ms)
         before = flight.last_end_ms if index > 0 else flight.triggered_ms
         if before is not None and flight.until_ms is not None and start_ms <= flight.until_ms:
-            seen.hops.append(HopSample(run.name, node, max(start_ms - before, 0.0)))
+            seen.hops.append(HopSample(run.name, node, max(start_ms - before, 0.0), index > 0))
         own = entry.compute_ms
         elapsed = max(now_ms - flight.triggered_ms, 0.0)
         compute = None if own is None else min(own, elapsed)
@@ -313,7 +314,7 @@ class Reader:
         readers: Callable[[str], tuple[tuple[int, Endpoint, RingReader], ...]],
         record: Callable[[str, float], object],
         measured: tuple[str, ...],
-        hop: Callable[[float], None],
+        hop: Callable[[float, bool], None],
         sample: Callable[[str, float, str, tuple[object, ...]], None],
     ) -> None:
         self.book, self.readers, self.record, self.hop, self.sample = book, readers, record, hop, sample
@@ -329,7 +330,7 @@ class Reader:
         seen = self.seen
         if seen.hops:
             for hop in seen.hops:
-                self.hop(hop.delay_ms)
+                self.hop(hop.delay_ms, hop.inside)
             seen.hops.clear()
         if seen.computes:
             for compute in seen.computes:

@@ -45,6 +45,7 @@ class Both:
     writers: dict[str, ring.RingWriter]
     receivers: dict[str, socket.socket]  # the walk's
     reader_nodes: list[str]
+    reader_inside: list[bool]  # not its subchain's head
     closing: list[socket.socket] = field(default_factory=list)
 
 
@@ -61,8 +62,10 @@ def made(rng: random.Random) -> Both:
             ours, receivers[name] = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
             closing += [ours, receivers[name]]
             walk.head_fd[s] = ours.fileno()
-    reader_nodes = [endpoint.node for name in names for _, endpoint, _ in python.wiring.readers[name]]
-    return Both(schedule, python, walk, names, core_ids, writers, receivers, reader_nodes, closing)
+    readers = [reader for name in names for reader in python.wiring.readers[name]]
+    reader_nodes = [endpoint.node for _, endpoint, _ in readers]
+    reader_inside = [index > 0 for index, _, _ in readers]
+    return Both(schedule, python, walk, names, core_ids, writers, receivers, reader_nodes, reader_inside, closing)
 
 
 def close(both: Both) -> None:
@@ -109,7 +112,11 @@ def compare(both: Both, step: str) -> None:
     assert computes == [tuple(c) for c in seen.computes], f"{step}: compute samples"
     runs = [(e[1], names[int(e[2])], int(e[3]), e[4]) for e in events if e[0] == wa.EV_RUN]
     assert runs == [tuple(r) for r in seen.runs], f"{step}: runs done"
-    hops = [(names[int(e[1])], both.reader_nodes[int(e[2])], e[3]) for e in events if e[0] == wa.EV_HOP]
+    hops = [
+        (names[int(e[1])], both.reader_nodes[int(e[2])], e[3], both.reader_inside[int(e[2])])
+        for e in events
+        if e[0] == wa.EV_HOP
+    ]
     assert hops == [tuple(h) for h in seen.hops], f"{step}: hop delays"
     switches = [int(e[1]) for e in events if e[0] == wa.EV_SWITCH]
     for c, core in enumerate(both.core_ids):

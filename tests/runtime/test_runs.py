@@ -57,13 +57,13 @@ def test_a_run_goes_node_by_node_and_its_latency_hops_and_computes_are_seen(two_
     a.append(seq, 100_200 * 1000, 103_000 * 1000, 2_500_000, 1)  # starts 0.2 ms after the trigger, runs 2.8 ms
     seen = read(book, run, readers, 103.5)
     assert [(c.node, c.ms) for c in seen.computes] == [("a", 2.5)]
-    assert [(h.node, round(h.delay_ms, 6)) for h in seen.hops] == [("a", 0.2)]
+    assert [(h.node, round(h.delay_ms, 6), h.inside) for h in seen.hops] == [("a", 0.2, False)]  # the trigger's
     assert seen.runs == []
     assert book.first_index("s") == 1  # at b now
     b.append(seq, 103_100 * 1000, 106_000 * 1000, 2_000_000, 2)  # on 2 threads: 2 ms of wall is 3 ms on one
     seen = read(book, run, readers, 107.0)
     assert [(c.node, c.ms) for c in seen.computes] == [("b", 3.0)]
-    assert [(h.node, round(h.delay_ms, 6)) for h in seen.hops] == [("b", 0.1)]
+    assert [(h.node, round(h.delay_ms, 6), h.inside) for h in seen.hops] == [("b", 0.1, True)]  # a's end to b's start
     assert [(r.seq, r.latency_ms) for r in seen.runs] == [(seq, 6.0)]  # trigger at 100 ms, b ended at 106 ms
     assert not book.busy("s")
     assert book.state("s").late == 0

@@ -68,6 +68,9 @@ def test_a_run_measures_its_costs_reports_them_and_plans_with_them(tmp_path: Pat
     assert 0 < costs["switch"]["p50_ms"] <= costs["switch"]["p95_ms"] < 50.0
     assert costs["hop"]["count"] > 100  # a1 -> a2, and each head's trigger to its start
     assert 0 <= costs["hop"]["p50_ms"] <= costs["hop"]["p95_ms"]
+    assert costs["hop_inside"]["count"] > 50  # a1 -> a2 alone
+    assert costs["hop_head"]["count"] > 50  # the heads' triggers alone
+    assert costs["hop_inside"]["count"] + costs["hop_head"]["count"] >= costs["hop"]["count"]  # each kept apart too
     assert 0 < costs["overhead"][0] < 1
     spec_switch = 0.12  # the spec's default
     replans = [e for e in of_kind(events, "resolve") if e["reason"] == "costs"]
@@ -83,6 +86,8 @@ def test_a_run_measures_its_costs_reports_them_and_plans_with_them(tmp_path: Pat
         [sys.executable, "-m", "catanc", "report", str(log)], capture_output=True, text=True, timeout=60, check=True
     )
     assert "hop delay" in report.stdout
+    assert "node to node" in report.stdout
+    assert "trigger to head" in report.stdout
     assert "switch latency" in report.stdout
     as_json = json.loads(
         subprocess.run(

@@ -1,0 +1,63 @@
+"""The enforcer's cost figures (catanc.runtime.costs) and how `catanc report` shows them, worked by hand."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from catanc.runtime.costs import Costs
+from catanc.runtime.log_report import summary_payload
+from catanc.runtime.log_summary import summarise
+
+
+def test_hops_are_kept_together_and_apart_by_kind() -> None:
+    costs = Costs()
+    for delay in (0.1, 0.3, 0.5):  # node to node, inside a subchain
+        costs.hop(delay, True)
+    for delay in (0.02, 0.04):  # heads' triggers to their starts
+        costs.hop(delay, False)
+    summary = costs.summary(1)
+    # Together (what a slot pays): 0.02 0.04 0.1 0.3 0.5, p50 the middle one; p95 at rank 3.8: 0.3 + 0.8 * 0.2.
+    assert summary["hop"] == {"p50_ms": 0.1, "p95_ms": 0.46, "max_ms": 0.5, "count": 5}
+    # Inside: 0.1 0.3 0.5, p95 at rank 1.9: 0.3 + 0.9 * 0.2.
+    assert summary["hop_inside"] == {"p50_ms": 0.3, "p95_ms": 0.48, "max_ms": 0.5, "count": 3}
+    # Heads: 0.02 0.04, p50 halfway, p95 at rank 0.95.
+    assert summary["hop_head"] == {"p50_ms": 0.03, "p95_ms": 0.039, "max_ms": 0.04, "count": 2}
+
+
+def test_a_subchain_of_one_node_has_no_hop_inside() -> None:
+    costs = Costs()
+    costs.hop(0.05, False)
+    summary = costs.summary(1)
+    assert summary["hop_inside"] is None
+    assert summary["hop_head"] == {"p50_ms": 0.05, "p95_ms": 0.05, "max_ms": 0.05, "count": 1}
+
+
+def _log(tmp_path: Path, costs: dict[str, object]) -> Path:
+    events = [
+        {"t": 0.0, "event": "start", "app": "a", "cores": 1, "format": 1},
+        {"t": 1.0, "event": "stop", "summary": {"subchains": [], "costs": costs}},
+    ]
+    path = tmp_path / "run.jsonl"
+    path.write_text("".join(json.dumps(event) + "\n" for event in events))
+    return path
+
+
+def test_report_gives_the_hop_apart_where_the_log_has_it(tmp_path: Path) -> None:
+    both = {"p50_ms": 0.1, "p95_ms": 0.46, "max_ms": 0.5, "count": 5}
+    inside = {"p50_ms": 0.3, "p95_ms": 0.48, "max_ms": 0.5, "count": 3}
+    head = {"p50_ms": 0.03, "p95_ms": 0.039, "max_ms": 0.04, "count": 2}
+    log = _log(tmp_path, {"switch": None, "hop": both, "hop_inside": inside, "hop_head": head})
+    costs = summary_payload(summarise(json.loads(line) for line in log.read_text().splitlines()))["costs"]
+    assert costs["hop_ms"] == {"count": 5, "p50": 0.1, "p95": 0.46, "max": 0.5}
+    assert costs["hop_inside_ms"] == {"count": 3, "p50": 0.3, "p95": 0.48, "max": 0.5}
+    assert costs["hop_head_ms"] == {"count": 2, "p50": 0.03, "p95": 0.039, "max": 0.04}
+
+
+def test_an_older_log_without_the_split_still_reports(tmp_path: Path) -> None:
+    both = {"p50_ms": 0.1, "p95_ms": 0.46, "max_ms": 0.5, "count": 5}
+    log = _log(tmp_path, {"switch": None, "hop": both})
+    costs = summary_payload(summarise(json.loads(line) for line in log.read_text().splitlines()))["costs"]
+    assert costs["hop_ms"]["p50"] == 0.1
+    assert costs["hop_inside_ms"] is None
+    assert costs["hop_head_ms"] is None
