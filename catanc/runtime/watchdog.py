@@ -34,7 +34,7 @@ Design:
   line arrives and readable once it exits, so a tid the kernel reused for another thread after
   the app thread exited is left alone; before 6.9, its tid and start time (``/proc/<tid>/task/<tid>/stat``
   field 22).
-- No path under ``/proc`` is looked up at SCHED_FIFO: the enforcer's ``stat`` and ``status`` are
+- No path under ``/proc`` is looked up at SCHED_FIFO: the enforcer's ``stat`` is
   opened before the watchdog raises itself, then only read.  Looking up a dead process's
   ``/proc`` entry invalidates its dentries (``d_invalidate``), which spins until the task
   releasing them finishes; a real-time watchdog that preempted that task on its CPU spins for
@@ -183,36 +183,29 @@ def _restore_all(table: dict[int, _Entry]) -> tuple[int, int, list[str]]:
     return restored, gone, failed
 
 
-def _open_proc_files(pid: int) -> tuple[int, int] | None:
-    """Process ``pid``'s ``/proc`` ``stat`` and ``status``, opened (at SCHED_OTHER: see the module's notes)."""
-    opened: list[int] = []
+def _open_stat(pid: int) -> int | None:
+    """Process ``pid``'s ``/proc`` ``stat``, opened (at SCHED_OTHER: see the module's notes)."""
     try:
-        for name in ("stat", "status"):
-            opened.append(os.open(f"/proc/{pid}/{name}", os.O_RDONLY | os.O_CLOEXEC))
+        return os.open(f"/proc/{pid}/stat", os.O_RDONLY | os.O_CLOEXEC)
     except OSError:
-        for fd in opened:
-            os.close(fd)
         return None
-    return opened[0], opened[1]
 
 
-def _dying(files: tuple[int, int] | None) -> bool:
-    """Whether the process whose ``stat`` and ``status`` ``files`` holds open is gone or on its way out
-    (SIGKILL pending, exiting, zombie).  Reads through open descriptors only, never a path lookup."""
-    if files is None:
+def _dying(stat_fd: int | None) -> bool:
+    """Whether the process whose ``stat`` ``stat_fd`` holds open is gone or on its way out (SIGKILL pending,
+    exiting, zombie).  Reads through the open descriptor only, never a path lookup.
+
+    A fatal signal is put in every thread's own pending set as it is sent (the kernel's
+    ``complete_signal``), so the main thread's (``stat`` field 31) shows a SIGKILL before any thread
+    of the process ran again; ``status``'s SigPnd is the same set, read and parsed in ~4x the time.
+    """
+    if stat_fd is None:
         return True
     try:
-        stat = os.pread(files[0], 4096, 0).decode("ascii", "replace").rsplit(")", 1)[1].split()
-        status = os.pread(files[1], 8192, 0).decode("ascii", "replace")
-    except (OSError, IndexError):
+        stat = os.pread(stat_fd, 4096, 0).decode("ascii", "replace").rsplit(")", 1)[1].split()
+        return stat[3 - 3] in "ZXx" or bool(int(stat[9 - 3]) & PF_EXITING or int(stat[31 - 3]) & SIGKILL_BIT)
+    except (OSError, IndexError, ValueError):
         return True
-    if stat[0] in "ZXx" or int(stat[9 - 3]) & PF_EXITING:
-        return True
-    for line in status.splitlines():
-        name, _, value = line.partition(":")
-        if name in ("SigPnd", "ShdPnd") and int(value.strip(), 16) & SIGKILL_BIT:
-            return True
-    return False
 
 
 def _raise_priority(wanted: int) -> int:
@@ -257,7 +250,7 @@ def main(argv: list[str]) -> int:
         pidfd = None
     if os.getppid() != parent:
         return 0  # the enforcer died before it could tell us anything
-    parent_files = _open_proc_files(parent)  # before the watchdog is real-time: no /proc lookups after
+    parent_stat = _open_stat(parent)  # before the watchdog is real-time: no /proc lookups after
     priority = _raise_priority(wanted)
     with contextlib.suppress(OSError):  # any CPU this process may use, not just the enforcer's
         os.sched_setaffinity(0, range(os.cpu_count() or 1))
@@ -306,7 +299,7 @@ def main(argv: list[str]) -> int:
             why = "closed its pipe"
         elif pidfd is not None and pidfd in ready:
             why = "exited"
-        elif (pidfd is None and os.getppid() != parent) or _dying(parent_files):
+        elif (pidfd is None and os.getppid() != parent) or _dying(parent_stat):
             why = "was killed"
     # Lines written just before the end may still wait in the pipe.
     _read_available(0, buffer)

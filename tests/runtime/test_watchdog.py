@@ -11,13 +11,15 @@ from __future__ import annotations
 
 import os
 import re
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
 
-from catanc.runtime.watchdog import WATCHDOG_PRIORITY
+from catanc.runtime.watchdog import WATCHDOG_PRIORITY, _dying, _open_stat
 
 REALTIME_PRIORITY = WATCHDOG_PRIORITY
 REALTIME_TOOLS = ("strace",)
@@ -69,5 +71,53 @@ def test_the_watchdog_restores_without_a_proc_lookup_at_sched_fifo(tmp_path: Pat
     before, realtime = watchdogs[0].split(raised, 1)
     lookups = re.findall(r'openat\([^,]*, "(/proc/[^"]*)"', realtime)
     assert lookups == [], f"the watchdog looked up {lookups} at SCHED_FIFO"
-    # The premise: before it was real-time, it did open the enforcer's /proc files (to read them later).
-    assert re.search(r'openat\([^,]*, "/proc/\d+/status"', before), before
+    # The premise: before it was real-time, it did open the enforcer's /proc stat (to read it later).
+    assert re.search(r'openat\([^,]*, "/proc/\d+/stat"', before), before
+
+
+# A process on CPU 0 kept off it by a SCHED_FIFO spinner there: once killed it cannot run to its exit
+# until the spinner ends, so its SIGKILL shows pending while it is neither exiting nor a zombie.
+VICTIM = "import os, time; os.sched_setaffinity(0, {0}); time.sleep(60)"
+SPINNER = """
+import os, sys, time
+os.sched_setaffinity(0, {0})
+os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+sys.stdout.write("spinning\\n"); sys.stdout.flush()
+end = time.monotonic() + float(sys.argv[1])
+while time.monotonic() < end:
+    pass
+"""
+
+
+def test_a_killed_process_that_cannot_run_yet_is_dying_from_its_stat_alone() -> None:
+    os.sched_setaffinity(0, {1})
+    victim = subprocess.Popen([sys.executable, "-c", VICTIM])
+    spinner = None
+    stat_fd = None
+    try:
+        time.sleep(0.3)  # asleep in time.sleep
+        stat_fd = _open_stat(victim.pid)
+        assert stat_fd is not None
+        assert not _dying(stat_fd)
+        spinner = subprocess.Popen([sys.executable, "-c", SPINNER, "0.6"], stdout=subprocess.PIPE, text=True)
+        assert spinner.stdout is not None
+        assert spinner.stdout.readline() == "spinning\n"
+        os.kill(victim.pid, signal.SIGKILL)
+        time.sleep(0.02)
+        fields = Path(f"/proc/{victim.pid}/stat").read_text().rsplit(")", 1)[1].split()
+        assert fields[0] not in "ZXx", "the premise: the victim has not run to its exit"
+        assert _dying(stat_fd), "a SIGKILL pending is a death on its way"
+        spinner.wait(timeout=10)
+        victim.wait(timeout=10)
+        assert _dying(stat_fd)  # reaped
+    finally:
+        for process in (spinner, victim):
+            if process is not None:
+                if process.poll() is None:
+                    process.kill()
+                    process.wait()
+                if process.stdout is not None:
+                    process.stdout.close()
+        if stat_fd is not None:
+            os.close(stat_fd)
+    assert _dying(None)
