@@ -90,7 +90,8 @@ while time.monotonic() < end:
 
 
 def test_a_killed_process_that_cannot_run_yet_is_dying_from_its_stat_alone() -> None:
-    os.sched_setaffinity(0, {1})
+    cpus = os.sched_getaffinity(0)
+    os.sched_setaffinity(0, {1})  # off the spinner's CPU (put back below: later tests need both)
     victim = subprocess.Popen([sys.executable, "-c", VICTIM])
     spinner = None
     stat_fd = None
@@ -120,4 +121,5 @@ def test_a_killed_process_that_cannot_run_yet_is_dying_from_its_stat_alone() -> 
                     process.stdout.close()
         if stat_fd is not None:
             os.close(stat_fd)
+        os.sched_setaffinity(0, cpus)
     assert _dying(None)
