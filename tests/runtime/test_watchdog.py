@@ -20,6 +20,7 @@ from pathlib import Path
 import pytest
 
 from catanc.runtime.watchdog import WATCHDOG_PRIORITY, _dying, _open_stat
+from tests.support.linux import stat_fields
 
 REALTIME_PRIORITY = WATCHDOG_PRIORITY
 REALTIME_TOOLS = ("strace",)
@@ -105,8 +106,8 @@ def test_a_killed_process_that_cannot_run_yet_is_dying_from_its_stat_alone() -> 
         assert spinner.stdout.readline() == "spinning\n"
         os.kill(victim.pid, signal.SIGKILL)
         time.sleep(0.02)
-        fields = Path(f"/proc/{victim.pid}/stat").read_text().rsplit(")", 1)[1].split()
-        assert fields[0] not in "ZXx", "the premise: the victim has not run to its exit"
+        state = stat_fields(f"/proc/{victim.pid}/stat")[0]
+        assert state not in "ZXx", "the premise: the victim has not run to its exit"
         assert _dying(stat_fd), "a SIGKILL pending is a death on its way"
         spinner.wait(timeout=10)
         victim.wait(timeout=10)
