@@ -98,6 +98,11 @@ def _check_name(name: str) -> None:
         raise ClientError(f"bad node name {name!r}: an identifier of 1 to 128 characters")
 
 
+def _sender_bytes(sender: object) -> bytes:
+    """A datagram's sender as bytes: a node's abstract address already is; the enforcer's socket has a path."""
+    return sender if isinstance(sender, bytes) else os.fsencode(sender) if isinstance(sender, str) else b""
+
+
 def _address(text: bytes) -> bytes | None:
     return None if text == b"-" else bytes.fromhex(text.decode("ascii"))
 
@@ -439,9 +444,8 @@ class Node:
             self._handle(data, ancillary, sender)
             return
         # No room for descriptors once registered: the kernel closes any a peer sends.
-        data, sender = sock.recvfrom(MAX_DATAGRAM + 1, socket.MSG_DONTWAIT)
-        if isinstance(sender, str):  # the enforcer's socket has a path; a node's is abstract (bytes)
-            sender = os.fsencode(sender)
+        data, received_from = sock.recvfrom(MAX_DATAGRAM + 1, socket.MSG_DONTWAIT)
+        sender = _sender_bytes(received_from)
         prefix = self._trigger_prefix
         if data.startswith(prefix) and (sender == self._enforcer or (self._prev and sender == self._prev)):
             words = data[len(prefix) :].split(b" ")
@@ -498,7 +502,7 @@ class Node:
         for level, what, payload in ancillary:
             if level == socket.SOL_SOCKET and what == socket.SCM_RIGHTS:
                 fds += list(struct.unpack(f"={len(payload) // 4}i", payload[: len(payload) // 4 * 4]))
-        address = sender if isinstance(sender, bytes) else os.fsencode(sender) if isinstance(sender, str) else b""
+        address = _sender_bytes(sender)
         words = data.split(b" ")
         if words[0] != PROTOCOL or len(words) < 2:
             for fd in fds:
