@@ -88,8 +88,9 @@ class Trigger(NamedTuple):
     threads: int = 1
 
 
-def _trigger_bytes(node: str, seq: int, threads: int) -> bytes:
-    return b"%s trigger %s %d %d" % (PROTOCOL, node.encode(), seq, threads)
+def _trigger_prefix(node: str) -> bytes:
+    """A trigger of ``node`` up to its numbers: ``prefix + b"%d %d" % (seq, threads)`` is the datagram."""
+    return b"%s trigger %s " % (PROTOCOL, node.encode("ascii", "replace"))
 
 
 def _check_name(name: str) -> None:
@@ -157,14 +158,14 @@ class Node:
         self._sock: socket.socket | None = None
         self._poller: select.poll | None = None  # the socket and the interrupt pipe, made once: waiting is the hot path
         self._readable: select.poll | None = None  # the socket alone: is a datagram waiting before a send?
-        self._trigger_prefix = PROTOCOL + b" trigger " + name.encode("ascii", "replace") + b" "
+        self._trigger_prefix = _trigger_prefix(name)
         self._enforcer: bytes | None = None  # the address the enforcer talks to this node from
         self._identity: tuple[int, int] | None = None
         self._ring: mmap.mmap | None = None
         self._header: memoryview | None = None  # the ring's header as 8-byte words; [2] is `written`
         self._slots = 0
         self._written = 0
-        self._next: tuple[bytes, str, int] | None = None  # (address, node, threads): where a run goes next
+        self._next: tuple[bytes, bytes, int] | None = None  # (address, trigger prefix, threads): where a run goes next
         self._prev: bytes | None = None
         self._notify = False
         self._queued: collections.deque[Trigger] = collections.deque(maxlen=64)  # bounded: a node that never waits
@@ -340,10 +341,11 @@ class Node:
             compute_ns = _UNKNOWN
         self._drain()  # a route that changed while the run went on
         sock = self._sock
-        if sock is not None and not self._ended and self._next is not None and trigger.seq:
-            address, node, threads = self._next
+        after = self._next
+        if after is not None and sock is not None and not self._ended and trigger.seq:
+            address, prefix, threads = after
             with contextlib.suppress(OSError):  # the next node is gone: the enforcer sees its run lost
-                sock.sendto(_trigger_bytes(node, trigger.seq, threads), socket.MSG_DONTWAIT, address)
+                sock.sendto(prefix + b"%d %d" % (trigger.seq, threads), socket.MSG_DONTWAIT, address)
         self._record(trigger, end_ns, compute_ns)  # after a stop too: the enforcer reads its last runs' reports
         if sock is None or self._ended:
             return
@@ -533,7 +535,8 @@ class Node:
                 return
             self._notify = words[3] == b"1"
             self._prev = prev_address
-            self._next = None if next_address is None else (next_address, words[4].decode("ascii"), threads)
+            next_prefix = _trigger_prefix(words[4].decode("ascii"))
+            self._next = None if next_address is None else (next_address, next_prefix, threads)
         elif kind == b"stop" and from_enforcer:
             self._ended = True
 

@@ -928,7 +928,7 @@ def test_the_clients_constants_are_the_protocols_and_the_rings() -> None:
     assert client_module._HEADER.format == ring.HEADER.format
     assert client_module._ENTRY.format.startswith(ring.ENTRY.format)  # then the reserved word, zero
     assert client_module._UNKNOWN == ring.UNKNOWN
-    assert client_module._trigger_bytes("LM", 7, 2) == trigger_datagram("LM", 7, 2)
+    assert client_module._trigger_prefix("LM") + b"7 2" == trigger_datagram("LM", 7, 2)
 
 
 def test_the_client_parses_as_python_3_8() -> None:
