@@ -159,6 +159,7 @@ class Node:
         self._poller: select.poll | None = None  # the socket and the interrupt pipe, made once: waiting is the hot path
         self._readable: select.poll | None = None  # the socket alone: is a datagram waiting before a send?
         self._trigger_prefix = _trigger_prefix(name)
+        self._own: bytes | None = None  # this node's own address: a datagram from it is interrupt()'s wake-up
         self._enforcer: bytes | None = None  # the address the enforcer talks to this node from
         self._identity: tuple[int, int] | None = None
         self._ring: mmap.mmap | None = None
@@ -208,6 +209,7 @@ class Node:
             return
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         try:
+            sock.settimeout(None)  # blocking whatever socket.setdefaulttimeout() says: waiting blocks in the receive
             sock.bind("")  # Linux autobind: a unique abstract address the enforcer and the previous node send to
             info = Path(self.socket_path).stat()
             sock.sendto(b"%s hello %s %d %d" % (PROTOCOL, self.name.encode(), os.getpid(), self.tid), self.socket_path)
@@ -230,9 +232,23 @@ class Node:
                     if self.stopped:
                         break  # interrupted while registering
                     raise ClientError(self._absent(f"no answer in {self.timeout_s:g} s"))
+            if self._registered:
+                self._block_in_receive(sock)
         except BaseException:
             self.close()
             raise
+
+    def _block_in_receive(self, sock: socket.socket) -> None:
+        """From now on a wait blocks in the receive itself, one system call a wake-up instead of a poll
+        and a receive: the receive times out every PROBE_S to look for the enforcer, and
+        :meth:`interrupt` wakes it with a datagram to the node's own address."""
+        seconds, fraction = divmod(self.PROBE_S, 1.0)
+        try:
+            timeout = struct.pack("@ll", int(seconds), int(fraction * 1e6))  # a struct timeval
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, timeout)
+        except (OSError, struct.error):
+            return  # the poll path, which needs neither
+        self._own = sock.getsockname()
 
     def _welcome(self, words: list[bytes], fds: list[int], sender: bytes) -> None:
         if len(words) != 4 or words[2].decode("ascii", "replace") != self.name or len(fds) != 1:
@@ -269,12 +285,19 @@ class Node:
             return self._tick(deadline)
         while not self.stopped:
             if self._queued:
-                self.trigger = self._queued.popleft()
-                self._start_ns = time.monotonic_ns()
-                self._cpu_start = time.thread_time()
-                return self.trigger
-            if not self._receive(deadline):
+                trigger: Trigger | None = self._queued.popleft()
+            elif deadline is None and self._own is not None:
+                trigger = self._await()
+                if trigger is None:
+                    continue
+            elif not self._receive(deadline):
                 return None
+            else:
+                continue
+            self.trigger = trigger
+            self._start_ns = time.monotonic_ns()
+            self._cpu_start = time.thread_time()
+            return trigger
         return None
 
     def _tick(self, deadline: float | None) -> Trigger | None:
@@ -370,6 +393,10 @@ class Node:
             if not self._closed:
                 with contextlib.suppress(BlockingIOError):  # the pipe is full: a wake-up is pending anyway
                     os.write(self._wake_w, b"!")
+                sock, own = self._sock, self._own
+                if sock is not None and own is not None:  # a wait blocked in the receive
+                    with contextlib.suppress(OSError):  # the queue is full: a datagram wakes it anyway
+                        sock.sendto(b"", socket.MSG_DONTWAIT, own)
 
     def close(self) -> None:
         """Leave: say bye unless the enforcer ended the node, and release the socket.  Safe to call twice."""
@@ -447,14 +474,40 @@ class Node:
             return
         # No room for descriptors once registered: the kernel closes any a peer sends.
         data, received_from = sock.recvfrom(MAX_DATAGRAM + 1, socket.MSG_DONTWAIT)
+        trigger = self._accept(data, received_from)
+        if trigger is not None:
+            self._queued.append(trigger)
+
+    def _await(self) -> Trigger | None:
+        """Block in the receive until a datagram comes: a trigger, or None once it was something else
+        (handled), interrupt()'s wake-up, PROBE_S without one, or the enforcer lost."""
+        sock = self._sock
+        assert sock is not None
+        try:
+            data, received_from = sock.recvfrom(MAX_DATAGRAM + 1)
+        except BlockingIOError:  # SO_RCVTIMEO: PROBE_S went by without a datagram
+            if not self._enforcer_alive():
+                self._lose(f"it went away without stopping node {self.name!r}")
+            return None
+        except InterruptedError:
+            return None
+        except OSError as exc:
+            self._lose(exc.strerror or str(exc))
+            return None
+        return self._accept(data, received_from)
+
+    def _accept(self, data: bytes, received_from: object) -> Trigger | None:
+        """A registered node's datagram: a trigger from the enforcer or the previous node the short way;
+        anything else handled (None)."""
         sender = _sender_bytes(received_from)
         prefix = self._trigger_prefix
         if data.startswith(prefix) and (sender == self._enforcer or (self._prev and sender == self._prev)):
             words = data[len(prefix) :].split(b" ")
             if len(words) == 2 and words[0].isdigit() and words[1].isdigit():
-                self._queued.append(Trigger(self.name, int(words[0]), max(int(words[1]), 1)))
-                return
-        self._handle(data, [], sender)
+                return Trigger(self.name, int(words[0]), max(int(words[1]), 1))
+        if sender != self._own:  # the node's own datagram is interrupt()'s wake-up: nothing to handle
+            self._handle(data, [], sender)
+        return None
 
     def _receive(self, deadline: float | None) -> bool:
         """Wait for and handle datagrams until something changed (a trigger queued, registered, ended);

@@ -332,6 +332,48 @@ def test_interrupt_ends_the_loop_from_another_thread_and_says_bye(enforcer: Fake
     node.interrupt()  # after close: harmless
 
 
+def test_interrupt_wakes_a_wait_blocked_in_the_receive_at_once(
+    enforcer: FakeEnforcer, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    # A registered node waits in the socket's receive, not in a poll that sees the interrupt pipe:
+    # interrupt() wakes it with a datagram to its own address, not the next look for the enforcer
+    # (PROBE_S, longer than the join's timeout here).
+    monkeypatch.setattr(Node, "PROBE_S", 4 * TIMEOUT_S)
+    node = Node("LM", socket_path=enforcer.path)
+
+    def client() -> list[Trigger]:
+        with node:
+            return list(node)
+
+    background = Background(client)
+    enforcer.welcome({"LM"})
+    enforcer.trigger("LM", 1)
+    assert [entry.seq for entry in enforcer.runs("LM")] == [1]
+    time.sleep(0.2)  # back in wait(), blocked
+    node.interrupt()
+    assert background.join() == [Trigger("LM", 1, 1)]
+    assert "dropped a datagram" not in caplog.text  # its own wake-up is not a stranger's datagram
+
+
+def test_a_default_socket_timeout_does_not_end_a_wait(enforcer: FakeEnforcer) -> None:
+    # An app that set socket.setdefaulttimeout() still gets blocking waits: the receive does not time out.
+    before = socket.getdefaulttimeout()
+    socket.setdefaulttimeout(0.05)
+    try:
+        background = Background(lambda: _first_trigger_and_lost(enforcer.path))
+        enforcer.welcome({"LM"})
+        time.sleep(0.3)
+        enforcer.trigger("LM", 1)
+        assert background.join() == (Trigger("LM", 1, 1), None)
+    finally:
+        socket.setdefaulttimeout(before)
+
+
+def _first_trigger_and_lost(path: Path) -> tuple[Trigger | None, str | None]:
+    with Node("LM", socket_path=path) as node:
+        return node.wait(), node.lost
+
+
 def test_interrupt_before_registering_skips_the_loop(enforcer: FakeEnforcer) -> None:
     node = Node("LM", socket_path=enforcer.path)
     node.interrupt()
