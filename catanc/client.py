@@ -12,8 +12,9 @@ name, waits for a trigger, runs once, and says so::
 
 The enforcer (``catanc run``) pins and prioritises the registered thread (its native id), so
 the work must run in the thread that entered the ``with`` block.  Only the head of a subchain
-is triggered by the enforcer: :meth:`Node.done` wakes the subchain's next node directly and
-records the run in the node's ring, which the enforcer reads when it wakes up anyway.
+is triggered by the enforcer: :meth:`Node.done` wakes the subchain's next node directly (and
+yields the CPU to it) and records the run in the node's ring, which the enforcer reads when it
+wakes up anyway.
 :meth:`Node.wait` takes a timeout; :meth:`Node.done` takes the compute time when the node
 measures it itself; :meth:`Node.interrupt` ends the loop from another thread or a signal
 handler.  Calling :meth:`Node.wait` without :meth:`Node.done` reports the pending run first.
@@ -60,7 +61,7 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import Iterator, NamedTuple
+from typing import Callable, Iterator, NamedTuple
 
 __all__ = ["SOCKET_ENV", "ClientError", "Node", "Trigger", "set_cores"]
 
@@ -91,6 +92,22 @@ class Trigger(NamedTuple):
 def _trigger_prefix(node: str) -> bytes:
     """A trigger of ``node`` up to its numbers: ``prefix + b"%d %d" % (seq, threads)`` is the datagram."""
     return b"%s trigger %s " % (PROTOCOL, node.encode("ascii", "replace"))
+
+
+def _yield_cpu() -> Callable[[], object]:
+    """sched_yield(2), letting go of the interpreter lock: ``os.sched_yield`` keeps it before Python
+    3.10, so a next node in another thread of this process could not run (ctypes' calls let go)."""
+    if sys.version_info >= (3, 10):
+        return os.sched_yield
+    try:
+        import ctypes  # noqa: PLC0415 - only where os.sched_yield keeps the lock
+
+        return ctypes.CDLL(None).sched_yield
+    except (ImportError, OSError, AttributeError):
+        return os.sched_yield
+
+
+_sched_yield = _yield_cpu()
 
 
 def _check_name(name: str) -> None:
@@ -345,7 +362,8 @@ class Node:
             self.done()
 
     def done(self, compute_ms: float | None = None) -> None:
-        """Report the current run as finished, and wake the subchain's next node.
+        """Report the current run as finished, and wake the subchain's next node (on this CPU it
+        runs before this returns: this thread yields to it).
 
         ``compute_ms`` defaults to this thread's CPU time since the trigger arrived, which time
         spent preempted does not inflate.
@@ -365,10 +383,14 @@ class Node:
         self._drain()  # a route that changed while the run went on
         sock = self._sock
         after = self._next
+        woke_next = False
         if after is not None and sock is not None and not self._ended and trigger.seq:
             address, prefix, threads = after
-            with contextlib.suppress(OSError):  # the next node is gone: the enforcer sees its run lost
+            try:
                 sock.sendto(prefix + b"%d %d" % (trigger.seq, threads), socket.MSG_DONTWAIT, address)
+                woke_next = True
+            except OSError:  # the next node is gone: the enforcer sees its run lost
+                pass
         self._record(trigger, end_ns, compute_ns)  # after a stop too: the enforcer reads its last runs' reports
         if sock is None or self._ended:
             return
@@ -376,6 +398,10 @@ class Node:
             done = b"%s done %s %d %d" % (PROTOCOL, self.name.encode(), self.tid or 0, trigger.seq)
             with contextlib.suppress(OSError):
                 sock.sendto(done, socket.MSG_DONTWAIT, self.socket_path)
+        if woke_next:
+            # The next node shares this thread's priority (its subchain's), so on this CPU it would wait
+            # until this thread blocks in its next wait: let it run first, this thread's way back after.
+            _sched_yield()
 
     def _record(self, trigger: Trigger, end_ns: int, compute_ns: int) -> None:
         ring, header = self._ring, self._header

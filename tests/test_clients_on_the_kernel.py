@@ -173,9 +173,22 @@ def test_each_run_of_a_wakes_b_directly_with_its_seq(enforced: Enforced) -> None
     assert seqs["A"][0] >= 1
     assert seqs["B"] == seqs["A"] or seqs["B"] == seqs["A"][:-1]  # the last hop may be cut off by the stop
     # B's run starts after A's of the same seq.  (Not after A's recorded end: a node notes its end after
-    # done(), which has woken B already, and under the interpreter lock B may run first.)
+    # done(), which has woken B and let it run first; the next test.)
     starts = {run.seq: run.start_ns for run in enforced.runs if run.node == "A"}
     assert all(run.start_ns > starts[run.seq] for run in enforced.runs if run.node == "B")
+
+
+def test_a_lets_b_run_before_its_done_returns(enforced: Enforced) -> None:
+    # One core, one priority for the subchain: A's done() wakes B and yields to it, so B's whole run is
+    # over before A's done() returns (the node notes its end after done()).  Without the yield B would
+    # start only once A blocked in its next wait(), after A's end: every run late.  In the Python node a
+    # run now and then is late anyway (1 of 143 seen): its main thread, awake every 50 ms, can take the
+    # interpreter lock in the moment A lets go of it, and then A may get it back before B.
+    after_done = {run.seq: run.end_ns for run in enforced.runs if run.node == "A"}
+    b_runs = [run for run in enforced.runs if run.node == "B" and run.seq in after_done]
+    assert len(b_runs) >= 50
+    late = [run.seq for run in b_runs if run.end_ns > after_done[run.seq]]
+    assert len(late) <= len(b_runs) // 20, f"B ran after A's done() returned in runs {late[:10]} of {len(b_runs)}"
 
 
 def test_the_node_threads_run_at_the_planned_sched_fifo_priority_and_cpu(enforced: Enforced) -> None:

@@ -73,8 +73,10 @@ A client, step by step
    for NODE (from the enforcer address or the route's ``PREV_ADDR``) note ``CLOCK_MONOTONIC``
    and ``CLOCK_THREAD_CPUTIME_ID``, run, then read what waits in the socket without blocking
    (a newer route, a stop), send the next node its trigger (``NEXT_ADDR``, the run's SEQ,
-   ``NEXT_THREADS``), append the run to the ring, and send ``done`` if the route says
-   ``NOTIFY 1``.  On ``stop``, leave the loop (its last run is still appended).
+   ``NEXT_THREADS``), append the run to the ring, send ``done`` if the route says
+   ``NOTIFY 1``, and after a trigger sent ``sched_yield()``: the next node runs at this thread's
+   priority, so on this CPU it goes first instead of waiting for this thread's next receive.
+   On ``stop``, leave the loop (its last run is still appended).
 4. A node no trigger starts (a subscription callback) appends a ring entry with SEQ 0 per run.
 5. Leaving on its own, send ``catanc/2 bye NODE TID`` (also if no welcome was read yet: the
    enforcer may have sent one; a bye of a thread it does not know is ignored).  While waiting, check every second or so

@@ -106,6 +106,7 @@
 
 #include <fcntl.h>
 #include <poll.h>
+#include <sched.h>
 #include <sys/eventfd.h>
 #include <sys/mman.h>
 #include <sys/socket.h>
@@ -286,7 +287,8 @@ class Node {
     start(Trigger{name_, 0, 1});
   }
 
-  // Reports the current run, its compute time this thread's CPU time since the trigger.
+  // Reports the current run, its compute time this thread's CPU time since the trigger, and wakes
+  // the subchain's next node (on this CPU it runs before done() returns: this thread yields to it).
   void done() { finish(std::nullopt); }
 
   // Reports the current run with the compute time the node measured (ms; negative or not finite:
@@ -486,16 +488,20 @@ class Node {
     }
     if (period_ns_ > 0) return;  // on the timer: nobody to tell
     drain();  // a route that changed while the run went on, a stop
+    bool woke_next = false;
     if (!ended_ && !next_address_.empty() && trigger.seq != 0) {
       // The next node is gone if this fails: the enforcer sees its run lost.
-      send_to(next_address_, std::string(kProtocol) + " trigger " + next_node_ + " " + std::to_string(trigger.seq) +
-                                 " " + std::to_string(next_threads_));
+      woke_next = send_to(next_address_, std::string(kProtocol) + " trigger " + next_node_ + " " +
+                                             std::to_string(trigger.seq) + " " + std::to_string(next_threads_));
     }
     record(trigger, end_ns, compute_ns);  // after a stop too: the enforcer reads its last runs' reports
     if (!ended_ && notify_) {
       send_to(socket_path_, std::string(kProtocol) + " done " + name_ + " " + std::to_string(tid_) + " " +
                                 std::to_string(trigger.seq));
     }
+    // The next node shares this thread's priority (its subchain's), so on this CPU it would wait until
+    // this thread blocks in its next wait(): let it run first, this thread's way back after.
+    if (woke_next) ::sched_yield();
   }
 
   void record(const Trigger& trigger, std::int64_t end_ns, std::uint64_t compute_ns) {
