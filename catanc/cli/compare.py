@@ -13,6 +13,7 @@ import typer
 from catanc.cli.common import (
     CoresOpt,
     LoopOpt,
+    MachineOpt,
     PlotDirOpt,
     QuietOpt,
     SpecArg,
@@ -47,16 +48,20 @@ def simulate(
     as_json: TablesJsonOpt = False,
     plot: PlotDirOpt = None,
     quiet: QuietOpt = False,
+    machine: MachineOpt = None,
 ) -> None:
     """Simulate the app on K cores under catanc's plan and the baselines; compare response times and rates."""
     from catanc.cli.progress import tracked
     from catanc.extras import require
     from catanc.sim.simulate import POLICIES, Setup, check_policies, simulate
+    from catanc.spec.machine import apply_machine, read_machine
 
     require("numba", "catanc simulate")
     if plot is not None:
         require("matplotlib", "catanc simulate --plot")
     spec, _ = load_problem(spec_path)
+    if machine is not None:  # the plan `catanc run` starts from on that machine: its costs raised
+        spec, _ = apply_machine(spec, read_machine(machine))
     chosen = check_policies(policy or list(POLICIES))
     setup = Setup(spec, cores, duration, seed)
     results = [simulate(setup, name) for name in tracked(chosen, "simulating", quiet=quiet)]

@@ -245,3 +245,43 @@ def test_a_missing_extra_is_one_line_naming_the_fix(
         f"installed: pip install 'catanc[{extra}]'"
     ]
     assert not list(tmp_path.glob("*.png"))
+
+
+# A profile whose measured costs are over nav2d's (0.12 ms a switch, 5% slack): a hop of 1.2 ms beyond a
+# 0.2 ms wake-up gives switch_ms 1.0, and 1 - 0.95 (the RT limit) + 0.10 (the enforcer's overhead) slack 0.15.
+SLOW_MACHINE = """format: catanc-machine/1
+machine: {host: slow-rig}
+switch_ms: 0.3
+hop_ms: 1.2
+wake_ms: 0.2
+overhead: [0.10, 0.0]
+rt: {runtime_us: 950000, period_us: 1000000}
+"""
+
+
+def test_simulate_on_a_machine_profile_simulates_the_spec_with_its_costs_raised(tmp_path: Path) -> None:
+    # The oracle: the same spec with the two costs worked out above written into its schedule by hand.
+    machine = tmp_path / "slow.yaml"
+    machine.write_text(SLOW_MACHINE)
+    by_hand = tmp_path / "nav2d-slow.yaml"
+    by_hand.write_text((ROOT / "specs" / "nav2d.yaml").read_text() + "\nschedule: {switch_ms: 1.0, slack: 0.15}\n")
+    args = ["-k", "1", "--duration", "3", "--policy", "catan", "--json", "--quiet"]
+
+    def simulated(*words: str) -> dict[str, object]:
+        result = runner.invoke(app, ["simulate", *words, *args])
+        assert result.exit_code == 0, result.output
+        payload: dict[str, object] = json.loads(result.stdout)
+        return payload
+
+    profiled = simulated(str(ROOT / "specs" / "nav2d.yaml"), "--machine", str(machine))
+    assert profiled == simulated(str(by_hand))
+    assert profiled != simulated(str(ROOT / "specs" / "nav2d.yaml"))  # the costs changed the plan
+
+
+def test_simulate_names_a_bad_machine_profile_and_its_field(tmp_path: Path) -> None:
+    machine = tmp_path / "slow.yaml"
+    machine.write_text(SLOW_MACHINE.replace("hop_ms: 1.2", "hop_ms: fast"))
+    result = runner.invoke(app, ["simulate", str(ROOT / "specs" / "nav2d.yaml"), "-k", "1", "--machine", str(machine)])
+    assert result.exit_code == ExitCode.BAD_INPUT
+    assert "slow.yaml:4" in result.stderr
+    assert "hop_ms" in result.stderr
