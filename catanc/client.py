@@ -380,7 +380,9 @@ class Node:
             compute_ns = min(int(compute_ms * 1e6), _UNKNOWN - 1)
         else:
             compute_ns = _UNKNOWN
-        self._drain()  # a route that changed while the run went on
+        readable = self._readable
+        if readable is not None and readable.poll(0):  # asked here, not in a call: this is the hop's path
+            self._drain()  # a route that changed while the run went on
         sock = self._sock
         after = self._next
         woke_next = False
@@ -520,6 +522,13 @@ class Node:
         except OSError as exc:
             self._lose(exc.strerror or str(exc))
             return None
+        # The previous node's trigger parsed here, not in _accept: the hop's path, where each Python call
+        # costs a few us in a process that other processes' runs left cold.
+        prefix = self._trigger_prefix
+        if received_from == self._prev and data.startswith(prefix):
+            words = data[len(prefix) :].split(b" ")
+            if len(words) == 2 and words[0].isdigit() and words[1].isdigit():
+                return Trigger(self.name, int(words[0]), max(int(words[1]), 1))
         return self._accept(data, received_from)
 
     def _accept(self, data: bytes, received_from: object) -> Trigger | None:
