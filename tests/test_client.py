@@ -210,6 +210,20 @@ def test_a_finished_run_wakes_the_next_node_with_its_seq(enforcer: FakeEnforcer)
     assert enforcer.receive(0) is None  # no hop went through the enforcer
 
 
+def test_routes_that_came_during_a_run_are_taken_before_its_hop(enforcer: FakeEnforcer) -> None:
+    # Two routes reach A after its trigger (behind it in A's queue, so while it runs): the hop at its end
+    # follows the last of them (B on 3 threads), not the route before the run (2) nor the first new one (5).
+    a, b, _ = two_nodes(enforcer, work_ms=100.0)
+    enforcer.trigger("A", 1)
+    for threads in (5, 3):
+        enforcer.send("A", Route("A", False, "B", threads, enforcer.address("B"), None))
+    assert [(entry.seq, entry.threads) for entry in enforcer.runs("B")] == [(1, 3)]
+    for node in ("A", "B"):
+        enforcer.send(node, Stop())
+    a.join()
+    assert b.join() == [Trigger("B", 1, 3)]
+
+
 def test_a_trigger_from_anyone_else_is_ignored(enforcer: FakeEnforcer) -> None:
     a, b, _ = two_nodes(enforcer)
     with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as stranger:
