@@ -381,7 +381,7 @@ class Node:
         else:
             compute_ns = _UNKNOWN
         readable = self._readable
-        if readable is not None and readable.poll(0):  # asked here, not in a call: this is the hop's path
+        if readable is not None and readable.poll(0):  # asked here, not in _drain: this is the hop's path
             self._drain()  # a route that changed while the run went on
         sock = self._sock
         after = self._next
@@ -483,15 +483,16 @@ class Node:
             )
 
     def _drain(self) -> None:
-        """Take every datagram waiting now (routes, stop; triggers are queued for :meth:`wait`)."""
+        """Take every datagram waiting now (routes, stop; triggers are queued for :meth:`wait`), once a poll
+        said one waits: a receive that finds nothing raises, and this runs between a run's end and the next
+        node's start."""
         sock, readable = self._sock, self._readable
-        # Asked first: a receive that finds nothing raises, and this runs between a run's end and the next node's start.
-        while sock is not None and readable is not None and not self._ended and readable.poll(0):
+        while sock is not None and readable is not None and not self._ended:
             try:
                 self._take(sock)
-            except (BlockingIOError, InterruptedError):
+            except OSError:  # nothing after all, or the socket failed: the next wait sees it
                 return
-            except OSError:
+            if not readable.poll(0):
                 return
 
     def _take(self, sock: socket.socket) -> None:
