@@ -27,7 +27,7 @@ def format_path(path: FieldPath) -> str:
 
 
 class ExitCode(IntEnum):
-    """Process exit codes (documented in the README)."""
+    """Process exit codes (documented in docs/reference/spec.md)."""
 
     OK = 0
     DRIFT = 1  # `compile --check` found stale output; `profile --check` a spec off its measurements

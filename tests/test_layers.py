@@ -6,7 +6,7 @@ leaf module so that the explanation and the runtime table would not name
 the planner even for their annotations).  An import of an ancestor package
 is not an edge: Python runs every ancestor's ``__init__`` before the module
 anyway, and ``catanc/__init__.py`` is the lazy public API above everything.
-The layers, lowest first, are :data:`LAYERS` (the README's "Layout" draws them).
+The layers, lowest first, are :data:`LAYERS` (docs/development.md's "Layout" draws them).
 ``python3 ../shared/tools/import_cycles.py catanc`` checks the same graph
 without the ``TYPE_CHECKING`` imports.
 """

@@ -13,7 +13,7 @@ as written:
 - each subchain's ``rate_hz`` is ``1000 / period_ms`` and ``slice_ms`` is
   ``fraction * c(S)`` (``c(S)`` from the problem, not printed);
 - ``rate_as_run_hz``, only where an executor's thread takes some of ``rate_hz``
-  (docs/executor-planning.md), is the planner's prediction of what is left:
+  (docs/explanation/executor-planning.md), is the planner's prediction of what is left:
   what ``catanc report`` holds the measured rate to;
 - each chain's metrics are section 2 of catan-model.md over the rounded
   subchain timings and the rounded ``clocks`` (unscheduled nodes' periods);

@@ -1,7 +1,7 @@
 """A rate cap on an executor's long node that would make the plan run better: the planner's trade, offered.
 
 The planner spaces out an executor's members' triggers at the runs and lengths it chose
-(docs/executor-planning.md), but it chooses those for the slot model: it may still run a long
+(docs/explanation/executor-planning.md), but it chooses those for the slot model: it may still run a long
 node (nav2d's GM) with slices the slot model sees room for, while each of its runs holds the
 thread the short nodes (GL) need.  Slowing the long node trades its chains'
 periods against the short nodes' lost triggers.  This module makes that trade the way a user

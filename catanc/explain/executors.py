@@ -64,7 +64,7 @@ def member_warning(turns: ExecutorTurns, rate: MemberRate) -> str:
         f"executor {turns.executor.name}: {rate.node} runs at about {rate.rate_hz:.1f} Hz of its planned "
         f"{rate.planned_hz:.1f} Hz: a run of {rate.blocked_by} ({blocker.compute_ms:.3g} ms of compute) holds "
         f"their thread about {rate.longest_wait_ms:.1f} ms and {rate.node}'s triggers meanwhile are lost "
-        "(what is left once the planner has spaced out the members' triggers: docs/executor-planning.md)"
+        "(what is left once the planner has spaced out the members' triggers: docs/explanation/executor-planning.md)"
     )
 
 
@@ -74,7 +74,7 @@ def stolen_warning(turns: ExecutorTurns, subchain: str, planned_hz: float, lost_
     return (
         f"executor {turns.executor.name}: subchain {subchain} runs at about {planned_hz - lost_hz:.1f} Hz of its "
         f"planned {planned_hz:.1f} Hz: {who} is late and takes {subchain}'s slots for their thread "
-        "(what is left once the planner has spaced out the members' triggers: docs/executor-planning.md)"
+        "(what is left once the planner has spaced out the members' triggers: docs/explanation/executor-planning.md)"
     )
 
 

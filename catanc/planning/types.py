@@ -27,7 +27,7 @@ class SubchainPlan:
     fraction: float  # f: share of one run per schedule period (1.0 when dedicated)
     priority: int  # higher steals from lower
     every: int | None = None  # k: a shared non-batch subchain is triggered at its slot every k periods
-    # The period once an executor's thread has taken its share (docs/executor-planning.md: triggers
+    # The period once an executor's thread has taken its share (docs/explanation/executor-planning.md: triggers
     # lost while another member holds the thread, slots a late member steals); None where that is
     # period_ms.  It may be inf: a subchain predicted to get no run at all.
     period_as_run_ms: float | None = None

@@ -1,6 +1,6 @@
 """The shared cores' walk compiled with numba: :class:`~catanc.runtime.cores.SharedCores` over flat arrays.
 
-Issue 31's compiled hot loop (docs/compiled-loop.md).  What one wake-up of the
+Issue 31's compiled hot loop (docs/explanation/compiled-loop.md).  What one wake-up of the
 enforcer does on its shared cores is said in Python by :mod:`catanc.runtime.cores` (the boundary
 walk, the slot owner, the levels, the slot-aligned triggers), :mod:`catanc.runtime.runs` (the
 rings read into runs in flight, every report checked and clamped) and

@@ -61,7 +61,7 @@ class PlannedRate:
 
     @property
     def expected_hz(self) -> float:
-        """The rate the plan promises: ``hz``, less what an executor's thread takes (docs/executor-planning.md)."""
+        """The rate the plan promises: ``hz``, less what an executor's thread takes (docs/explanation/executor-planning.md)."""
         return self.hz if self.as_run_hz is None else self.as_run_hz
 
 

@@ -40,7 +40,7 @@ def comparison_tables(results: Sequence[PolicyResult]) -> list[Table]:
             response = result.chains[index].response
             cells.append("-" if response is None else f"{response.p95:.1f} ({response.mean:.1f}, {response.max:.1f})")
         chains.add_row(label, *cells)
-    # A plan's subchain heads: "measured of promised" (the rate as run: docs/executor-planning.md), by the
+    # A plan's subchain heads: "measured of promised" (the rate as run: docs/explanation/executor-planning.md), by the
     # plan in force at the end: where re-plans changed a rate on the way, the run's average is between.
     title = "Node rate, Hz: measured [of the last plan's rate as run] (input staleness p95, ms)"
     nodes = Table(title=title, title_justify="left")

@@ -252,7 +252,7 @@ def test_same_plan_in_fresh_processes() -> None:
 def test_a_capped_integer_search_says_how_close_it_is(monkeypatch: pytest.MonkeyPatch) -> None:
     # nav2d on 1 core: GL is batch, so the integer search runs; allowed a single relaxation past its
     # first plan, it stops, and the plan says so and stays within its stated gap of the exact plan.
-    # The gap is the slot model's, at each member's least k (docs/executor-planning.md): without the
+    # The gap is the slot model's, at each member's least k (docs/explanation/executor-planning.md): without the
     # executor trade, which spaces GM's triggers out after the search.
     import catanc.planning.planner
 

@@ -688,7 +688,7 @@ def bench_as_nobody(folder: Path, *options: str) -> subprocess.CompletedProcess[
 def test_without_privilege_the_fifo_policies_exit_4_and_say_why(shared_folder: Path) -> None:
     refused = bench_as_nobody(shared_folder, "--duration", "1")
     assert refused.returncode == ExitCode.NO_PRIVILEGE, refused.stderr
-    assert int(ExitCode.NO_PRIVILEGE) == 4  # as the README documents
+    assert int(ExitCode.NO_PRIVILEGE) == 4  # as docs/reference/spec.md documents
     assert "catanc bench: catan and fifo-static run(s) the app under SCHED_FIFO" in refused.stderr
     assert "cannot use SCHED_FIFO priority" in refused.stderr
     assert "catanc bench SPEC --policy baseline" in refused.stderr

@@ -766,7 +766,7 @@ def test_without_privilege_catanc_run_exits_4_and_says_why(
 ) -> None:
     refused = nobody_run(nobody, shared_folder, tmp_path, "--duration", "1")
     assert refused.returncode == ExitCode.NO_PRIVILEGE, refused.stderr
-    assert int(ExitCode.NO_PRIVILEGE) == 4  # as the README documents
+    assert int(ExitCode.NO_PRIVILEGE) == 4  # as docs/reference/spec.md documents
     assert f"cannot use SCHED_FIFO priority {ENFORCER_FIFO}" in refused.stderr
     assert "catanc run --no-rt" in refused.stderr
     assert "Traceback" not in refused.stderr

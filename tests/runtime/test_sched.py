@@ -709,7 +709,7 @@ def test_check_fifo_allowed_refuses_a_priority_that_is_not_one() -> None:
 def test_without_privilege_the_error_says_how_to_fix_it_and_exits_with_no_privilege(nobody: tuple[int, int]) -> None:
     result = run_probe(as_user(*nobody, rtprio=0), ENFORCER_PRIORITY)
     assert result.returncode == ExitCode.NO_PRIVILEGE, result.stderr
-    assert int(ExitCode.NO_PRIVILEGE) == 4  # documented in the README
+    assert int(ExitCode.NO_PRIVILEGE) == 4  # documented in docs/reference/spec.md
     message = result.stderr
     assert f"cannot use SCHED_FIFO priority {ENFORCER_PRIORITY}" in message
     assert f"not root (euid {nobody[0]}), no CAP_SYS_NICE, and RLIMIT_RTPRIO is 0 (needs 4)" in message

@@ -5,7 +5,7 @@ thread while the others' triggers come and go (:mod:`catanc.core.executor_thread
 objective as run (:func:`~catanc.core.executor_thread.as_run_objective`) is its objective with the
 periods the thread's turns leave.  Triggering a member less often (a longer ``k``, so ``p = k T``)
 lengthens its own period and shortens every other member's losses: the trade made here, once
-Stage II has chosen the runs and schedule lengths (docs/executor-planning.md: those are still
+Stage II has chosen the runs and schedule lengths (docs/explanation/executor-planning.md: those are still
 chosen for the slot model's objective, so the plan is the best over ``k`` at them, not over
 every plan).
 
