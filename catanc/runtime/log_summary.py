@@ -61,7 +61,9 @@ class PlannedRate:
 
     @property
     def expected_hz(self) -> float:
-        """The rate the plan promises: ``hz``, less what an executor's thread takes (docs/explanation/executor-planning.md)."""
+        """The rate the plan promises: ``hz``, less what an executor's thread takes.
+
+        docs/explanation/executor-planning.md says how an executor's thread takes it."""
         return self.hz if self.as_run_hz is None else self.as_run_hz
 
 
