@@ -217,6 +217,8 @@ class _Builder:
                 seen.add(name)
         for name in spec.schedule.priorities:
             self.known(name, ("schedule", "priorities", name), "subchain")
+        for name in spec.baseline.priorities:
+            self.known(name, ("baseline", "priorities", name), "subchain")
         for name in spec.baseline.rates_hz:
             path = ("baseline", "rates_hz", name)
             if self.known(name, path) and not spec.nodes[name].scheduled:

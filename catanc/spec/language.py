@@ -554,6 +554,13 @@ class Baseline(_Model):
         default_factory=dict,
         description="Timer rate per node; unlisted nodes run when an input arrives.",
     )
+    priorities: dict[Name, Annotated[int, Field(ge=0)]] = Field(
+        default_factory=dict,
+        # Written out only when given: runtime tables of specs without it stay as they were.
+        exclude_if=lambda given: not given,
+        description="fifo-static's SCHED_FIFO order per subchain, higher runs first (unlisted: 0); default: by "
+        "importance, every subchain its own level. Never schedule.priorities, which rank catanc's own stealing.",
+    )
 
 
 RateUnitName = Literal["hz", "s", "ms"]
