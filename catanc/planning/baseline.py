@@ -31,6 +31,12 @@ input arrives, and Linux shares the CPU (SCHED_OTHER).  The model:
   (``L = l1 + sum_{x>=2} (p_x + l_x)``, ``P = max p``, ``R = L + P``); the
   objective's response terms use the spec's chains, its period terms the
   named node's own period.
+
+The same triggers under static SCHED_FIFO (``fifo-static``, the paper's
+second baseline, catan-model.md section 7) run each subchain at a level of
+its own by importance (:func:`static_priorities`), or at the spec's
+``baseline.priorities``; never at ``schedule.priorities``, which rank
+catanc's own stealing.
 """
 
 from __future__ import annotations
@@ -145,6 +151,39 @@ def evaluate_baseline(spec: Spec, problem: Problem, cores: int) -> BaselineEvalu
         terms=terms,
         objective=math.fsum(term.contribution for term in terms),
     )
+
+
+def static_priorities(spec: Spec, problem: Problem) -> dict[str, int]:
+    """fifo-static's order of the subchains, higher runs first: ``baseline.priorities`` (unlisted: 0), else
+    by importance, every subchain its own level ``1..n``.
+
+    Importance: the total weight of the objective's terms through the subchain
+    (:meth:`Problem.importance`); on a tie, the one closer to its chains' ends
+    first (fewest subchains after it in a weighted chain through it): FIFO
+    then finishes the data already in flight before it takes new input; then
+    spec order.
+    """
+    if spec.baseline.priorities:
+        return {sub.name: spec.baseline.priorities.get(sub.name, 0) for sub in problem.subchains}
+    weight = problem.importance()
+    after = _stages_after(problem)
+    ranked = sorted(
+        range(len(problem.subchains)),
+        key=lambda i: (-weight[problem.subchains[i].name], after[problem.subchains[i].name], i),
+    )
+    return {problem.subchains[i].name: len(ranked) - rank for rank, i in enumerate(ranked)}
+
+
+def _stages_after(problem: Problem) -> dict[str, float]:
+    """Per subchain: the fewest subchains that follow it in a weighted chain through it (inf: in none)."""
+    after = dict.fromkeys((sub.name for sub in problem.subchains), math.inf)
+    for term in problem.response_terms:
+        if term.weight <= 0:
+            continue
+        stages = [stage.name for stage in problem.chains[term.chain].stages if not stage.fixed]
+        for index, name in enumerate(stages):
+            after[name] = min(after[name], len(stages) - 1 - index)
+    return after
 
 
 def objective_terms(

@@ -14,7 +14,7 @@ of them, and records every run); then
   ``baseline.rates_hz`` says, every node thread under SCHED_OTHER (CFS) on the first ``K``
   CPUs this process may use;
 - ``fifo-static``: the same triggers, each node thread at a static SCHED_FIFO level by its
-  subchain's weight (:func:`fifo_levels`), the driver one level above
+  subchain's importance or ``baseline.priorities`` (:func:`fifo_levels`), the driver one level above
   them (it stands for the timers, which the simulator fires on time).
 - ``static-fullrun`` / ``static-20s`` (not run by default): the real enforcer with one plan made
   before the run from the workload model's p95 compute times over the whole run / its first 20 s,
@@ -46,7 +46,7 @@ from catanc.core.priorities import ENFORCER_FIFO
 from catanc.core.problem import Problem
 from catanc.errors import PrivilegeError, UsageError
 from catanc.files import write_files
-from catanc.planning.order import priorities
+from catanc.planning.baseline import static_priorities
 from catanc.planning.types import Plan
 from catanc.realbench.driver import BenchError, Driver, DriverSocket
 from catanc.realbench.replay import measured_result, replay, utilisation
@@ -152,13 +152,13 @@ MAX_APP_FIFO = 97
 
 
 def fifo_levels(problem: Problem, spec: Spec) -> dict[str, int]:
-    """fifo-static: each scheduled node's SCHED_FIFO level, its subchain's priority by weight, as 1, 2, ...
+    """fifo-static: each scheduled node's SCHED_FIFO level, its subchain's static priority, as 1, 2, ...
 
-    :func:`catanc.planning.planner.priorities` ranks subchains (the spec's ``schedule.priorities``, else by
-    weight, the heaviest highest; the simulator's fifo-static uses the same); equal ranks share a
-    level, and the levels keep their order.
+    :func:`catanc.planning.baseline.static_priorities` ranks subchains (the spec's ``baseline.priorities``,
+    else by importance; the simulator's fifo-static uses the same); equal ranks share a level, and the
+    levels keep their order.
     """
-    ranks = priorities(problem, spec.schedule, problem.importance())
+    ranks = static_priorities(spec, problem)
     levels = {rank: level for level, rank in enumerate(sorted(set(ranks.values())), start=1)}
     if len(levels) > MAX_APP_FIFO:
         raise UsageError(f"{spec.app}: {len(levels)} distinct subchain priorities; SCHED_FIFO has {MAX_APP_FIFO}")

@@ -11,7 +11,7 @@
   ``baseline.rates_hz`` runs on its own timer, every other scheduled node
   when a new input arrives (from a scheduled predecessor if it has one, else
   from a sensor), on all ``K`` cores shared fairly (CFS) or by static
-  SCHED_FIFO priorities by weight.
+  SCHED_FIFO priorities (:func:`catanc.planning.baseline.static_priorities`).
 
 Unscheduled nodes with a rate tick on their own clock under every policy.
 """

@@ -12,8 +12,9 @@ Policies (issue 7; the paper's section 7 baselines):
   the p95 compute times of the whole run / of its first 20 s (drawn from the
   workload model), never re-solved (the paper's Static-FullRun, Static-20s);
 - ``baseline``: the hand-tuned rates under fair sharing (CFS);
-- ``fifo-static``: the hand-tuned rates under static SCHED_FIFO priorities
-  by weight.
+- ``fifo-static``: the hand-tuned rates under static SCHED_FIFO priorities,
+  every subchain its own level by importance, or ``baseline.priorities``
+  (:func:`catanc.planning.baseline.static_priorities`).
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ from catanc.core.problem import Problem
 from catanc.core.workload import ComputeSampler, NodeStream
 from catanc.errors import UsageError
 from catanc.extras import require
-from catanc.planning.order import priorities
+from catanc.planning.baseline import static_priorities
 from catanc.planning.planner import plan_problem
 from catanc.planning.replan import Replanner
 from catanc.planning.types import Plan
@@ -190,7 +191,7 @@ def prepare(setup: Setup, policy: str, sampler_for: SamplerFactory) -> Prepared:
     problem = build_problem(spec)
     chains = reported_chains(spec, problem)
     if policy in ("baseline", "fifo-static"):  # no plan: the hand-tuned rates
-        by_subchain = priorities(problem, spec.schedule, problem.importance())
+        by_subchain = static_priorities(spec, problem)
         by_node = {node: by_subchain[sub.name] for sub in problem.subchains for node in sub.nodes}
         return Prepared(chains, None, None, None, by_node, "fair" if policy == "baseline" else "fifo")
     # One plan, as the Replanner's Stage I would make it, from the tail compute times.

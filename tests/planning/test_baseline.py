@@ -1,14 +1,18 @@
-"""The baseline under fair sharing: closed-form cases worked by hand, and the example specs' own notes."""
+"""The baseline under fair sharing: closed-form cases worked by hand, and the example specs' own notes;
+fifo-static's static priorities: the paper's order for VR, cases by hand, and properties over random apps."""
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import pytest
+from hypothesis import given
 
 from catanc.core.build import build_problem
 from catanc.core.load import load_spec, parse_spec
-from catanc.planning.baseline import BaselineEvaluation, BaselineGap, evaluate_baseline
+from catanc.planning.baseline import BaselineEvaluation, BaselineGap, evaluate_baseline, static_priorities
+from tests.support.strategies import spec_documents, spec_of
 
 SPECS = Path(__file__).parents[2] / "specs"
 
@@ -187,3 +191,52 @@ def test_cores_must_be_positive() -> None:
     spec = parse_spec(PAIR)
     with pytest.raises(ValueError, match="at least one core"):
         evaluate_baseline(spec, build_problem(spec), 0)
+
+
+# -- fifo-static's static priorities ------------------------------------------------------------
+
+
+def test_vr_fifo_static_runs_the_papers_order_not_the_stealing_priorities() -> None:
+    """catan-model.md section 7: Timewarp, then Render, then Camera -> VIO (IMU and Int are unscheduled
+    clocks, above every thread); every subchain its own level.  The spec's schedule.priorities
+    (timewarp 1, vio 0, render 0) rank stealing and put Render and VIO on one level."""
+    spec = load_spec(SPECS / "vr_illixr.yaml")
+    assert spec.schedule.priorities == {"timewarp": 1, "vio": 0, "render": 0}
+    assert static_priorities(spec, build_problem(spec)) == {"timewarp": 3, "render": 2, "vio": 1}
+
+
+def test_a_tie_in_weight_goes_to_the_subchain_nearer_the_chains_end() -> None:
+    # One chain a -> b -> out through both: equal weight; b finishes what a started, so b first.
+    text = PAIR.replace("  - {chain: [odom, b, out], weight: 1.0}\n  - {node: b, weight: 0.5}\n", "")
+    spec = parse_spec(text)
+    assert static_priorities(spec, build_problem(spec)) == {"A": 1, "B": 2}
+    # PAIR: a -> b (2.0) and odom -> b (1.0) and b's period (0.5): B weighs 3.5, A 2.0.
+    spec = parse_spec(PAIR)
+    assert static_priorities(spec, build_problem(spec)) == {"A": 1, "B": 2}
+
+
+def test_the_specs_baseline_priorities_win_and_unlisted_subchains_are_lowest() -> None:
+    spec = parse_spec(PAIR + "  priorities: {A: 7}\n")
+    assert static_priorities(spec, build_problem(spec)) == {"A": 7, "B": 0}
+    # Written into runtime tables only when given: those of specs without it stay as they were.
+    assert spec.model_dump()["baseline"]["priorities"] == {"A": 7}
+    assert "priorities" not in parse_spec(PAIR).model_dump()["baseline"]
+
+
+@given(spec_documents())
+def test_every_subchain_its_own_level_the_heavier_higher(document: dict[str, Any]) -> None:
+    spec = spec_of(document)
+    problem = build_problem(spec)
+    levels = static_priorities(spec, problem)
+    assert sorted(levels.values()) == list(range(1, len(problem.subchains) + 1))
+    # The weight through each subchain, summed here from the terms themselves.
+    weight = {sub.name: 0.0 for sub in problem.subchains}
+    for term in problem.response_terms:
+        for name in {stage.name for stage in problem.chains[term.chain].stages if not stage.fixed}:
+            weight[name] += term.weight
+    for period_term in problem.period_terms:
+        weight[period_term.subchain] += period_term.weight
+    for a, heavier in weight.items():
+        for b, lighter in weight.items():
+            if heavier > lighter + 1e-12:
+                assert levels[a] > levels[b], (a, b, weight)

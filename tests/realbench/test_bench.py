@@ -27,7 +27,7 @@ import pytest
 
 from catanc.control.timers import TICK, TIMER, Clock, Triggers, trigger_rules
 from catanc.core.build import build_problem
-from catanc.core.load import load_spec
+from catanc.core.load import load_spec, parse_spec
 from catanc.errors import ExitCode, UsageError
 from catanc.planning.planner import plan
 from catanc.realbench import bench as bench_run
@@ -208,15 +208,24 @@ def test_the_clock_fires_every_period_from_the_start_sensors_first(pipe: Spec) -
     assert clock.next_ms() == 1130.0
 
 
-def test_fifo_levels_rank_subchains_by_weight_or_the_specs_priorities() -> None:
+def test_fifo_levels_are_the_papers_order_never_the_stealing_priorities() -> None:
     specs = Path(__file__).parents[2] / "specs"
-    vr = load_spec(specs / "vr_illixr.yaml")  # schedule.priorities: timewarp 1, vio 0, render 0
-    assert fifo_levels(build_problem(vr), vr) == {"Timewarp": 2, "Camera": 1, "VIO": 1, "Render": 1}
+    vr = load_spec(specs / "vr_illixr.yaml")  # schedule.priorities (stealing): timewarp 1, vio 0, render 0
+    # catan-model.md section 7: Timewarp, then Render, then Camera and VIO (one subchain).
+    assert fifo_levels(build_problem(vr), vr) == {"Timewarp": 3, "Render": 2, "Camera": 1, "VIO": 1}
     nav = load_spec(specs / "nav2d.yaml")  # weights: local 1.0 > GL 0.5 > the rest
     levels = fifo_levels(build_problem(nav), nav)
     assert levels["scan"] == levels["LM"] == levels["LP"] == max(levels.values())
     assert levels["GL"] == max(levels.values()) - 1
-    assert min(levels.values()) == 1
+    assert sorted({levels[sub] for sub in ("scan", "GL", "GM", "GP", "NC")}) == [1, 2, 3, 4, 5]  # one each
+    # The spec's baseline.priorities: equal ones share a level; the levels count from 1 and keep the order.
+    text = (
+        (specs / "vr_illixr.yaml")
+        .read_text()
+        .replace("baseline:\n", "baseline:\n  priorities: {timewarp: 9, render: 9}\n")
+    )
+    vr = parse_spec(text)
+    assert fifo_levels(build_problem(vr), vr) == {"Timewarp": 2, "Render": 2, "Camera": 1, "VIO": 1}
 
 
 # -- the driver against the simulator's TimerPolicy --------------------------------------------
