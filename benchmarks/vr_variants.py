@@ -1,4 +1,4 @@
-"""Issue 30's VR target on VR specs that are not in the repo: chains A and B against FIFO static priorities.
+"""Issue 30's VR target on VR specs that are not in the repo: chains A, B and C against FIFO static priorities.
 
     python -m benchmarks.vr_variants                       # 20 variants, 5 seeds each, 60 s, 1 core
     python -m benchmarks.vr_variants --variants 5 --seeds 2 --duration 20
@@ -8,8 +8,9 @@ factor drawn uniformly from [0.7, 1.3] and each jitter's cv from [0.5, 1.5] of t
 (a seeded draw: variant ``i`` is the same on every machine), so the DAG and the weights are the
 paper's but the timings are not the ones the example spec was tuned with.  Each variant is simulated
 on 1 core with ``catan`` and ``fifo-static`` over the same seeds (the same workload draws), and chain
-A's and B's mean responses are compared seed by seed (paired).  The issue's target: B at least 10%
-lower than FIFO static's, A no more than 2% higher.
+A's, B's and C's mean responses are compared seed by seed (paired).  The issue's target: B at least 10%
+lower than FIFO static's, A no more than 2% higher (C is shown, not judged: issue 49 asks it to be no
+worse than fifo-static's).
 """
 
 from __future__ import annotations
@@ -49,10 +50,10 @@ def variant(base: Mapping[str, Any], index: int) -> tuple[dict[str, Any], dict[s
 
 
 def mean_responses(data: Mapping[str, Any], policy: str, seeds: range, duration_s: float) -> dict[str, list[float]]:
-    """Per chain (A, B): the run's mean response, one per seed (nan where a chain had no output)."""
+    """Per chain (A, B, C): the run's mean response, one per seed (nan where a chain had no output)."""
     with spec_file(data) as path:
         spec = load_spec(path)
-    means: dict[str, list[float]] = {"A": [], "B": []}
+    means: dict[str, list[float]] = {"A": [], "B": [], "C": []}
     for seed in seeds:
         result = simulate(Setup(spec, 1, duration_s, seed), policy)
         for chain, values in means.items():
@@ -69,8 +70,11 @@ def main() -> None:
     args = parser.parse_args()
     base = spec_yaml("vr_illixr")
     seeds = range(args.seeds)
-    print("| variant | compute ms (Camera, VIO, Render, Timewarp) | A vs fifo-static | B vs fifo-static | met? |")
-    print("|---|---|---|---|---|")
+    print(
+        "| variant | compute ms (Camera, VIO, Render, Timewarp) | A vs fifo-static | B vs fifo-static "
+        "| C vs fifo-static | met? |"
+    )
+    print("|---|---|---|---|---|---|")
     met = 0
     for index in range(args.variants):
         data, computes = variant(base, index)
@@ -78,12 +82,13 @@ def main() -> None:
         fifo = mean_responses(data, "fifo-static", seeds, args.duration)
         ratio = {
             chain: statistics.fmean(a / b - 1.0 for a, b in zip(catan[chain], fifo[chain], strict=True))
-            for chain in ("A", "B")
+            for chain in ("A", "B", "C")
         }
         ok = ratio["B"] <= B_TARGET and ratio["A"] <= A_TARGET
         met += ok
         times = ", ".join(f"{computes[n]:g}" for n in ("Camera", "VIO", "Render", "Timewarp"))
-        print(f"| {index} | {times} | {ratio['A']:+.1%} | {ratio['B']:+.1%} | {'yes' if ok else 'no'} |", flush=True)
+        shown = " | ".join(f"{ratio[chain]:+.1%}" for chain in ("A", "B", "C"))
+        print(f"| {index} | {times} | {shown} | {'yes' if ok else 'no'} |", flush=True)
     print(f"\n{met} of {args.variants} variants meet both targets (B <= {B_TARGET:+.0%}, A <= {A_TARGET:+.0%})")
 
 
