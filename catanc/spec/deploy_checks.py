@@ -28,9 +28,16 @@ PARAMETER_PATTERN = re.compile(rf"{ROS_NAME_TOKEN}(\.{ROS_NAME_TOKEN})*")
 PERIOD_NS = "{period_ns}"
 """In a callback group ID, the timer period the plan gives the node, in nanoseconds."""
 CALLBACK_PATTERN = re.compile(
-    rf"(Subscription|Service|Client)\((/{ROS_NAME_TOKEN})+\)|Timer\(([0-9]+|\{{period_ns\}})\)|Waitable"
+    rf"(Agnocast)?(Subscription|Service|Client)\((/{ROS_NAME_TOKEN})+\)|Timer\(([0-9]+|\{{period_ns\}})\)|Waitable"
 )
-"""One callback of a cie_thread_configurator callback group ID (its README: "CallbackGroup ID format")."""
+"""One callback of a cie_thread_configurator callback group ID (its README: "CallbackGroup ID format"), or
+of Agnocast's (``AgnocastSubscription(/topic)``, ``AgnocastService(...)``, ``AgnocastClient(...)``)."""
+CALLBACK_ORDER = ("Subscription", "Service", "Client", "Timer", "Agnocast", "Waitable")
+"""The order of the callbacks in an ID: rclcpp's ``CallbackGroup::collect_all_ptrs`` visits a group's
+subscriptions, services, clients, timers, then waitables, and cie_thread_configurator writes each as it
+comes; Agnocast's callbacks follow rclcpp's.  A Waitable writes nothing in today's tool, and the
+configurator drops ``@Waitable`` from the end of a configured ID (older tools wrote one per waitable)."""
+CALLBACK_ID_EXAMPLE = "/local_mapper@Subscription(/scan)@Timer({period_ns})"
 
 
 def qualified(ros_node: str) -> str:
@@ -135,7 +142,7 @@ def _callback_group_problems(spec: Spec, name: str, entry: Deploy) -> Iterator[t
         yield (
             path,
             f"{group!r} is not a callback group ID: the node's full name, then each callback after '@' "
-            "(e.g. /local_mapper@Timer({period_ns})@Subscription(/scan))",
+            f"(e.g. {CALLBACK_ID_EXAMPLE})",
         )
         return
     bad = next((callback for callback in callbacks if not CALLBACK_PATTERN.fullmatch(callback)), None)
@@ -143,7 +150,17 @@ def _callback_group_problems(spec: Spec, name: str, entry: Deploy) -> Iterator[t
         yield (
             path,
             f"{bad!r} is not a callback: Subscription(/topic), Service(/name), Client(/name), "
-            f"Timer(<period in ns>) or Timer({PERIOD_NS}), or Waitable",
+            f"Timer(<period in ns>) or Timer({PERIOD_NS}), Agnocast's AgnocastSubscription(/topic), "
+            "AgnocastService(/name) or AgnocastClient(/name), or Waitable",
+        )
+        return
+    ordered = sorted(callbacks, key=_callback_rank)  # stable: callbacks of one kind keep their order
+    if ordered != callbacks:
+        yield (
+            path,
+            "callbacks out of order: cie_thread_configurator writes a group's Subscriptions, then Services, "
+            "Clients, Timers, then Agnocast's callbacks, Waitables last; this ID would never match "
+            f"(did you mean {'@'.join([node, *ordered])!r}?)",
         )
         return
     if entry.ros_node is None:
@@ -159,6 +176,12 @@ def _callback_group_problems(spec: Spec, name: str, entry: Deploy) -> Iterator[t
             f"{PERIOD_NS} is the timer period the plan sets through rate_param, and node {name!r} has none "
             "(nor a clock of its own, rate_hz)",
         )
+
+
+def _callback_rank(callback: str) -> int:
+    """Where a callback (one that :data:`CALLBACK_PATTERN` matches) goes in an ID: its kind's place in
+    :data:`CALLBACK_ORDER`."""
+    return next(rank for rank, kind in enumerate(CALLBACK_ORDER) if callback.startswith(kind))
 
 
 def _clash(param: str, taken: dict[str, str]) -> str | None:

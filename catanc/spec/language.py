@@ -592,7 +592,9 @@ class Deploy(_Model):
     callback_group: str | None = Field(
         default=None,
         description="The node's ROS 2 callback group as callback_isolated_executor's cie_thread_configurator "
-        "names it (/node@Timer(<ns>)@Subscription(<topic>)...; {period_ns} stands for the planned timer period); "
+        "names it: the node's full name, then its callbacks after '@' in the tool's order, Subscription(<topic>), "
+        "Service(<name>), Client(<name>), Timer(<ns>), then Agnocast's (AgnocastSubscription(<topic>), ...), "
+        "e.g. /node@Subscription(/scan)@Timer({period_ns}) ({period_ns} stands for the planned timer period); "
         "compile then also writes cie_thread_configurator.yaml.",
     )
 

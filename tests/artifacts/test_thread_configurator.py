@@ -23,7 +23,7 @@ from catanc.artifacts.compile import compile_spec
 from catanc.artifacts.deploy import timer_ns
 from catanc.artifacts.emit import FILES, THREAD_CONFIGURATOR
 from catanc.cli.main import app
-from catanc.core.load import load_spec
+from catanc.core.load import load_spec, parse_spec
 from catanc.errors import ExitCode, SpecError
 from catanc.planning.planner import plan
 
@@ -191,6 +191,21 @@ def test_check_covers_the_file_and_a_spec_that_drops_it_replaces_the_folder(robo
         ('callback_group: "/camera@Timer(1.5)"', "'Timer(1.5)' is not a callback"),
         ('callback_group: "/camera@Subscription(image)"', "'Subscription(image)' is not a callback"),
         ('callback_group: "/other@Timer(1)"', "the callback group is /other's, but ros_node is /camera"),
+        ('callback_group: "/camera@Agnocast(/image)"', "'Agnocast(/image)' is not a callback"),
+        # Autoware's tool writes Subscriptions, Services, Clients, Timers (collect_all_ptrs), then Agnocast's
+        (
+            'callback_group: "/camera@Timer({period_ns})@Subscription(/image)"',
+            "did you mean '/camera@Subscription(/image)@Timer({period_ns})'?",
+        ),
+        (
+            'callback_group: "/camera@Client(/b)@Subscription(/x)@Service(/a)@Subscription(/y)"',
+            "did you mean '/camera@Subscription(/x)@Subscription(/y)@Service(/a)@Client(/b)'?",
+        ),
+        (
+            'callback_group: "/camera@AgnocastSubscription(/image)@Timer(5)@Waitable"',
+            "did you mean '/camera@Timer(5)@AgnocastSubscription(/image)@Waitable'?",
+        ),
+        ('callback_group: "/camera@Waitable@Timer(5)"', "did you mean '/camera@Timer(5)@Waitable'?"),
     ],
 )
 def test_bad_callback_group_ids_are_spec_errors(robot: Path, entry: str, message: str) -> None:
@@ -206,6 +221,51 @@ def test_bad_callback_group_ids_are_spec_errors(robot: Path, entry: str, message
         == ROBOT.splitlines().index(next(line for line in ROBOT.splitlines() if line.startswith("  cam: {ros_node")))
         + 1
     )
+
+
+CALLBACKS = [
+    "Subscription(/scan)",
+    "Subscription(/odom)",
+    "Service(/reset)",
+    "Client(/map)",
+    "Timer(5000000)",
+    "Timer(1000000000)",
+    "AgnocastSubscription(/points)",
+    "AgnocastService(/AGNOCAST_SRV_REQUEST/get)",
+    "AgnocastClient(/AGNOCAST_SRV_RESPONSE/get_SEP_mapper)",
+]
+
+
+def tool_order(callbacks: list[str]) -> list[str]:
+    """The order Autoware's create_callback_group_id writes a group's callbacks in: collect_all_ptrs visits
+    subscriptions, services, clients, timers (each kind in the group's own order), Agnocast's follow."""
+    kinds = ("Subscription(", "Service(", "Client(", "Timer(", "Agnocast")
+    return [callback for kind in kinds for callback in callbacks if callback.startswith(kind)]
+
+
+@settings(deadline=None)  # loading a spec is not what is timed here
+@given(st.lists(st.sampled_from(CALLBACKS), min_size=1, max_size=6, unique=True))
+def test_an_id_passes_exactly_when_its_callbacks_are_in_the_tools_order(callbacks: list[str]) -> None:
+    spec_text = ROBOT.replace(
+        '"/detector@Subscription(/image)@Timer(1000000000)"', f'"/detector@{"@".join(callbacks)}"'
+    )
+    expected = tool_order(callbacks)
+    if callbacks == expected:
+        parse_spec(spec_text, "robot.yaml")
+        return
+    with pytest.raises(SpecError) as caught:
+        parse_spec(spec_text, "robot.yaml")
+    (diagnostic,) = caught.value.diagnostics
+    assert diagnostic.field == "deploy.det.callback_group"
+    assert f"did you mean '/detector@{'@'.join(expected)}'?" in diagnostic.message
+
+
+def test_agnocast_callbacks_are_accepted(robot: Path) -> None:
+    group = (
+        "/detector@Subscription(/image)@AgnocastSubscription(/points)@AgnocastClient(/AGNOCAST_SRV_RESPONSE/a_SEP_b)"
+    )
+    robot.write_text(ROBOT.replace('"/detector@Subscription(/image)@Timer(1000000000)"', f'"{group}"'))
+    assert group in read_as_the_tool_does(compile_spec(robot, 2).files[THREAD_CONFIGURATOR], cores=2)
 
 
 # --------------------------------------------------------------------------- the timer, against C++
