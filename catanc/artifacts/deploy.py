@@ -323,13 +323,48 @@ def callback_groups(spec: Spec, plan: Plan, cpus: Sequence[int] | None = None) -
         used: set[int] = set()
         policies = []
         for node in nodes:
-            node_cpus, _ = _placement(plan, node, membership, on)
+            node_cpus, policy, priority = _static_placement(plan, node, membership, on)
             used.update(node_cpus)
-            shared = plan.subchains[membership[node]].shared if node in membership else None
-            policies.append(static_policy(shared))
+            policies.append((policy, priority))
         policy, priority = max(policies, key=lambda pair: (pair[0] == "SCHED_FIFO", pair[1]))
         found.append(CallbackGroup(group_id, nodes, tuple(sorted(used)), policy, priority))
     return tuple(found)
+
+
+@dataclass(frozen=True)
+class NonRosThread:
+    """A node thread outside any ROS callback, as cie_thread_configurator's ``non_ros_threads`` names it."""
+
+    id: str  # the DAG node's name: the name its catanc client registers, and spawn_non_ros2_thread's
+    cpus: tuple[int, ...]
+    policy: str  # SCHED_FIFO or SCHED_OTHER (catanc.core.priorities.static_policy)
+    priority: int  # SCHED_FIFO priority; 0 under SCHED_OTHER
+
+
+def non_ros_threads(spec: Spec, plan: Plan, cpus: Sequence[int] | None = None) -> tuple[NonRosThread, ...]:
+    """The threads catanc's clients register outside ROS callbacks, sorted by name: every DAG node that is no
+    ROS node (no ``deploy.<node>.ros_node``) and runs when triggered or on a clock of its own (an unscheduled
+    node without ``rate_hz`` only passes data on).  Placed as :func:`callback_groups` places a group."""
+    on = machine_cpus(plan, cpus)
+    membership = {node: sub.name for sub in plan.subchains.values() for node in sub.nodes}
+    found = []
+    for name in sorted(spec.nodes):
+        entry = spec.deploy.get(name)
+        node = spec.nodes[name]
+        if (entry is not None and entry.ros_node is not None) or (not node.scheduled and node.rate_hz is None):
+            continue
+        found.append(NonRosThread(name, *_static_placement(plan, name, membership, on)))
+    return tuple(found)
+
+
+def _static_placement(
+    plan: Plan, node: str, membership: dict[str, str], on: tuple[int, ...]
+) -> tuple[tuple[int, ...], str, int]:
+    """A node thread's CPUs, policy and priority without the enforcer (:func:`static_policy`)."""
+    node_cpus, _ = _placement(plan, node, membership, on)
+    shared = plan.subchains[membership[node]].shared if node in membership else None
+    policy, priority = static_policy(shared)
+    return node_cpus, policy, priority
 
 
 def timer_period_ns(spec: Spec, plan: Plan, node: str, membership: dict[str, str]) -> int | None:

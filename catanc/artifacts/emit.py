@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 import jinja2
 import yaml
 
-from catanc.artifacts.deploy import Process, callback_groups, processes
+from catanc.artifacts.deploy import Process, callback_groups, non_ros_threads, processes
 from catanc.artifacts.provenance import Provenance
 from catanc.artifacts.runtime_table import runtime_json
 from catanc.errors import ExitCode
@@ -98,7 +98,9 @@ def emit(
     }
     groups = callback_groups(spec, plan, cpus)
     if groups:
-        files[THREAD_CONFIGURATOR] = _render(f"{THREAD_CONFIGURATOR}.j2", context, groups=groups)
+        files[THREAD_CONFIGURATOR] = _render(
+            f"{THREAD_CONFIGURATOR}.j2", context, groups=groups, threads=non_ros_threads(spec, plan, cpus)
+        )
     return dict(sorted(files.items()))
 
 

@@ -65,12 +65,13 @@ def robot(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     return path
 
 
-def read_as_the_tool_does(text: str, cores: int) -> dict[str, dict[str, Any]]:
-    """``{id: entry}``, failing wherever cie_thread_configurator would refuse or misread the file."""
+def read_as_the_tool_does(text: str, cores: int, section: str = "callback_groups") -> dict[str, dict[str, Any]]:
+    """``{id: entry}`` of one list, failing wherever cie_thread_configurator would refuse or misread the file."""
     data = yaml.safe_load(text)
-    assert set(data) == {"callback_groups"}
+    assert "callback_groups" in data
+    assert set(data) <= {"callback_groups", "non_ros_threads", "hardware_info", "rt_throttling"}
     found = {}
-    for entry in data["callback_groups"]:
+    for entry in data.get(section, []):
         assert isinstance(entry["id"], str)
         assert entry["id"] not in found
         assert all(isinstance(cpu, int) and 0 <= cpu < cores for cpu in entry["affinity"])
@@ -113,6 +114,31 @@ def test_each_callback_group_gets_its_subchains_cpus_and_the_static_policy(robot
     }
     assert len(groups) == 4
     assert {s.shared for s in planned.subchains.values()} == {True, False}  # both kinds really are covered
+
+
+def test_nodes_outside_ros_are_non_ros_threads_under_their_dag_names(robot: Path) -> None:
+    # track is no ROS node now (a process of its own), fus a scheduled node without a deploy entry;
+    # motor, unscheduled without a rate, passes data on: no thread to place.
+    robot.write_text(
+        ROBOT.replace("  track: {compute_ms: 2}\n", "  track: {compute_ms: 2}\n  fus: {compute_ms: 1}\n")
+        .replace("[track, motor]]", "[track, fus], [fus, motor]]")
+        .replace("  track: [track]\n", "  track: [track, fus]\n")
+        .replace("track, motor], weight", "track, fus, motor], weight")
+        .replace(
+            '  track: {ros_node: /tracker, callback_group: "/tracker@Subscription(/detections)@Waitable"}\n',
+            "  track: {command: tracker --fast}\n",
+        )
+    )
+    text = compile_spec(robot, 2).files[THREAD_CONFIGURATOR]
+    threads = read_as_the_tool_does(text, cores=2, section="non_ros_threads")
+    planned = plan(load_spec(robot), 2)
+    (track,) = (sub for sub in planned.subchains.values() if "track" in sub.nodes)
+    if track.shared:
+        placed = {"affinity": list(track.cores), "policy": "SCHED_OTHER", "nice": 0, "priority": 0}
+    else:
+        placed = {"affinity": list(track.cores), "policy": "SCHED_FIFO", "priority": 2}
+    assert threads == {"fus": {"id": "fus", **placed}, "track": {"id": "track", **placed}}
+    assert len(read_as_the_tool_does(text, cores=2)) == 3  # the ROS nodes' groups as before
 
 
 def test_nodes_sharing_a_callback_group_share_one_thread(robot: Path) -> None:
