@@ -99,7 +99,11 @@ def emit(
     groups = callback_groups(spec, plan, cpus)
     if groups:
         files[THREAD_CONFIGURATOR] = _render(
-            f"{THREAD_CONFIGURATOR}.j2", context, groups=groups, threads=non_ros_threads(spec, plan, cpus)
+            f"{THREAD_CONFIGURATOR}.j2",
+            context,
+            groups=groups,
+            threads=non_ros_threads(spec, plan, cpus),
+            machine=machine,
         )
     return dict(sorted(files.items()))
 

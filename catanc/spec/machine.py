@@ -144,6 +144,8 @@ class MachineUse:
     sha256: str
     host: str
     costs: Costs
+    cpu: str | None = None  # the CPU model measured on, for the thread configurator's hardware check
+    rt: RtLimit | None = None  # the kernel's SCHED_FIFO budget measured
 
     def record(self) -> dict[str, Any]:
         """``runtime.json``'s ``machine`` entry (deterministic: no path, no time)."""
@@ -196,7 +198,10 @@ def apply_machine(spec: Spec, machine: MachineFile) -> tuple[Spec, MachineUse]:
         raise ProfileError([_diagnostic(machine.name, machine.source, ("overhead", index), message)])
     schedule = spec.schedule.model_copy(update={"switch_ms": found.switch_ms, "slack": found.slack})
     planned = spec.model_copy(update={"schedule": schedule})
-    return planned, MachineUse(machine.name, machine.sha256, machine.profile.machine.host, found)
+    measured_on = machine.profile.machine
+    return planned, MachineUse(
+        machine.name, machine.sha256, measured_on.host, found, measured_on.cpu, machine.profile.rt
+    )
 
 
 # --------------------------------------------------------------------------- reading and writing

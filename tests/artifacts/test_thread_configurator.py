@@ -19,7 +19,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from typer.testing import CliRunner
 
-from catanc.artifacts.compile import compile_spec
+from catanc.artifacts.compile import Options, compile_spec
 from catanc.artifacts.deploy import timer_ns
 from catanc.artifacts.emit import FILES, THREAD_CONFIGURATOR
 from catanc.cli.main import app
@@ -139,6 +139,42 @@ def test_nodes_outside_ros_are_non_ros_threads_under_their_dag_names(robot: Path
         placed = {"affinity": list(track.cores), "policy": "SCHED_FIFO", "priority": 2}
     assert threads == {"fus": {"id": "fus", **placed}, "track": {"id": "track", **placed}}
     assert len(read_as_the_tool_does(text, cores=2)) == 3  # the ROS nodes' groups as before
+
+
+PROFILE = """format: catanc-machine/1
+machine: {host: rig-7, cpu: "Intel(R) Xeon(R) Silver 4216 CPU @ 2.10GHz: #1", kernel: 6.8.0, cpus: 8}
+switch_ms: 0.05
+hop_ms: 0.06
+overhead: [0.01, 0.01]
+rt: {runtime_us: 950000, period_us: 1000000}
+"""
+
+
+@pytest.mark.parametrize(
+    ("profile", "hardware", "throttling"),
+    [
+        (PROFILE, {"model_name": "Intel(R) Xeon(R) Silver 4216 CPU @ 2.10GHz: #1"}, (950000, 1000000)),
+        (  # no CPU model measured: nothing for the configurator to compare
+            PROFILE.replace(' cpu: "Intel(R) Xeon(R) Silver 4216 CPU @ 2.10GHz: #1",', "").replace(
+                "runtime_us: 950000", "runtime_us: -1"
+            ),
+            None,
+            (-1, 1000000),
+        ),
+    ],
+)
+def test_hardware_info_and_rt_throttling_come_from_the_machine_profile(
+    robot: Path, profile: str, hardware: dict[str, str] | None, throttling: tuple[int, int]
+) -> None:
+    (robot.parent / "rig.yaml").write_text(profile)
+    text = compile_spec(robot, 2, options=Options(machine=robot.parent / "rig.yaml")).files[THREAD_CONFIGURATOR]
+    data = yaml.safe_load(text)
+    assert data.get("hardware_info") == hardware
+    runtime_us, period_us = throttling
+    assert data["rt_throttling"] == {"sched_rt_runtime_us": runtime_us, "sched_rt_period_us": period_us}
+    assert len(read_as_the_tool_does(text, cores=2)) == 4
+    # Without a profile there is nothing measured to write.
+    assert set(yaml.safe_load(compile_spec(robot, 2).files[THREAD_CONFIGURATOR])) == {"callback_groups"}
 
 
 def test_nodes_sharing_a_callback_group_share_one_thread(robot: Path) -> None:
