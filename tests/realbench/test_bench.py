@@ -228,6 +228,41 @@ def test_fifo_levels_are_the_papers_order_never_the_stealing_priorities() -> Non
     assert fifo_levels(build_problem(vr), vr) == {"Timewarp": 2, "Render": 2, "Camera": 1, "VIO": 1}
 
 
+@pytest.mark.usefixtures("real_kernel")
+def test_fifo_static_runs_the_vr_threads_at_the_papers_levels_on_the_kernel(
+    own_tmp: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """What the kernel says of each worker thread once the driver starts: SCHED_FIFO at the paper's
+    order (Timewarp 3, Render 2, Camera and VIO 1), the driver above them (4)."""
+    spec_path = Path(__file__).parents[2] / "specs" / "vr_illixr.yaml"
+    tids: dict[str, int] = {}
+    seen: dict[str, tuple[int, int]] = {}
+    register, run = Driver._register, Driver.run
+
+    def remember(self: Driver, hello: protocol.Hello, address: Address) -> None:
+        tids[hello.node] = hello.tid
+        register(self, hello, address)
+
+    def look_then_run(self: Driver, start_ms: float, end_ms: float) -> None:
+        for node, tid in [*tids.items(), ("driver", threading.get_native_id())]:
+            policy = read_policy(tid)
+            seen[node] = (policy.policy, policy.priority)
+        run(self, start_ms, end_ms)
+
+    monkeypatch.setattr(Driver, "_register", remember)
+    monkeypatch.setattr(Driver, "run", look_then_run)
+    bench_run.bench_policy(bench_run.BenchSetup(spec_path, load_spec(spec_path), 1, 0.5, 0), "fifo-static")
+    fifo = os.SCHED_FIFO
+    assert seen == {
+        "Timewarp": (fifo, 3),
+        "Render": (fifo, 2),
+        "Camera": (fifo, 1),
+        "VIO": (fifo, 1),
+        "driver": (fifo, 4),
+    }
+    assert processes_mentioning(str(own_tmp)) == []
+
+
 # -- the driver against the simulator's TimerPolicy --------------------------------------------
 
 # No two events fall at one instant, and four cores hold every node at once: under fair
