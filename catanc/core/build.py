@@ -25,6 +25,7 @@ from catanc.spec.language import (
     NodeTerm,
     RateConstraint,
     Spec,
+    parse_arrow,
 )
 
 MAX_SELECTOR_PATHS = 10_000
@@ -60,6 +61,12 @@ def collapse(path: Iterable[str], spec: Spec, membership: dict[str, str]) -> tup
         elif spec.nodes[node].rate_hz is not None:
             stages.append(Stage(node, fixed=True))
     return tuple(stages)
+
+
+def inside_hops_ms(spec: Spec, nodes: Iterable[str]) -> float:
+    """A subchain's hops: one per edge inside it, each as the spec's ``hops_ms`` gives it (none: 0)."""
+    hops = {parse_arrow(key): ms for key, ms in spec.hops_ms.items()}
+    return math.fsum(hops.get(pair, 0.0) for pair in itertools.pairwise(nodes))
 
 
 class _Builder:
@@ -109,6 +116,7 @@ class _Builder:
 
     def build(self) -> Problem:
         self.check_edges()
+        self.check_hops()
         self.check_subchains()
         self.check_settings()
         subchains = self.subchain_bounds()
@@ -158,6 +166,25 @@ class _Builder:
             self.error(("edges", closing), f"cycle {' -> '.join(cycle)}: the app graph must be acyclic")
         if all_known and not cycles:
             self.dag = dag
+
+    def check_hops(self) -> None:
+        """Every measured hop names an edge of the spec, once (its value's range is the language's)."""
+        edges = set(self.spec.edge_pairs)
+        first: dict[tuple[str, str], str] = {}
+        for key in self.spec.hops_ms:
+            path: FieldPath = ("hops_ms", key)
+            a, b = parse_arrow(key)
+            unknown = [name for name in (a, b) if name not in self.spec.nodes]
+            if unknown:
+                for name in unknown:
+                    hint = did_you_mean(name, self.node_names)
+                    self.error(path, f"unknown node {name!r}{hint}", at_key=True)
+            elif (a, b) in first:
+                self.error(path, f"edge {a} -> {b} again (as {first[(a, b)]!r})", at_key=True)
+            elif (a, b) not in edges:
+                hint = f"the edge runs {b} -> {a}" if (b, a) in edges else "edges name the hops a spec may give"
+                self.error(path, f"no edge {a} -> {b} in edges ({hint})", at_key=True)
+            first.setdefault((a, b), key)
 
     def check_subchains(self) -> None:
         spec = self.spec
@@ -268,6 +295,7 @@ class _Builder:
                     nodes=tuple(nodes),
                     node_compute_ms=tuple(spec.nodes[n].mean_compute_ms for n in nodes),
                     node_speedups=tuple(spec.nodes[n].threads.speedups for n in nodes),
+                    hops_ms=inside_hops_ms(spec, nodes),
                     batch=head.is_batch,
                     min_period_ms=1000.0 / high if high < math.inf else 0.0,
                     max_period_ms=1000.0 / low if low > 0 else math.inf,

@@ -70,6 +70,7 @@ def dedicated_timing(
     cores: int,
     serial: Sequence[Sequence[int]] = (),
     slack: float = 0.0,
+    hops_ms: float = 0.0,
 ) -> DedicatedTiming:
     """Eq. 1 with the slack: the best thread count ``q`` for a subchain on ``cores`` cores.
 
@@ -81,7 +82,9 @@ def dedicated_timing(
         p(q) = max(max_j c^q_j, sum_j c^q_j / floor(cores / q)) / (1 - slack)
         response(q) = sum_j c^q_j + p(q)
 
-    and the lowest response wins (ties: the smaller q).  ``serial`` lists
+    and the lowest response wins (ties: the smaller q).  ``hops_ms``, the
+    subchain's inside hops, counts in ``sum_j c^q_j`` as in ``c(S)``
+    (catan-model.md section 5): a run holds its cores through them.  ``serial`` lists
     positions of nodes that share one executor thread: runs in flight cannot
     overlap them, so each such set is one pipeline stage whose compute adds
     up (``p(q) >= sum_{j in set} c^q_j``).
@@ -91,7 +94,7 @@ def dedicated_timing(
     best: DedicatedTiming | None = None
     for q in range(1, cores + 1):
         times = compute_by_threads[q - 1]
-        total = math.fsum(times)
+        total = math.fsum((*times, hops_ms))
         stages = (math.fsum(times[j] for j in group) for group in serial)
         period = max(*times, total / (cores // q), *stages) / (1.0 - slack)
         candidate = DedicatedTiming(cores, q, period, total)
@@ -103,7 +106,7 @@ def dedicated_timing(
 
 def capped_dedicated(sub: Subchain, cores: int, slack: float) -> DedicatedTiming:
     """Eq. 1 with the slack for ``sub`` on ``cores`` cores of its own, then its rate cap applied to the period."""
-    eq1 = dedicated_timing(sub.compute_by_threads(cores), cores, sub.serial, slack)
+    eq1 = dedicated_timing(sub.compute_by_threads(cores), cores, sub.serial, slack, sub.hops_ms)
     return replace(eq1, period_ms=max(eq1.period_ms, sub.min_period_ms))
 
 

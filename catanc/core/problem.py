@@ -28,11 +28,13 @@ class Subchain:
     min_period_ms: float = 0.0  # from max_rate_hz / rate_hz
     max_period_ms: float = math.inf  # from min_rate_hz / rate_hz
     serial: tuple[tuple[int, ...], ...] = ()  # positions of nodes that share one executor thread (2+ each)
+    hops_ms: float = 0.0  # one hop per edge inside it, summed: the spec's measured ``hops_ms`` (catan-model.md 5)
 
     @cached_property
     def compute_ms(self) -> float:
-        """``c(S)``: the subchain's total compute per run (summed once: the planner asks thousands of times)."""
-        return math.fsum(self.node_compute_ms)
+        """``c(S)``: the subchain's total time per run, its nodes' compute plus its inside hops (summed once: the
+        planner asks thousands of times)."""
+        return math.fsum((*self.node_compute_ms, self.hops_ms))
 
     def compute_by_threads(self, cores: int) -> list[list[float]]:
         """``c^q_j`` (Eq. 1): node j's compute with at most q threads, for q = 1..cores."""

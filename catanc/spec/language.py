@@ -47,6 +47,7 @@ MAX_QUANTITY = 1e9
 days, a GHz rate), and small enough that sums and products of them stay finite."""
 PositiveMs = Annotated[float, Field(gt=0, le=MAX_QUANTITY, description="Milliseconds, > 0.")]
 PositiveHz = Annotated[float, Field(gt=0, le=MAX_QUANTITY, description="Hertz, > 0.")]
+HopMs = Annotated[float, Field(ge=0, le=MAX_QUANTITY, description="Milliseconds, >= 0.")]
 
 
 def field_error(model: str, loc: tuple[str | int, ...], message: str, value: Any) -> ValidationError:
@@ -355,7 +356,7 @@ def _edge_kind(value: Any) -> str | None:
     return None
 
 
-def _parse_arrow(value: str) -> tuple[str, str]:
+def parse_arrow(value: str) -> tuple[str, str]:
     parts = [part.strip() for part in value.split(EDGE_ARROW)]
     if len(parts) != 2 or not all(parts):
         raise ValueError(f"expected 'a -> b', got {value!r}")
@@ -616,6 +617,16 @@ class Spec(_Model):
     runtime: Runtime = Field(default_factory=Runtime)
     baseline: Baseline = Field(default_factory=Baseline)
     deploy: dict[Name, Deploy] = Field(default_factory=dict)
+    hops_ms: dict[ArrowEdge, HopMs] = Field(
+        default_factory=dict,
+        # Written out only when given: runtime tables of specs without hops stay as they were.
+        exclude_if=lambda hops: not hops,
+        description=(
+            "Measured delay of an edge's data hop (ms, as `catanc profile --write` writes it): the producer's end "
+            "to the consumer's start, e.g. 'LM -> LP': 1.2 for a ROS 2 topic between processes. Each edge inside "
+            "a subchain adds its hop to the subchain's c(S); an edge not given has none."
+        ),
+    )
     executors: dict[Name, Annotated[list[Name], Field(min_length=2)]] = Field(
         default_factory=dict,
         description=(
@@ -638,7 +649,7 @@ class Spec(_Model):
     @property
     def edge_pairs(self) -> list[tuple[str, str]]:
         """Edges normalised to ``(a, b)`` pairs, in spec order."""
-        return [_parse_arrow(edge) if isinstance(edge, str) else (edge[0], edge[1]) for edge in self.edges]
+        return [parse_arrow(edge) if isinstance(edge, str) else (edge[0], edge[1]) for edge in self.edges]
 
     @property
     def source(self) -> SourceMap | None:

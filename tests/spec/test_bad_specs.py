@@ -35,7 +35,8 @@ from catanc.errors import Diagnostic, SpecError
 
 CASES_DIR = Path(__file__).parent / "bad_specs"
 
-EXPECT_RE = re.compile(r"^# expect: (?P<line>\d+): (?P<field>[^\s:]*): (?P<fragment>\S.*?)\s*$")
+EXPECT_RE = re.compile(r"^# expect: (?P<line>\d+): (?P<field>(?:[^\s:]| -> | to )*): (?P<fragment>\S.*?)\s*$")
+"""A field may name an edge 'a -> b' (``hops_ms.cam -> det``)."""
 XFAIL_RE = re.compile(r"^# xfail: (?P<reason>\S.*?)\s*$")
 
 REQUIRED_CATEGORIES = [
@@ -78,6 +79,10 @@ REQUIRED_CATEGORIES = [
     "workload_spikes_nonpositive",
     "workload_unscheduled",
     "workload_unknown_key",
+    # measured hops (catan-model.md section 5)
+    "hops_negative",
+    "hops_not_finite",
+    "hops_unknown_edge",
     # meaning
     "unknown_node_edge",
     "unknown_node_subchain",
