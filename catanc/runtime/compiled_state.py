@@ -26,7 +26,7 @@ from catanc.runtime.levels import Levels
 from catanc.runtime.nodes import Wiring
 from catanc.runtime.protocol import PROTOCOL
 from catanc.runtime.ring import SLOTS
-from catanc.runtime.runs import RunBook
+from catanc.runtime.runs import RunBook, kernel_checked
 from catanc.spec.speedup import threads_and_speedup
 
 EXTRA_VERSIONS = 2
@@ -117,7 +117,7 @@ def install(
         datagram[s, : len(text)] = np.frombuffer(text, dtype=np.uint8)
         prefix[s] = len(text)
         head_fd[s] = head.sock.fileno() if head.sock is not None else -2
-        fd = kernel_fd(head)
+        fd = kernel_fd(head) if kernel_checked(head) else None
         head_kernel_fd[s] = wa.NONE if fd is None else fd
 
     states = [book.state(name) for name in names]

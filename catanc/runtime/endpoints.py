@@ -266,6 +266,7 @@ class Endpoint:
     owner_uid: int = 0
     failed: bool = field(default=False)  # a send failed: the node does not take datagrams
     kernel_mark_ns: int | None = None  # its thread's CPU time at the last check of a suspicious report
+    shares_thread: bool = False  # its thread hosts another registered node too: the thread's CPU is not its own
     error: str = "closed"  # why the last send failed
 
     def send(self, datagram: bytes) -> bool:
@@ -370,6 +371,7 @@ class Registry:
             self.by_node[endpoint.node].remove(previous)
         self.by_key[key] = endpoint
         self.by_node.setdefault(endpoint.node, []).append(endpoint)
+        self._mark_shared(endpoint.tid)
         return previous
 
     def remove(self, endpoint: Endpoint) -> bool:
@@ -380,7 +382,14 @@ class Registry:
         del self.by_key[key]
         self.by_node[endpoint.node].remove(endpoint)
         endpoint.close()
+        self._mark_shared(endpoint.tid)
         return True
+
+    def _mark_shared(self, tid: int) -> None:
+        """Say of each node on thread ``tid`` whether another node runs in it too (an executor's one thread)."""
+        hosted = [endpoint for endpoint in self.by_key.values() if endpoint.tid == tid]
+        for endpoint in hosted:
+            endpoint.shares_thread = len(hosted) > 1
 
     def find(self, node: str, tid: int) -> Endpoint | None:
         return self.by_key.get((node, tid))

@@ -25,6 +25,10 @@ Every :data:`KERNEL_CHECK_EVERY`-th run of a head is also measured by the kernel
 thread's ``schedstat`` at the trigger and when the entry is read) and reconciled with the
 node's own figure (:func:`catanc.runtime.measure.reconcile`), unless the head ran again before
 the entry was read (a later entry, or a later trigger): the kernel's figure would count that too.
+Nor is a head checked whose thread hosts another node (:func:`kernel_checked`: an executor's one
+thread running the head, then its successor before the entry is read): the thread's CPU is not the
+head's, and the check would charge it with the other node's.  The bound on a suspicious report
+(:meth:`RunBook._kernel_bound`) stays: the thread's CPU is still more than any of its nodes used.
 """
 
 from __future__ import annotations
@@ -32,7 +36,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import NamedTuple, TypeGuard
 
 from catanc.control.flights import Flight, Flights, Started
 from catanc.control.policy import lost_after_ms
@@ -150,7 +154,7 @@ class RunBook:
         started = state.start(RunFlight(0, now_ms, until_ms=until_ms))
         if started is None:
             return None
-        if not started.deferred and head is not None and started.seq % KERNEL_CHECK_EVERY == 0:
+        if not started.deferred and kernel_checked(head) and started.seq % KERNEL_CHECK_EVERY == 0:
             state.in_flight[started.seq].kernel_ns = self.kernel(head)
         return started
 
@@ -294,6 +298,11 @@ class RunBook:
             if first is None or flight.index < first:
                 first = flight.index
         return first
+
+
+def kernel_checked(head: Endpoint | None) -> TypeGuard[Endpoint]:
+    """Whether a head's runs are checked by its thread's CPU count: a thread of its own only (both loops ask)."""
+    return head is not None and not head.shares_thread
 
 
 def _head_again(state: SubchainRuns, seq: int) -> bool:

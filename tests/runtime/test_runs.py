@@ -12,7 +12,7 @@ import pytest
 
 from catanc.control.schedule import SubchainRun
 from catanc.runtime import ring
-from catanc.runtime.endpoints import Endpoint
+from catanc.runtime.endpoints import Endpoint, Registry
 from catanc.runtime.runs import KERNEL_CHECK_EVERY, RunBook, Seen
 
 MS = 1_000_000  # ns
@@ -172,6 +172,31 @@ def test_the_heads_kernel_check_spans_no_later_run_of_it(two_nodes: TwoNodes, ag
     # Not triggered again: the kernel's 5 ms stand (the client under-reported); triggered again,
     # the thread's CPU since spans the next run: the client's 2 ms.
     assert computes == ([2.0] if again else [5.0])
+
+
+def test_a_head_whose_thread_hosts_another_node_keeps_its_own_figure(two_nodes: TwoNodes) -> None:
+    # The same checked run as above, but the head's thread also hosts b (one executor thread): the
+    # thread's 5 ms are the two nodes', so the head keeps its own 2 ms.
+    book, run, (a, _b), readers = two_nodes
+    head = readers[0][1]
+    registry = Registry({"a", "b"})
+    registry.add(head)
+    other = Endpoint("b", 1, head.tid, None)
+    registry.add(other)
+    assert head.shares_thread
+    kernel: dict[int, int] = book.kernel_counts  # type: ignore[attr-defined]
+    for _ in range(KERNEL_CHECK_EVERY - 1):
+        book.trigger(run, 0.0, head)
+        book.state("s").in_flight.clear()
+    kernel[100] = 0
+    checked = book.trigger(run, 100.0, head)
+    assert checked is not None
+    assert checked.seq % KERNEL_CHECK_EVERY == 0
+    a.append(checked.seq, 100 * MS, 102 * MS, 2 * MS)
+    kernel[100] = 5 * MS
+    assert [c.ms for c in read(book, run, readers, 103.0).computes] == [2.0]
+    assert registry.remove(other)  # b leaves the thread: the head is alone in it again
+    assert not head.shares_thread
 
 
 @pytest.mark.parametrize(

@@ -148,8 +148,8 @@ class ClientRun(EnforcerRun):
     nodes: list[subprocess.Popen[str]] = field(default_factory=list)
     helpers: list[int] = field(default_factory=list)
 
-    def start(self, table: Path, duration: float) -> None:
-        argv = [sys.executable, "-c", ENFORCER_MAIN, "run", str(table), "--quiet", "--start", "spec"]
+    def start(self, table: Path, duration: float, extra: Sequence[str] = ()) -> None:
+        argv = [sys.executable, "-c", ENFORCER_MAIN, "run", str(table), "--quiet", "--start", "spec", *extra]
         argv += ["--socket", str(self.socket), "--log", str(self.log), "--duration", str(duration)]
         with (self.folder / "enforcer.out").open("wb") as out, (self.folder / "enforcer.err").open("wb") as err:
             self.enforcer = subprocess.Popen(argv, stdout=out, stderr=err, start_new_session=True)
