@@ -48,6 +48,7 @@ class _Layout:
     versions: list[dict[int, object]]  # per version, per core: the CoreSchedule laid out there
     reader_nodes: list[str]
     reader_inside: list[bool]  # the reader's node is not its subchain's head (its hops are node to node)
+    reader_after: list[str]  # the node before the reader's in its subchain ("" for a head)
 
 
 class CompiledLoop:
@@ -192,7 +193,14 @@ class CompiledLoop:
         readers = [reader for name in names for reader in wiring.readers.get(name, ())]
         reader_nodes = [endpoint.node for _, endpoint, _ in readers]
         reader_inside = [index > 0 for index, _, _ in readers]
-        return _Layout(walk, names, core_ids, wiring, schedule, generation, versions, reader_nodes, reader_inside)
+        reader_after = [
+            schedule.subchains[name].nodes[index - 1] if index > 0 else ""
+            for name in names
+            for index, _, _ in wiring.readers.get(name, ())
+        ]
+        return _Layout(
+            walk, names, core_ids, wiring, schedule, generation, versions, reader_nodes, reader_inside, reader_after
+        )
 
     @staticmethod
     def _readers(layout: _Layout) -> list[tuple[int, Endpoint, RingReader]]:
@@ -348,9 +356,9 @@ class CompiledLoop:
                 seen.runs.append(RunSample(t, names[s], seq, took))
         hops = records[kinds == wa.EV_HOP]
         if len(hops):
-            inside = layout.reader_inside
+            inside, after = layout.reader_inside, layout.reader_after
             seen.hops.extend(
-                HopSample(names[s], nodes[r], delay, inside[r])
+                HopSample(names[s], nodes[r], delay, inside[r], after[r])
                 for s, r, delay in zip(
                     hops[:, 1].astype(np.int64).tolist(),
                     hops[:, 2].astype(np.int64).tolist(),

@@ -3,7 +3,8 @@
 - **Switch**: from a boundary's due time until its owner is raised and its head triggered
   (the enforcer waking late, then its own CPU), per shared core.
 - **Hop**: from a trigger to the head's start, and from a node's end to the next node's start
-  (read from the nodes' rings).
+  (read from the nodes' rings); the latter per edge too, ``producer -> consumer``, which
+  ``catanc profile --write`` writes into the spec's ``hops_ms`` (catan-model.md section 5).
 - **Overhead**: the enforcer's CPU share of the core its loop is pinned to, and its CPU per
   wake-up, from its thread's CPU clock between two readings.
 
@@ -54,6 +55,7 @@ class Costs:
     hops: deque[float] = field(default_factory=lambda: deque(maxlen=SAMPLES))  # both kinds: what a slot pays
     inside: deque[float] = field(default_factory=lambda: deque(maxlen=SAMPLES))  # node to node in a subchain
     heads: deque[float] = field(default_factory=lambda: deque(maxlen=SAMPLES))  # a head's trigger to its start
+    edges: dict[tuple[str, str], deque[float]] = field(default_factory=dict)  # (producer, consumer) -> its hops
     wakes: int = 0
     cpu_ns: int = 0  # the loop thread's CPU time at the last reading
     wall_ns: int = 0  # when it was read
@@ -66,10 +68,16 @@ class Costs:
             samples = self.switches[core] = deque(maxlen=SAMPLES)
         samples.append(latency_ms)
 
-    def hop(self, delay_ms: float, inside: bool) -> None:
-        """A node's end to the next node's start in its subchain (``inside``), or a head's trigger to its start."""
+    def hop(self, delay_ms: float, inside: bool, edge: tuple[str, str] | None = None) -> None:
+        """A node's end to the next node's start in its subchain (``inside``, over ``edge``), or a head's trigger
+        to its start."""
         self.hops.append(delay_ms)
         (self.inside if inside else self.heads).append(delay_ms)
+        if edge is not None:
+            samples = self.edges.get(edge)
+            if samples is None:
+                samples = self.edges[edge] = deque(maxlen=SAMPLES)
+            samples.append(delay_ms)
 
     def cpu(self, wall_ns: int, cpu_ns: int) -> None:
         """A reading of the loop thread's CPU clock (once a second or so)."""
@@ -97,11 +105,17 @@ class Costs:
             "hop": quantiles(self.hops),
             "hop_inside": quantiles(self.inside),
             "hop_head": quantiles(self.heads),
+            "hop_by_edge": {edge_key(*edge): quantiles(samples) for edge, samples in sorted(self.edges.items())},
             "overhead": overhead,
             "cpu_per_wake_ms": None if per_wake is None else round(per_wake, 5),
             "wakes": self.wakes,
             "loop_core": self.core,
         }
+
+
+def edge_key(producer: str, consumer: str) -> str:
+    """An edge as the spec's ``hops_ms`` and the log name it: ``producer -> consumer``."""
+    return f"{producer} -> {consumer}"
 
 
 def rt_limit() -> RtLimit:

@@ -97,6 +97,12 @@ class HopSample(NamedTuple):
     node: str  # the node that started
     delay_ms: float  # the previous node's end (or the head's trigger) to its start
     inside: bool  # a node's end to the next node's start, in one subchain (not the head's trigger to its start)
+    after: str = ""  # the node before it in its subchain (its edge's producer); "" after the head's trigger
+
+    @property
+    def edge(self) -> tuple[str, str] | None:
+        """``(producer, consumer)`` of a hop inside a subchain; None for a head's trigger to its start."""
+        return (self.after, self.node) if self.inside and self.after else None
 
 
 @dataclass
@@ -221,7 +227,8 @@ class RunBook:
         end_ms = min(max(entry.end_ns / 1e6, start_ms), now_ms)
         before = flight.last_end_ms if index > 0 else flight.triggered_ms
         if before is not None and flight.until_ms is not None and start_ms <= flight.until_ms:
-            seen.hops.append(HopSample(run.name, node, max(start_ms - before, 0.0), index > 0))
+            producer = run.nodes[index - 1] if index > 0 else ""
+            seen.hops.append(HopSample(run.name, node, max(start_ms - before, 0.0), index > 0, producer))
         own = entry.compute_ms
         elapsed = max(now_ms - flight.triggered_ms, 0.0)
         compute = None if own is None else min(own, elapsed)
@@ -314,7 +321,7 @@ def _head_again(state: SubchainRuns, seq: int) -> bool:
 
 class Reader:
     """Reads the rings of a subchain's nodes and hands what it finds on: compute times to the measurements,
-    runs and compute samples to the log, hop delays to the cost figures."""
+    runs and compute samples to the log, hop delays (per edge inside a subchain) to the cost figures."""
 
     def __init__(
         self,
@@ -323,7 +330,7 @@ class Reader:
         readers: Callable[[str], tuple[tuple[int, Endpoint, RingReader], ...]],
         record: Callable[[str, float], object],
         measured: tuple[str, ...],
-        hop: Callable[[float, bool], None],
+        hop: Callable[[float, bool, tuple[str, str] | None], None],
         sample: Callable[[str, float, str, tuple[object, ...]], None],
     ) -> None:
         self.book, self.readers, self.record, self.hop, self.sample = book, readers, record, hop, sample
@@ -339,7 +346,7 @@ class Reader:
         seen = self.seen
         if seen.hops:
             for hop in seen.hops:
-                self.hop(hop.delay_ms, hop.inside)
+                self.hop(hop.delay_ms, hop.inside, hop.edge)
             seen.hops.clear()
         if seen.computes:
             for compute in seen.computes:

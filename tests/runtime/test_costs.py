@@ -25,6 +25,21 @@ def test_hops_are_kept_together_and_apart_by_kind() -> None:
     assert summary["hop_head"] == {"p50_ms": 0.03, "p95_ms": 0.039, "max_ms": 0.04, "count": 2}
 
 
+def test_hops_inside_are_kept_per_edge_too() -> None:
+    costs = Costs()
+    for delay in (1.0, 2.0, 3.0):
+        costs.hop(delay, True, ("cam", "det"))
+    costs.hop(0.5, True, ("det", "plan"))
+    costs.hop(0.05, False)  # a head's trigger: on no edge
+    by_edge = costs.summary(1)["hop_by_edge"]
+    # cam -> det: 1 2 3, p95 at rank 1.9: 2 + 0.9 * 1.
+    assert by_edge == {
+        "cam -> det": {"p50_ms": 2.0, "p95_ms": 2.9, "max_ms": 3.0, "count": 3},
+        "det -> plan": {"p50_ms": 0.5, "p95_ms": 0.5, "max_ms": 0.5, "count": 1},
+    }
+    assert list(by_edge) == sorted(by_edge)
+
+
 def test_a_subchain_of_one_node_has_no_hop_inside() -> None:
     costs = Costs()
     costs.hop(0.05, False)

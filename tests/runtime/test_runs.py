@@ -64,6 +64,7 @@ def test_a_run_goes_node_by_node_and_its_latency_hops_and_computes_are_seen(two_
     seen = read(book, run, readers, 107.0)
     assert [(c.node, c.ms) for c in seen.computes] == [("b", 3.0)]
     assert [(h.node, round(h.delay_ms, 6), h.inside) for h in seen.hops] == [("b", 0.1, True)]  # a's end to b's start
+    assert [h.edge for h in seen.hops] == [("a", "b")]
     assert [(r.seq, r.latency_ms) for r in seen.runs] == [(seq, 6.0)]  # trigger at 100 ms, b ended at 106 ms
     assert not book.busy("s")
     assert book.state("s").late == 0
