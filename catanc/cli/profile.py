@@ -1,4 +1,5 @@
-"""``catanc profile``: a spec's compute times from what ``catanc run`` measured (a diff, ``--write``, ``--check``)."""
+"""``catanc profile``: a spec's compute times and hops from what ``catanc run`` measured (a diff, ``--write``,
+``--check``)."""
 
 from __future__ import annotations
 
@@ -18,11 +19,13 @@ def profile(
     spec_path: Annotated[Path, typer.Option("--spec", metavar="SPEC", help="The spec the run was planned from.")],
     write: Annotated[bool, typer.Option("--write", help="Edit the spec in place (comments and layout kept).")] = False,
     check: Annotated[
-        bool, typer.Option("--check", help="Exit 1 if a compute time or speedup is more than --tolerance off.")
+        bool,
+        typer.Option("--check", help="Exit 1 if a compute time, speedup or hop is more than --tolerance off."),
     ] = False,
     tolerance: Annotated[float, typer.Option(min=0.0, help="--check's relative tolerance (0.15: 15%).")] = 0.15,
 ) -> None:
-    """Propose each node's compute_ms (the p95 the runtime plans with, modes, speedups) from a run's log."""
+    """Propose each node's compute_ms (the p95 the runtime plans with, modes, speedups) and each hop inside a
+    subchain (hops_ms, its p95) from a run's log."""
     from catanc.artifacts.output import replace_file
     from catanc.errors import UsageError
     from catanc.runtime.log import read_log_text

@@ -37,8 +37,16 @@ holds the client's own work around the callback, and keeps the node's figure whe
 makes it plausible (:func:`~catanc.runtime.measure.reconcile`); the summary says by how much the
 count exceeded the node's figure and on how many runs it replaced it.
 
-Numbers are rounded to what is written (compute times to 4 significant digits, shares and
-speedups to 2 decimals), so a spec written from a proposal checks clean against it.
+And per edge inside a subchain, its **hop** (``hops_ms``, catan-model.md section 5): the p95
+of the delays from the producer's end to the consumer's start that the enforcer measured (its
+last ``hop_by_edge`` figures: the latest 1024 hops of each edge), where it measured at least
+:data:`MIN_SAMPLES`.  The planner adds it to the subchain's ``c(S)``.  ``--check`` flags a hop
+that is off by more than the tolerance *and* :data:`HOP_TOLERANCE_MS` (a spec without hops
+reads as 0 ms each: catanc's own trigger hop, ~0.05 ms, is no drift).  Edges between
+subchains are not proposed: no plan counts them.
+
+Numbers are rounded to what is written (compute times and hops to 4 significant digits, shares
+and speedups to 2 decimals), so a spec written from a proposal checks clean against it.
 
 The log must have samples for every scheduled node (and be readable:
 :mod:`catanc.runtime.samples`).
@@ -46,15 +54,17 @@ The log must have samples for every scheduled node (and be readable:
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 from catanc.errors import CatancError, FieldPath
+from catanc.runtime.costs import edge_key
 from catanc.runtime.log import BATCHED
 from catanc.runtime.measure import MIN_PLANNING_MS, percentile, split_modes
 from catanc.runtime.samples import LogSamples, MeasurementsError, Sample, read_samples
-from catanc.spec.language import ModalCompute, Spec
+from catanc.spec.language import ModalCompute, Spec, parse_arrow
 from catanc.spec.profile_edit import Edit
 from catanc.spec.speedup import threads_and_speedup
 
@@ -73,6 +83,11 @@ REGROUPINGS = 8
 
 DEFAULT_TOLERANCE = 0.15
 """``--check``: a planning figure more than 15% off the measured one fails."""
+
+HOP_TOLERANCE_MS = 0.1
+"""``--check``: a hop is off only where it is also more than 0.1 ms from the spec's."""
+HOP_DECIMALS = 4
+"""A hop's smallest step written (the log keeps hops to 0.1 us)."""
 
 SIGNIFICANT_DIGITS = 4
 LOGGED_DECIMALS = dict(BATCHED["compute"][1])["ms"] or 0
@@ -204,6 +219,30 @@ def propose(spec: Spec, measured: LogSamples) -> dict[str, Proposal]:
         hint = "did the node run (registered, triggered) for long enough? a longer --duration gives more"
         raise MeasurementsError("\n".join(missing) + f"\n({hint})")
     return proposals
+
+
+def propose_hops(spec: Spec, measured: LogSamples) -> dict[tuple[str, str], float]:
+    """Per edge inside a subchain of ``spec`` with :data:`MIN_SAMPLES` hops measured: their p95, as written."""
+    inside = {pair for nodes in spec.subchains.values() for pair in itertools.pairwise(nodes)}
+    return {
+        edge: float(format_hop(figures.p95_ms))
+        for edge, figures in sorted(measured.hops.items())
+        if edge in inside and figures.count >= MIN_SAMPLES
+    }
+
+
+def spec_hops(spec: Spec) -> dict[tuple[str, str], tuple[str, float]]:
+    """The spec's ``hops_ms`` by edge: the key as written, and the hop."""
+    return {parse_arrow(key): (key, ms) for key, ms in spec.hops_ms.items()}
+
+
+def format_hop(ms: float) -> str:
+    """A hop as written in a spec: 4 significant digits, at most :data:`HOP_DECIMALS` decimals, 0 for none."""
+    if ms <= 0 or round(ms, HOP_DECIMALS) == 0:
+        return "0"
+    decimals = min(HOP_DECIMALS, max(0, SIGNIFICANT_DIGITS - 1 - math.floor(math.log10(ms))))
+    text = f"{ms:.{decimals}f}"
+    return text.rstrip("0").rstrip(".") if "." in text else text
 
 
 def _where(spec: Spec, path: FieldPath) -> str:
@@ -357,6 +396,33 @@ def deviations(spec: Spec, proposals: Mapping[str, Proposal], tolerance: float) 
     return found
 
 
+def hop_deviations(spec: Spec, hops: Mapping[tuple[str, str], float], tolerance: float) -> list[str]:
+    """Where ``spec``'s hops are off the measured ``hops`` by more than ``tolerance`` and :data:`HOP_TOLERANCE_MS`."""
+    written = spec_hops(spec)
+    found = []
+    for (a, b), measured in sorted(hops.items()):
+        key, hop = written.get((a, b), (edge_key(a, b), 0.0))
+        if abs(measured - hop) > max(tolerance * hop, HOP_TOLERANCE_MS):
+            where = _where(spec, ("hops_ms", key)) if (a, b) in written else _where(spec, ("edges",))
+            found.append(
+                f"{where}hops_ms.{key}: {hop:g} ms planned, {measured:g} ms measured "
+                f"(more than {tolerance:.0%} and {HOP_TOLERANCE_MS:g} ms off)"
+            )
+    return found
+
+
+def hop_edits(spec: Spec, hops: Mapping[tuple[str, str], float]) -> tuple[list[Edit], list[tuple[str, str]]]:
+    """The spec's hops to rewrite where it gives them, and the ``(key, value)`` entries to add where it does not."""
+    written = spec_hops(spec)
+    edits, entries = [], []
+    for edge, ms in sorted(hops.items()):
+        if edge in written:
+            edits.append(Edit(("hops_ms", written[edge][0]), format_hop(ms)))
+        else:
+            entries.append((edge_key(*edge), format_hop(ms)))
+    return edits, entries
+
+
 def spec_edits(spec: Spec, proposals: Mapping[str, Proposal]) -> list[Edit]:
     """The values of ``spec``'s text to rewrite so that it says what ``proposals`` do."""
     edits: list[Edit] = []
@@ -422,7 +488,8 @@ class Profiled:
     """What ``catanc profile`` found: a summary per node, the spec rewritten, its diff, where it is off."""
 
     proposals: Mapping[str, Proposal]
-    summary: tuple[str, ...]  # one line per node, then its notes
+    hops: Mapping[tuple[str, str], float]  # measured hop per edge inside a subchain (p95, as written)
+    summary: tuple[str, ...]  # one line per node, then its notes; one per hop
     text: str  # the spec's text with the proposals written in
     diff: str  # unified diff of the spec's text to ``text`` ("" when they are the same)
     off: tuple[str, ...]  # :func:`deviations` of the spec as it is
@@ -437,17 +504,23 @@ def profile_spec(spec_text: str, spec_file: str, log_text: str, log_file: str, *
     import difflib  # noqa: PLC0415 - only the command needs it
 
     from catanc.core.load import check_text  # noqa: PLC0415 - the spec's meaning pass, as validate runs it
-    from catanc.spec.profile_edit import apply_edits  # noqa: PLC0415
+    from catanc.spec.profile_edit import add_entries, apply_edits  # noqa: PLC0415
 
     spec, _ = check_text(spec_text, spec_file)
     measured = read_samples(log_text, log_file)
     proposals = propose(spec, measured)
+    hops = propose_hops(spec, measured)
     source = spec.source
     if source is None:  # pragma: no cover - check_text always keeps the source map
         raise MeasurementsError(f"{spec_file}: no source positions to edit")
-    text = apply_edits(spec_text, source, spec_edits(spec, proposals))
+    rewrites, entries = hop_edits(spec, hops)
+    text = apply_edits(spec_text, source, [*spec_edits(spec, proposals), *rewrites])
     rewritten, _ = check_text(text, spec_file)
+    if entries and rewritten.source is not None:  # new keys go in at the positions of the edited text
+        text = add_entries(text, rewritten.source, ("hops_ms",), entries)
+        rewritten, _ = check_text(text, spec_file)
     wrong = matches(rewritten, proposals)
+    wrong += [key for key, (_, ms) in _written_hops(rewritten, hops).items() if ms != hops[parse_arrow(key)]]
     if wrong:
         raise CatancError(f"{spec_file}: rewriting {', '.join(wrong)} did not give the proposed values (a bug)")
     name = spec_file
@@ -456,9 +529,26 @@ def profile_spec(spec_text: str, spec_file: str, log_text: str, log_file: str, *
             spec_text.splitlines(keepends=True), text.splitlines(keepends=True), f"a/{name}", f"b/{name}"
         )
     )
-    return Profiled(
-        proposals, summary_lines(spec, proposals, measured), text, diff, tuple(deviations(spec, proposals, tolerance))
-    )
+    off = [*deviations(spec, proposals, tolerance), *hop_deviations(spec, hops, tolerance)]
+    summary = (*summary_lines(spec, proposals, measured), *hop_lines(spec, hops, measured))
+    return Profiled(proposals, hops, summary, text, diff, tuple(off))
+
+
+def _written_hops(spec: Spec, hops: Mapping[tuple[str, str], float]) -> dict[str, tuple[str, float]]:
+    """Each proposed edge's key and hop as ``spec`` writes them (a missing one as 0 ms, which never matches)."""
+    written = spec_hops(spec)
+    return {edge_key(*edge): written.get(edge, ("", math.nan)) for edge in hops}
+
+
+def hop_lines(spec: Spec, hops: Mapping[tuple[str, str], float], measured: LogSamples) -> tuple[str, ...]:
+    """One line per measured hop of an edge inside a subchain: samples, the spec's hop and the measured p95."""
+    written = spec_hops(spec)
+    lines = []
+    for edge, ms in sorted(hops.items()):
+        hop = written.get(edge, ("", 0.0))[1]
+        count = measured.hops[edge].count
+        lines.append(f"  hop {edge_key(*edge)}: {count} samples; spec {hop:.4g} ms, measured p95 {ms:.4g} ms")
+    return tuple(lines)
 
 
 def summary_lines(spec: Spec, proposals: Mapping[str, Proposal], measured: LogSamples) -> tuple[str, ...]:

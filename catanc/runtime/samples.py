@@ -11,12 +11,13 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from catanc.errors import CatancError, ExitCode
 from catanc.runtime.log import LOG_FORMAT, expand
 from catanc.runtime.measure import valid_sample
+from catanc.spec.language import parse_arrow
 
 READ_FORMATS = (LOG_FORMAT,)
 """The log formats this catanc profiles."""
@@ -39,6 +40,14 @@ class Sample:
 
 
 @dataclass(frozen=True)
+class HopFigures:
+    """An edge's hops as the enforcer measured them (its last ``status`` or ``stop`` event's ``hop_by_edge``)."""
+
+    p95_ms: float
+    count: int
+
+
+@dataclass(frozen=True)
 class LogSamples:
     """Each node's compute samples from one log."""
 
@@ -47,6 +56,7 @@ class LogSamples:
     first_line: Mapping[str, int]  # node -> the log line of its first sample
     length_s: float
     observed: bool = False  # a ``catanc run --observe`` log: the nodes ran on their own timers
+    hops: Mapping[tuple[str, str], HopFigures] = field(default_factory=dict)  # (producer, consumer) -> its hops
 
 
 def read_samples(text: str, file: str) -> LogSamples:
@@ -55,6 +65,7 @@ def read_samples(text: str, file: str) -> LogSamples:
     first_line: dict[str, int] = {}
     started = stopped = observed = False
     length = 0.0
+    hops: dict[tuple[str, str], HopFigures] = {}
     lines = text.splitlines()
     if not any(line.strip() for line in lines):
         raise MeasurementsError(f"{file}: empty: not a catanc run log")
@@ -77,6 +88,8 @@ def read_samples(text: str, file: str) -> LogSamples:
             length = max(length, float(event["t"]))
         if event["event"] == "stop":
             stopped = True
+        if event["event"] in ("status", "stop"):
+            hops = _hops(event) or hops
         for single in expand(event):
             if not isinstance(single, dict) or single.get("event") != "compute":
                 continue
@@ -98,7 +111,25 @@ def read_samples(text: str, file: str) -> LogSamples:
             f"{file}:{len(lines)}: truncated: the log ends without the enforcer's stop event "
             f"(the run was killed {length:.1f} s in?); profile a run that ended (--duration, Ctrl-C or SIGTERM)"
         )
-    return LogSamples(file, {k: tuple(v) for k, v in samples.items()}, first_line, length, observed)
+    return LogSamples(file, {k: tuple(v) for k, v in samples.items()}, first_line, length, observed, hops)
+
+
+def _hops(event: dict[str, Any]) -> dict[tuple[str, str], HopFigures]:
+    """The ``hop_by_edge`` figures of a ``status`` (its own) or ``stop`` event (its summary's); readable ones only."""
+    row = event.get("summary") if event["event"] == "stop" else event
+    costs = row.get("costs") if isinstance(row, dict) else None
+    by_edge = costs.get("hop_by_edge") if isinstance(costs, dict) else None
+    found: dict[tuple[str, str], HopFigures] = {}
+    for key, figures in by_edge.items() if isinstance(by_edge, dict) else ():
+        try:
+            edge = parse_arrow(str(key))
+        except ValueError:
+            continue
+        p95 = _number(figures.get("p95_ms")) if isinstance(figures, dict) else None
+        count = figures.get("count") if isinstance(figures, dict) else None
+        if p95 is not None and isinstance(count, int) and not isinstance(count, bool) and count > 0:
+            found[edge] = HopFigures(p95, count)
+    return found
 
 
 def _number(value: object) -> float | None:

@@ -12,6 +12,10 @@ where the :class:`~catanc.spec.source.SourceMap` says each value starts, never r
 Anything else at a value's place (a quoted string, an alias that other fields share, two
 edits of one span) is refused with a compiler-style error, and nothing is changed.  A comment
 after an edited value on its line stays in its column where the spaces before it allow.
+
+:func:`add_entries` adds keys to a mapping (``hops_ms`` gains a measured edge): inside a flow
+mapping before its ``}``, in a block mapping on lines after its last key at the same indent, or,
+for a top-level mapping the spec lacks, as a block at the end of the file.
 """
 
 from __future__ import annotations
@@ -65,6 +69,44 @@ def apply_edits(text: str, source: SourceMap, edits: Sequence[Edit]) -> str:
         text = _keep_comment_column(text, end, len(edit.text) - (end - start))
         text = text[:start] + edit.text + text[end:]
     return text
+
+
+def add_entries(text: str, source: SourceMap, path: FieldPath, entries: Sequence[tuple[str, str]]) -> str:
+    """``text`` with ``key: value`` (YAML texts) added to the mapping at ``path``, the rest byte for byte.
+
+    A mapping the spec lacks is written only at the top level (``path`` of one key): a block at the end.
+    :class:`SpecError` where the mapping is written in a way this cannot extend (edit it by hand).
+    """
+    if not entries:
+        return text
+    if path not in source.keys:
+        if len(path) != 1:
+            raise SpecError([Diagnostic(source.locate(path), format_path(path), "not written: add it by hand")])
+        body = "".join(f"  {key}: {value}\n" for key, value in entries)
+        return text + ("" if text.endswith("\n") or not text else "\n") + f"{path[0]}:\n{body}"
+    starts = _line_starts(text)
+    try:
+        start, end = _span(text, starts, source, Edit(path, "", whole=True))
+    except _Refused:  # written in block style: new lines after its last key, at its keys' indent
+        children = [position for child, position in source.keys.items() if child[:-1] == path and len(child) > 0]
+        if not children:
+            raise SpecError(
+                [Diagnostic(source.locate(path), format_path(path), "an empty block mapping: add the entries by hand")]
+            ) from None
+        last_line = max(line for line, _ in children)
+        indent = " " * (min(column for _, column in children) - 1)
+        at = starts[last_line] if last_line < len(starts) else len(text)
+        lines = "".join(f"{indent}{key}: {value}\n" for key, value in entries)
+        before = text[:at] if text[:at].endswith("\n") or not at else text[:at] + "\n"
+        return before + lines + text[at:]
+    if text[start] != "{":
+        message = "not a mapping written {...} or in block style: add the entries by hand"
+        raise SpecError([Diagnostic(source.locate(path), format_path(path), message)])
+    inner = text[start + 1 : end - 1]
+    added = ", ".join(f"{key}: {value}" for key, value in entries)
+    if inner.strip():
+        return text[: end - 1].rstrip() + ", " + added + ("}" if inner == inner.rstrip() else " }") + text[end:]
+    return text[:start] + "{" + added + "}" + text[end:]
 
 
 def _keep_comment_column(text: str, end: int, grown: int) -> str:

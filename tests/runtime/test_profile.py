@@ -250,3 +250,64 @@ def test_profile_spec_writes_what_it_proposes_and_keeps_the_rest() -> None:
     assert again.text == result.text
     assert again.diff == ""
     assert again.off == ()
+
+
+# --------------------------------------------------------------------------- hops
+
+
+EDGES = "edges: [[cam, det], [det, plan], [plan, motor]]\n"
+
+
+def _hop_spec(hops: str) -> str:
+    """The demo spec with ``hops`` (YAML lines) right after its edges."""
+    return SPEC.replace(EDGES, EDGES + hops)
+
+
+# cam -> det measured at p95 1.23456 ms over 40 hops (4 digits: 1.235), det -> plan at 0.04321 (0.0432: at most
+# 4 decimals, as the log keeps them); plan -> motor is no edge inside a subchain (never proposed).
+MEASURED = {"cam -> det": (1.23456, 40), "det -> plan": (0.04321, 12), "plan -> motor": (9.0, 50)}
+
+
+@pytest.mark.parametrize(
+    ("written", "expected"),
+    [
+        # none yet: a block at the end of the file
+        ("", "hops_ms:\n  cam -> det: 1.235\n  det -> plan: 0.0432\n"),
+        # a flow mapping: new keys before its brace, the given one rewritten where it is
+        ("hops_ms: {cam -> det: 0.5}   # measured\n", "hops_ms: {cam -> det: 1.235, det -> plan: 0.0432} # measured\n"),
+        ("hops_ms: {}\n", "hops_ms: {cam -> det: 1.235, det -> plan: 0.0432}\n"),
+        # a block mapping: new keys after its last, at its indent; a comment after a value stays in its column
+        (
+            "hops_ms:\n    det->plan: 2      # by hand\n",
+            "hops_ms:\n    det->plan: 0.0432 # by hand\n    cam -> det: 1.235\n",
+        ),
+    ],
+)
+def test_profile_writes_each_measured_hop_inside_a_subchain_and_keeps_the_rest(written: str, expected: str) -> None:
+    spec = _hop_spec(written)
+    log = log_text(*every_node(), hops=MEASURED)
+    result = profile_spec(spec, "demo.yaml", log, "run.jsonl", tolerance=0.15)
+    assert result.hops == {("cam", "det"): 1.235, ("det", "plan"): 0.0432}
+    want = spec.replace(written, "") + expected if not written else spec.replace(written, expected)
+    assert result.text == want
+    assert parse_spec(result.text).hops_ms  # reads back as a valid spec
+    again = profile_spec(result.text, "demo.yaml", log, "run.jsonl", tolerance=0.0)
+    assert again.text == result.text
+    assert again.off == ()
+
+
+def test_too_few_hops_are_not_proposed_and_check_flags_a_hop_off_by_more_than_both_tolerances() -> None:
+    log = log_text(*every_node(), hops={"cam -> det": (1.5, 40), "det -> plan": (3.0, MIN_SAMPLES - 1)})
+    # cam -> det: 1.5 measured against 1.2 written: 0.3 ms off, 25% > 15%: off.
+    result = profile_spec(_hop_spec("hops_ms: {cam -> det: 1.2}\n"), "demo.yaml", log, "run.jsonl", tolerance=0.15)
+    assert result.hops == {("cam", "det"): 1.5}
+    assert [line for line in result.off if "hops_ms" in line] == [
+        "demo.yaml:10:11: hops_ms.cam -> det: 1.2 ms planned, 1.5 ms measured (more than 15% and 0.1 ms off)"
+    ]
+    # 1.26 written: 0.24 ms off but only 19% of it: off at 15%, not at 20%.
+    near = _hop_spec("hops_ms: {cam -> det: 1.26}\n")
+    assert any("hops_ms" in line for line in profile_spec(near, "d.yaml", log, "r", tolerance=0.15).off)
+    assert not any("hops_ms" in line for line in profile_spec(near, "d.yaml", log, "r", tolerance=0.2).off)
+    # A spec without hops against catanc's own trigger hop of 0.06 ms: within 0.1 ms, no drift.
+    small = log_text(*every_node(), hops={"cam -> det": (0.06, 40)})
+    assert not any("hops_ms" in line for line in profile_spec(SPEC, "d.yaml", small, "r", tolerance=0.15).off)

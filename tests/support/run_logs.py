@@ -26,11 +26,16 @@ Batch = tuple[str, Sequence[float], Sequence[int] | None, Sequence[float | None]
 
 
 def log_text(
-    *batches: Batch, stop: bool = True, fmt: object = LOG_FORMAT, kernels: Mapping[str, Sequence[float | None]] = {}
+    *batches: Batch,
+    stop: bool = True,
+    fmt: object = LOG_FORMAT,
+    kernels: Mapping[str, Sequence[float | None]] = {},
+    hops: Mapping[str, tuple[float, int]] = {},
 ) -> str:
     """A log as the enforcer writes it: a start, one compute batch per (node, ms, threads, own figures), a stop.
 
     ``kernels``: per node, the kernel's counts of its batch's runs (None where unchecked; default all None).
+    ``hops``: per edge ``"a -> b"``, the p95 and count of its hops in the stop's costs (``hop_by_edge``).
     """
     start = {"t": 0.0, "event": "start", "cores": 1, "plan": {}}
     if fmt is not None:
@@ -50,7 +55,11 @@ def log_text(
             }
         )
     if stop:
-        lines.append({"t": 9.0, "event": "stop", "summary": {}})
+        by_edge = {
+            edge: {"p50_ms": p95 / 2, "p95_ms": p95, "max_ms": p95 * 2, "count": count}
+            for edge, (p95, count) in hops.items()
+        }
+        lines.append({"t": 9.0, "event": "stop", "summary": {"costs": {"hop_by_edge": by_edge}} if hops else {}})
     return "".join(json.dumps(line, sort_keys=True) + "\n" for line in lines)
 
 
