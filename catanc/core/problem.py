@@ -8,7 +8,7 @@ chains are already collapsed into stages (catan-model.md section 2).
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 
@@ -216,6 +216,10 @@ class Problem:
     def subchain_of(self, node: str) -> Subchain:
         """The subchain scheduled node ``node`` runs in (:class:`KeyError` if it is not scheduled)."""
         return self._subchain_by_node[node]
+
+    def last_scheduled(self, nodes: Sequence[str]) -> str | None:
+        """The last of ``nodes`` that runs in a subchain: where a chain's data leaves its last subchain."""
+        return next((node for node in reversed(nodes) if node in self._subchain_by_node), None)
 
     @cached_property
     def _subchain_by_node(self) -> dict[str, Subchain]:

@@ -238,6 +238,7 @@ def _answer(replanner: Any, began: float, error: str | None = None) -> Answer:
             "switch_ms": spec.schedule.switch_ms,
             "slack": spec.schedule.slack,
             "subchains": {name: _subchain_summary(sub) for name, sub in sorted(plan.subchains.items())},
+            "chains": _chain_summaries(plan, replanner.problem),
         },
         solve_ms=(time.perf_counter() - began) * 1000.0,
         error=error,
@@ -249,6 +250,23 @@ def _subchain_summary(sub: Any) -> dict[str, Any]:
     if sub.period_as_run_ms is not None:  # what report holds the measured rate to
         summary["rate_as_run_hz"] = rate_as_run_hz(sub.period_as_run_ms)
     return summary
+
+
+def _chain_summaries(plan: Any, problem: Any) -> list[dict[str, Any]]:
+    """Each chain of the objective and constraints: its nodes, its last scheduled node (where ``catanc report``
+    measures its response from origins), the plan's response and the spec's bound (None: unbounded)."""
+    bounds: dict[int, float] = {}
+    for bound in problem.response_bounds:
+        bounds[bound.chain] = min(bound.max_response_ms, bounds.get(bound.chain, bound.max_response_ms))
+    return [
+        {
+            "nodes": list(chain.nodes),
+            "last_scheduled": problem.last_scheduled(chain.nodes),
+            "response_ms": round(chain.response_ms, 3),
+            "max_response_ms": bounds.get(index),
+        }
+        for index, chain in enumerate(plan.chains)
+    ]
 
 
 def serve_fd(fd: int) -> None:

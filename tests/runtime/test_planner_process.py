@@ -5,7 +5,7 @@ from __future__ import annotations
 import threading
 from pathlib import Path
 
-from catanc.core.load import load_spec
+from catanc.core.load import load_spec, parse_spec
 from catanc.runtime.planning import PlannerProcess, Request
 from tests.support.enforcer_runs import cmdline, process_name
 
@@ -38,3 +38,32 @@ def test_a_threaded_parent_starts_a_fresh_interpreter_that_plans() -> None:
         assert answer.error is None
     finally:
         planner.close()
+
+
+def test_each_plan_names_its_chains_where_they_are_measured_and_their_bounds() -> None:
+    # What `catanc report` measures chains from origins with: the log's plans carry them.
+    text = (SPECS / "face_tracking.yaml").read_text()
+    text = text.replace(
+        "objective:\n", "constraints:\n  - {chain: [camera, detection], max_response_ms: 500}\nobjective:\n"
+    )
+    spec = parse_spec(text)
+    planner = PlannerProcess(spec.model_dump(mode="json", by_alias=True), 1, bootstrap_ms=None)
+    try:
+        chains = planner.initial.summary["chains"]
+    finally:
+        planner.close()
+    # Face tracking on one core: c(S) = 84 ms, period 84 / 0.95; R = 84 + 84 / 0.95 (tests/planning/test_hops.py).
+    assert chains == [
+        {
+            "nodes": ["camera", "detection", "planning", "motor"],
+            "last_scheduled": "planning",  # motor is an unscheduled sink
+            "response_ms": round(84 + 84 / 0.95, 3),
+            "max_response_ms": None,
+        },
+        {
+            "nodes": ["camera", "detection"],
+            "last_scheduled": "detection",
+            "response_ms": round(84 + 84 / 0.95, 3),  # a stage is timed as its whole subchain's run
+            "max_response_ms": 500.0,
+        },
+    ]
