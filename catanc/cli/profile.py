@@ -20,7 +20,11 @@ def profile(
     write: Annotated[bool, typer.Option("--write", help="Edit the spec in place (comments and layout kept).")] = False,
     check: Annotated[
         bool,
-        typer.Option("--check", help="Exit 1 if a compute time, speedup or hop is more than --tolerance off."),
+        typer.Option(
+            "--check",
+            help="Exit 1 if a compute time, speedup or hop is more than --tolerance off, or a bounded chain's "
+            "p95 response from origins is over its max_response_ms.",
+        ),
     ] = False,
     tolerance: Annotated[float, typer.Option(min=0.0, help="--check's relative tolerance (0.15: 15%).")] = 0.15,
 ) -> None:

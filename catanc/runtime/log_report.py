@@ -21,7 +21,15 @@ from rich.table import Table
 
 from catanc.errors import UsageError
 from catanc.runtime.log import log_events, read_log_text
-from catanc.runtime.log_summary import CostsSummary, Quantiles, RunSummary, Stats, summarise, usable
+from catanc.runtime.log_summary import (
+    ChainSummary,
+    CostsSummary,
+    Quantiles,
+    RunSummary,
+    Stats,
+    summarise,
+    usable,
+)
 from catanc.runtime.log_timeline import plot_timeline
 
 PIPED_WIDTH = 160
@@ -81,6 +89,7 @@ def summary_payload(summary: RunSummary) -> dict[str, Any]:
             for node in summary.nodes
         },
         "costs": _costs_json(summary.costs),
+        "chains": [_chain_json(chain) for chain in summary.chains],
         "resolves": [
             {
                 "t_s": _round(r.t_s),
@@ -93,6 +102,25 @@ def summary_payload(summary: RunSummary) -> dict[str, Any]:
             }
             for r in summary.resolves
         ],
+    }
+
+
+def _chain_json(chain: ChainSummary) -> dict[str, Any]:
+    response = chain.response
+    return {
+        "nodes": list(chain.nodes),
+        "planned_ms": _round(chain.planned_ms),
+        "max_response_ms": _round(chain.bound_ms),
+        "measured_at": chain.at,
+        "whole_chain": chain.whole,
+        "measured_ms": None
+        if response is None
+        else {
+            "count": response.count,
+            "p50": _round(response.p50_ms),
+            "p95": _round(response.p95_ms),
+            "max": _round(response.max_ms),
+        },
     }
 
 
@@ -204,6 +232,8 @@ def render_summary(summary: RunSummary) -> tuple[Table, ...]:
             str(node.unmeasured),
         )
     tables = [subchains, nodes]
+    if summary.chains:
+        tables.append(_chains_table(summary.chains))
     if summary.costs is not None:
         tables.append(_costs_table(summary.costs))
     if not summary.resolves:
@@ -222,6 +252,30 @@ def render_summary(summary: RunSummary) -> tuple[Table, ...]:
             r.error or "",
         )
     return (*tables, resolves)
+
+
+def _chains_table(chains: Sequence[ChainSummary]) -> Table:
+    """Each chain's response measured from origins beside the plan's and its bound (``<=`` a lower bound)."""
+    table = Table(title="chains: response from origins (ms)", title_justify="left")
+    for column in ("chain", "measured at", "runs", "p50", "p95", "max", "planned", "bound"):
+        table.add_column(column, justify="left" if column in ("chain", "measured at") else "right")
+    for chain in chains:
+        response = chain.response
+        at = "-" if chain.at is None else chain.at if chain.whole else f"{chain.at} (part of it)"
+        cells = (
+            ["-"] * 4
+            if response is None
+            else [
+                str(response.count),
+                f"{response.p50_ms:.3f}",
+                f"{response.p95_ms:.3f}",
+                f"{response.max_ms:.3f}",
+            ]
+        )
+        over = response is not None and chain.bound_ms is not None and response.p95_ms > chain.bound_ms
+        bound = _fixed(chain.bound_ms, 3) + (" exceeded" if over else "")
+        table.add_row(" -> ".join(chain.nodes), at, *cells, _fixed(chain.planned_ms, 3), bound)
+    return table
 
 
 def _costs_table(costs: CostsSummary) -> Table:

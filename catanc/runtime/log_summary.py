@@ -21,6 +21,16 @@ What the numbers mean:
   interpolation), the same definition the enforcer plans with.
 - The enforcer's own costs (switch latency, hop delay, its CPU share) are
   its own figures from the last ``status`` or ``stop`` event.
+- A chain's response measured from origins (:func:`chain_response`): each
+  ``compute`` sample's ``age_ms`` is its run's end less the run's origin (when
+  the data it carries was sensed: a ROS message's ``header.stamp``, else a
+  triggered head's start).  A chain's response is the age of the runs of its
+  last scheduled node, where data leaves the chain's last subchain; where
+  that node reports no ages, the last node before it that does (then the
+  figure leaves out the rest of the chain: a lower bound, marked so).  A
+  node in several chains gives each the ages of its own runs.  The plan's
+  response and the bound are the last plan's (the ``start`` or ``resolve``
+  event's ``chains``).
 """
 
 from __future__ import annotations
@@ -126,6 +136,18 @@ class CostsSummary:
 
 
 @dataclass(frozen=True)
+class ChainSummary:
+    """One chain of the objective and constraints: its response as planned, bounded and measured from origins."""
+
+    nodes: tuple[str, ...]
+    planned_ms: float | None  # the last plan's response time R
+    bound_ms: float | None  # the spec's max_response_ms (None: unbounded)
+    at: str | None  # the node whose run ages measure it (None: no node of the chain reports ages)
+    whole: bool  # ``at`` is the chain's last scheduled node (else the measured figure is a lower bound)
+    response: Quantiles | None  # p50, p95 and max of those ages (ms)
+
+
+@dataclass(frozen=True)
 class RunSummary:
     length_s: float
     cores: int | None  # from the ``start`` event
@@ -135,6 +157,7 @@ class RunSummary:
     nodes: tuple[NodeSummary, ...]  # sorted by name
     resolves: tuple[ResolveSummary, ...]  # in time order
     costs: CostsSummary | None = None  # None: a log of a catanc that did not measure them
+    chains: tuple[ChainSummary, ...] = ()  # the last plan's chains, in its order
 
 
 def stats(samples: Sequence[float]) -> Stats | None:
@@ -148,6 +171,25 @@ def stats(samples: Sequence[float]) -> Stats | None:
         min_ms=min(samples),
         max_ms=max(samples),
     )
+
+
+def chain_response(
+    nodes: Sequence[str], last_scheduled: str | None, ages: Mapping[str, Sequence[float]]
+) -> tuple[str | None, bool, Quantiles | None]:
+    """A chain's response measured from origins: ``(node measured at, whole chain, p50/p95/max of its ages)``.
+
+    Measured at ``last_scheduled`` where it has ages, else at the last node before it that has (not the whole chain).
+    """
+    if last_scheduled is None or last_scheduled not in nodes:
+        return None, False, None
+    end = list(nodes).index(last_scheduled)
+    for node in reversed(nodes[: end + 1]):
+        samples = ages.get(node)
+        if samples:
+            values = list(samples)
+            quantiles = Quantiles(len(values), percentile(values, 50.0), percentile(values, 95.0), max(values))
+            return node, node == last_scheduled, quantiles
+    return None, False, None
 
 
 def usable(event: object) -> bool:
@@ -166,6 +208,7 @@ def summarise(events: Iterable[Mapping[str, Any]]) -> RunSummary:
     plans: list[tuple[float, Mapping[str, Any]]] = []  # (t, plan) from start and resolve events
     runs: dict[str, list[tuple[float, float | None]]] = {}  # subchain -> (t, latency_ms)
     samples: dict[str, list[tuple[float, float]]] = {}
+    ages: dict[str, list[float]] = {}  # node -> its runs' ages (end less origin)
     unmeasured: dict[str, int] = {}
     counters: Mapping[str, Any] = {}  # subchain -> row of the last status or stop
     named: set[str] = set()
@@ -201,6 +244,9 @@ def summarise(events: Iterable[Mapping[str, Any]]) -> RunSummary:
                 samples[node].append((t, ms))
             else:
                 unmeasured[node] = unmeasured.get(node, 0) + 1
+            age = _number(event.get("age_ms"))
+            if age is not None and age >= 0:
+                ages.setdefault(node, []).append(age)
         elif kind == "register" and isinstance(event.get("node"), str):
             samples.setdefault(event["node"], [])
         elif kind in ("status", "stop"):
@@ -238,7 +284,32 @@ def summarise(events: Iterable[Mapping[str, Any]]) -> RunSummary:
         ),
         resolves=tuple(resolves),
         costs=costs,
+        chains=_chains(plans[-1][1] if plans else {}, ages),
     )
+
+
+def _chains(plan: Mapping[str, Any], ages: Mapping[str, Sequence[float]]) -> tuple[ChainSummary, ...]:
+    """The plan's chains (its ``chains`` entries that can be read), each measured from the runs' ages."""
+    found = []
+    entries = plan.get("chains")
+    for entry in entries if isinstance(entries, list) else ():
+        row = _mapping(entry)
+        nodes = row.get("nodes")
+        if not isinstance(nodes, list) or not nodes or not all(isinstance(node, str) for node in nodes):
+            continue
+        last = row.get("last_scheduled")
+        at, whole, response = chain_response(nodes, last if isinstance(last, str) else None, ages)
+        found.append(
+            ChainSummary(
+                nodes=tuple(nodes),
+                planned_ms=_number(row.get("response_ms")),
+                bound_ms=_number(row.get("max_response_ms")),
+                at=at,
+                whole=whole,
+                response=response,
+            )
+        )
+    return tuple(found)
 
 
 def _costs(row: Mapping[str, Any]) -> CostsSummary | None:

@@ -45,6 +45,13 @@ that is off by more than the tolerance *and* :data:`HOP_TOLERANCE_MS` (a spec wi
 reads as 0 ms each: catanc's own trigger hop, ~0.05 ms, is no drift).  Edges between
 subchains are not proposed: no plan counts them.
 
+``--check`` also fails where a chain with a bound (``max_response_ms``) was measured slower than
+it: the p95 of its response from origins (:func:`~catanc.runtime.log_summary.chain_response`,
+what ``catanc report`` shows), over at least :data:`MIN_SAMPLES` runs, above the bound.  The p95,
+not the maximum: the plan holds the bound with p95 compute times, and one run preempted by
+something outside the plan would fail a maximum.  Where the chain's last scheduled node reports no
+ages, the figure stops at an earlier node: a lower bound, which fails only when even it is over.
+
 Numbers are rounded to what is written (compute times and hops to 4 significant digits, shares
 and speedups to 2 decimals), so a spec written from a proposal checks clean against it.
 
@@ -59,9 +66,11 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
-from catanc.errors import CatancError, FieldPath
+from catanc.core.problem import Problem
+from catanc.errors import CatancError, FieldPath, format_path
 from catanc.runtime.costs import edge_key
 from catanc.runtime.log import BATCHED
+from catanc.runtime.log_summary import chain_response
 from catanc.runtime.measure import MIN_PLANNING_MS, percentile, split_modes
 from catanc.runtime.samples import LogSamples, MeasurementsError, Sample, read_samples
 from catanc.spec.language import ModalCompute, Spec, parse_arrow
@@ -411,6 +420,39 @@ def hop_deviations(spec: Spec, hops: Mapping[tuple[str, str], float], tolerance:
     return found
 
 
+def chain_deviations(spec: Spec, problem: Problem, measured: LogSamples) -> list[str]:
+    """Each bounded chain whose response from origins was measured (p95) above its ``max_response_ms``."""
+    found = []
+    for bound in problem.response_bounds:
+        chain = problem.chains[bound.chain]
+        at, whole, response = chain_response(chain.nodes, problem.last_scheduled(chain.nodes), measured.ages)
+        if response is None or response.count < MIN_SAMPLES or response.p95_ms <= bound.max_response_ms:
+            continue
+        part = "" if whole else ", part of the chain: its last scheduled node reports no origins"
+        found.append(
+            f"{_where(spec, bound.origin)}{format_path(bound.origin)}: chain {chain.label}: p95 "
+            f"{response.p95_ms:.4g} ms from origins (at {at}, {response.count} runs{part}) over its "
+            f"max_response_ms {bound.max_response_ms:g}"
+        )
+    return found
+
+
+def chain_lines(problem: Problem, measured: LogSamples) -> tuple[str, ...]:
+    """One line per bounded chain measured from origins: p50, p95, max, where, against its bound."""
+    lines = []
+    for bound in problem.response_bounds:
+        chain = problem.chains[bound.chain]
+        at, whole, response = chain_response(chain.nodes, problem.last_scheduled(chain.nodes), measured.ages)
+        if response is None:
+            continue
+        part = "" if whole else " (part of the chain)"
+        lines.append(
+            f"  chain {chain.label}: {response.count} runs at {at}{part}; from origins p50 {response.p50_ms:.4g}, "
+            f"p95 {response.p95_ms:.4g}, max {response.max_ms:.4g} ms; bound {bound.max_response_ms:g} ms"
+        )
+    return tuple(lines)
+
+
 def hop_edits(spec: Spec, hops: Mapping[tuple[str, str], float]) -> tuple[list[Edit], list[tuple[str, str]]]:
     """The spec's hops to rewrite where it gives them, and the ``(key, value)`` entries to add where it does not."""
     written = spec_hops(spec)
@@ -506,7 +548,7 @@ def profile_spec(spec_text: str, spec_file: str, log_text: str, log_file: str, *
     from catanc.core.load import check_text  # noqa: PLC0415 - the spec's meaning pass, as validate runs it
     from catanc.spec.profile_edit import add_entries, apply_edits  # noqa: PLC0415
 
-    spec, _ = check_text(spec_text, spec_file)
+    spec, problem = check_text(spec_text, spec_file)
     measured = read_samples(log_text, log_file)
     proposals = propose(spec, measured)
     hops = propose_hops(spec, measured)
@@ -529,8 +571,16 @@ def profile_spec(spec_text: str, spec_file: str, log_text: str, log_file: str, *
             spec_text.splitlines(keepends=True), text.splitlines(keepends=True), f"a/{name}", f"b/{name}"
         )
     )
-    off = [*deviations(spec, proposals, tolerance), *hop_deviations(spec, hops, tolerance)]
-    summary = (*summary_lines(spec, proposals, measured), *hop_lines(spec, hops, measured))
+    off = [
+        *deviations(spec, proposals, tolerance),
+        *hop_deviations(spec, hops, tolerance),
+        *chain_deviations(spec, problem, measured),
+    ]
+    summary = (
+        *summary_lines(spec, proposals, measured),
+        *hop_lines(spec, hops, measured),
+        *chain_lines(problem, measured),
+    )
     return Profiled(proposals, hops, summary, text, diff, tuple(off))
 
 

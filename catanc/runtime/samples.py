@@ -57,6 +57,7 @@ class LogSamples:
     length_s: float
     observed: bool = False  # a ``catanc run --observe`` log: the nodes ran on their own timers
     hops: Mapping[tuple[str, str], HopFigures] = field(default_factory=dict)  # (producer, consumer) -> its hops
+    ages: Mapping[str, tuple[float, ...]] = field(default_factory=dict)  # node -> its runs' ends less their origins
 
 
 def read_samples(text: str, file: str) -> LogSamples:
@@ -66,6 +67,7 @@ def read_samples(text: str, file: str) -> LogSamples:
     started = stopped = observed = False
     length = 0.0
     hops: dict[tuple[str, str], HopFigures] = {}
+    ages: dict[str, list[float]] = {}
     lines = text.splitlines()
     if not any(line.strip() for line in lines):
         raise MeasurementsError(f"{file}: empty: not a catanc run log")
@@ -94,6 +96,9 @@ def read_samples(text: str, file: str) -> LogSamples:
             if not isinstance(single, dict) or single.get("event") != "compute":
                 continue
             node, ms = single.get("node"), single.get("ms")
+            age = _number(single.get("age_ms"))
+            if isinstance(node, str) and age is not None:
+                ages.setdefault(node, []).append(age)
             if not isinstance(node, str) or not isinstance(ms, int | float) or not valid_sample(ms):
                 continue
             threads = single.get("threads")
@@ -111,7 +116,15 @@ def read_samples(text: str, file: str) -> LogSamples:
             f"{file}:{len(lines)}: truncated: the log ends without the enforcer's stop event "
             f"(the run was killed {length:.1f} s in?); profile a run that ended (--duration, Ctrl-C or SIGTERM)"
         )
-    return LogSamples(file, {k: tuple(v) for k, v in samples.items()}, first_line, length, observed, hops)
+    return LogSamples(
+        file,
+        {k: tuple(v) for k, v in samples.items()},
+        first_line,
+        length,
+        observed,
+        hops,
+        {k: tuple(v) for k, v in ages.items()},
+    )
 
 
 def _hops(event: dict[str, Any]) -> dict[tuple[str, str], HopFigures]:

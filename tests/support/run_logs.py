@@ -31,11 +31,13 @@ def log_text(
     fmt: object = LOG_FORMAT,
     kernels: Mapping[str, Sequence[float | None]] = {},
     hops: Mapping[str, tuple[float, int]] = {},
+    ages: Mapping[str, Sequence[float]] = {},
 ) -> str:
     """A log as the enforcer writes it: a start, one compute batch per (node, ms, threads, own figures), a stop.
 
     ``kernels``: per node, the kernel's counts of its batch's runs (None where unchecked; default all None).
     ``hops``: per edge ``"a -> b"``, the p95 and count of its hops in the stop's costs (``hop_by_edge``).
+    ``ages``: per node, runs' ages (end less origin, ms), one ``compute`` event each (of 1 ms) after the batches.
     """
     start = {"t": 0.0, "event": "start", "cores": 1, "plan": {}}
     if fmt is not None:
@@ -54,6 +56,12 @@ def log_text(
                 "threads": list(threads) if threads is not None else [1] * len(ms),
             }
         )
+    for node, values in ages.items():
+        lines += [
+            {"t": 8.0, "event": "compute", "node": node, "ms": 1.0, "reported_ms": 1.0, "kernel_ms": None}
+            | {"threads": 1, "age_ms": age}
+            for age in values
+        ]
     if stop:
         by_edge = {
             edge: {"p50_ms": p95 / 2, "p95_ms": p95, "max_ms": p95 * 2, "count": count}
