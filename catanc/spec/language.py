@@ -624,7 +624,8 @@ class Spec(_Model):
         description=(
             "Measured delay of an edge's data hop (ms, as `catanc profile --write` writes it): the producer's end "
             "to the consumer's start, e.g. 'LM -> LP': 1.2 for a ROS 2 topic between processes. Each edge inside "
-            "a subchain adds its hop to the subchain's c(S); an edge not given has none."
+            "a subchain adds its hop to the subchain's c(S); an edge not given has none. The consumer's own cost "
+            "of receiving (an executor's take and deserialisation) is no hop: it is part of its compute_ms."
         ),
     )
     executors: dict[Name, Annotated[list[Name], Field(min_length=2)]] = Field(
