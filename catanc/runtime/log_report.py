@@ -143,6 +143,7 @@ def _costs_json(costs: CostsSummary | None) -> dict[str, Any] | None:
         "hop_ms": quantiles(costs.hop),
         "hop_inside_ms": quantiles(costs.hop_inside),
         "hop_head_ms": quantiles(costs.hop_head),
+        "hop_by_edge_ms": {edge: quantiles(value) for edge, value in costs.hop_by_edge},
         "core_share": _round(costs.share, 5),
         "cpu_per_wake_ms": _round(costs.cpu_per_wake_ms, 5),
     }
@@ -288,7 +289,9 @@ def _costs_table(costs: CostsSummary) -> Table:
         table.add_column(column, justify="left" if column == "ms" else "right")
     rows = [("switch latency", costs.switch), ("hop delay", costs.hop)]
     if costs.hop_inside is not None or costs.hop_head is not None:  # a log of a catanc that tells them apart
-        rows += [("  node to node", costs.hop_inside), ("  trigger to head", costs.hop_head)]
+        rows += [("  node to node", costs.hop_inside)]
+        rows += [(f"    {edge}", value) for edge, value in costs.hop_by_edge]
+        rows += [("  trigger to head", costs.hop_head)]
     for label, value in rows:
         if value is None:
             table.add_row(label, "0", "-", "-", "-")

@@ -133,6 +133,7 @@ class CostsSummary:
     hop_head: Quantiles | None  # a head's trigger to its start (None: an older log)
     share: float | None  # the enforcer's CPU share of the core its loop runs on
     cpu_per_wake_ms: float | None
+    hop_by_edge: tuple[tuple[str, Quantiles], ...] = ()  # per edge inside a subchain ("a -> b"), sorted
 
 
 @dataclass(frozen=True)
@@ -324,6 +325,11 @@ def _costs(row: Mapping[str, Any]) -> CostsSummary | None:
         hop_head=_quantiles(_mapping(row.get("hop_head"))),
         share=max(shares) if shares else None,
         cpu_per_wake_ms=_number(row.get("cpu_per_wake_ms")),
+        hop_by_edge=tuple(
+            (str(edge), quantiles)
+            for edge, figures in sorted(_mapping(row.get("hop_by_edge")).items())
+            if (quantiles := _quantiles(_mapping(figures))) is not None
+        ),
     )
 
 

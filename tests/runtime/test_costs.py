@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import io
 import json
 from pathlib import Path
 
+from rich.console import Console
+
 from catanc.runtime.costs import Costs
-from catanc.runtime.log_report import summary_payload
+from catanc.runtime.log_report import render_summary, summary_payload
 from catanc.runtime.log_summary import summarise
 
 
@@ -67,6 +70,29 @@ def test_report_gives_the_hop_apart_where_the_log_has_it(tmp_path: Path) -> None
     assert costs["hop_ms"] == {"count": 5, "p50": 0.1, "p95": 0.46, "max": 0.5}
     assert costs["hop_inside_ms"] == {"count": 3, "p50": 0.3, "p95": 0.48, "max": 0.5}
     assert costs["hop_head_ms"] == {"count": 2, "p50": 0.03, "p95": 0.039, "max": 0.04}
+    assert costs["hop_by_edge_ms"] == {}  # a log of a catanc that kept no edges apart
+
+
+def test_report_gives_each_edges_hop(tmp_path: Path) -> None:
+    edge = {"p50_ms": 1.2, "p95_ms": 4.9, "max_ms": 7.5, "count": 40}
+    log = _log(
+        tmp_path,
+        {
+            "switch": None,
+            "hop": edge,
+            "hop_inside": edge,
+            "hop_head": None,
+            "hop_by_edge": {"LM -> LP": edge, "bad": {"p50_ms": "x"}},
+        },
+    )
+    summary = summarise(json.loads(line) for line in log.read_text().splitlines())
+    assert summary_payload(summary)["costs"]["hop_by_edge_ms"] == {
+        "LM -> LP": {"count": 40, "p50": 1.2, "p95": 4.9, "max": 7.5}
+    }
+    out = io.StringIO()
+    Console(file=out, width=160).print(*render_summary(summary))
+    (row,) = [line for line in out.getvalue().splitlines() if "LM -> LP" in line]
+    assert [cell.strip() for cell in row.split("│")[1:6]] == ["LM -> LP", "40", "1.200", "4.900", "7.500"]
 
 
 def test_an_older_log_without_the_split_still_reports(tmp_path: Path) -> None:
