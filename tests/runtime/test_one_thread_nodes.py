@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 
 from catanc.runtime.measure import percentile
+from catanc.runtime.profile import MIN_SAMPLES, format_hop, profile_spec
 from tests.support.client_nodes import client_run, finish
 from tests.support.enforcer_runs import compile_table, of_kind
 
@@ -93,3 +94,13 @@ def test_a_heads_compute_stays_its_own_when_its_successor_shares_its_thread(
     assert percentile(recorded, 95) < A_MS + 0.5
     assert max(recorded) < B_MS / 2
     assert percentile(theirs, 50) == pytest.approx(B_MS, rel=0.2)
+    # The hop from A's end to B's start is logged per edge, and `catanc profile` writes it into the spec.
+    (stop,) = of_kind(run.events(), "stop")
+    assert stop["summary"]["costs"]["hop_by_edge"]["A -> B"]["count"] >= MIN_SAMPLES
+    profiled = profile_spec(SPEC, "onethread.yaml", run.log.read_text(), "run.jsonl", tolerance=0.15)
+    hop = profiled.hops[("A", "B")]
+    assert profiled.text.endswith(
+        f"runtime: {{first_solve_after_s: 100, stage2_every_s: 100, stage1_every_s: 100}}\n"
+        f"hops_ms:\n  A -> B: {format_hop(hop)}\n"
+    )
+    print(f"{loop}: hop A -> B p95 {hop} ms")
