@@ -153,20 +153,27 @@ def test_a_report_far_above_the_estimate_is_held_to_the_kernels_count(two_nodes:
     assert claims == [40.0, pytest.approx(3.05), pytest.approx(3.05)]
 
 
-@pytest.mark.parametrize("again", [False, True])
-def test_the_heads_kernel_check_spans_no_later_run_of_it(two_nodes: TwoNodes, again: bool) -> None:
+def checked_run_of_2_ms_where_the_kernel_counts_5(two_nodes: TwoNodes) -> None:
+    """Trigger the head up to the run the kernel checks, which reports 2 ms; its thread's count grows by 5 ms."""
     book, run, (a, _b), readers = two_nodes
     head = readers[0][1]
     kernel: dict[int, int] = book.kernel_counts  # type: ignore[attr-defined]
-    for _ in range(KERNEL_CHECK_EVERY - 1):  # up to the run the kernel checks
+    for _ in range(KERNEL_CHECK_EVERY - 1):
         book.trigger(run, 0.0, head)
         book.state("s").in_flight.clear()
     kernel[100] = 0
     checked = book.trigger(run, 100.0, head)
     assert checked is not None
     assert checked.seq % KERNEL_CHECK_EVERY == 0
-    a.append(checked.seq, 100 * MS, 102 * MS, 2 * MS)  # 2 ms, as its thread used...
-    kernel[100] = 5 * MS  # ...then 3 ms more: its next run, if the head was triggered again
+    a.append(checked.seq, 100 * MS, 102 * MS, 2 * MS)
+    kernel[100] = 5 * MS
+
+
+@pytest.mark.parametrize("again", [False, True])
+def test_the_heads_kernel_check_spans_no_later_run_of_it(two_nodes: TwoNodes, again: bool) -> None:
+    book, run, _, readers = two_nodes
+    head = readers[0][1]
+    checked_run_of_2_ms_where_the_kernel_counts_5(two_nodes)  # then 3 ms more: its next run, if triggered again
     if again:
         assert book.trigger(run, 102.5, head) is not None  # taken while the entry was unread
     computes = [c.ms for c in read(book, run, readers, 103.0).computes]
@@ -178,23 +185,14 @@ def test_the_heads_kernel_check_spans_no_later_run_of_it(two_nodes: TwoNodes, ag
 def test_a_head_whose_thread_hosts_another_node_keeps_its_own_figure(two_nodes: TwoNodes) -> None:
     # The same checked run as above, but the head's thread also hosts b (one executor thread): the
     # thread's 5 ms are the two nodes', so the head keeps its own 2 ms.
-    book, run, (a, _b), readers = two_nodes
+    book, run, _, readers = two_nodes
     head = readers[0][1]
     registry = Registry({"a", "b"})
     registry.add(head)
     other = Endpoint("b", 1, head.tid, None)
     registry.add(other)
     assert head.shares_thread
-    kernel: dict[int, int] = book.kernel_counts  # type: ignore[attr-defined]
-    for _ in range(KERNEL_CHECK_EVERY - 1):
-        book.trigger(run, 0.0, head)
-        book.state("s").in_flight.clear()
-    kernel[100] = 0
-    checked = book.trigger(run, 100.0, head)
-    assert checked is not None
-    assert checked.seq % KERNEL_CHECK_EVERY == 0
-    a.append(checked.seq, 100 * MS, 102 * MS, 2 * MS)
-    kernel[100] = 5 * MS
+    checked_run_of_2_ms_where_the_kernel_counts_5(two_nodes)
     assert [c.ms for c in read(book, run, readers, 103.0).computes] == [2.0]
     assert registry.remove(other)  # b leaves the thread: the head is alone in it again
     assert not head.shares_thread
