@@ -618,6 +618,22 @@ def test_modes_round_trip_through_text() -> None:
         parse_modes("0.8,0.2:12")
 
 
+@pytest.mark.parametrize(
+    "ros",
+    [
+        ["--ros-args", "--params-file", "/x/params.yaml"],
+        ["--ros-args", "-p", "rate:=3", "--", "--node", "B"],
+        ["--ros-args", "--ros-args", "-r", "__node:=b", "--"],
+    ],
+)
+def test_worker_options_skip_ros_sections_as_rcl_does(ros: list[str]) -> None:
+    """A launcher appends ``--ros-args --params-file ...`` to a ROS process's command: a worker standing for one
+    ignores each ROS section and reads what follows its ``--``."""
+    options = parse_args(["--node", "A", "--compute-ms", "2", *ros])
+    after = ros[ros.index("--") + 1 :] if "--" in ros else []
+    assert set(options.nodes) == {"A", *after[1:2]}
+
+
 def test_worker_options_share_one_profile_or_take_one_per_node() -> None:
     shared = parse_args(["--node", "A", "--node", "B", "--compute-ms", "2"])
     assert shared.nodes == {"A": ((1.0, 2.0),), "B": ((1.0, 2.0),)}

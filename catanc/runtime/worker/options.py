@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,6 +28,28 @@ class WorkerOptions:
     clock_start_ns: int | None = None
     record: Path | None = None
     executors: tuple[tuple[str, ...], ...] = ()  # nodes whose runs take turns (one executor thread each)
+
+
+ROS_ARGS = "--ros-args"
+ROS_ARGS_END = "--"
+
+
+def without_ros_arguments(argv: Sequence[str]) -> list[str]:
+    """``argv`` without its ROS sections (``--ros-args`` up to ``--`` or the end), as rcl reads a command line.
+
+    A launcher appends one to the command of a process hosting a ROS node (its parameters file): a
+    worker standing in for such a process takes it as a ROS program would, and ignores it.
+    """
+    kept: list[str] = []
+    inside = False
+    for word in argv:
+        if word == ROS_ARGS:
+            inside = True
+        elif inside and word == ROS_ARGS_END:
+            inside = False
+        elif not inside:
+            kept.append(word)
+    return kept
 
 
 def parse_args(argv: Sequence[str] | None = None) -> WorkerOptions:
@@ -73,7 +96,7 @@ def parse_args(argv: Sequence[str] | None = None) -> WorkerOptions:
         metavar="NAME,NAME",
         help="nodes that share one single-threaded executor: their runs take turns",
     )
-    args = parser.parse_args(argv)
+    args = parser.parse_args(without_ros_arguments(sys.argv[1:] if argv is None else argv))
     names: list[str] = args.nodes
     profiles: list[Modes] = args.profiles or []
     for name in names:
