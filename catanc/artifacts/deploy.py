@@ -27,7 +27,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from catanc.artifacts.runtime_table import RATE_DIGITS, ProcessEntry, ms
+from catanc.artifacts.runtime_table import PARAMS_FILE, RATE_DIGITS, ProcessEntry, ms
 from catanc.core.priorities import resting_fifo, static_policy
 from catanc.errors import Diagnostic, SpecError
 from catanc.spec.deploy_checks import PERIOD_NS, RESERVED_PREFIX, process_key, qualified, split_command
@@ -90,6 +90,7 @@ class Process:
             "ros_node": self.ros_node,
             "nodes": list(self.nodes),
             "argv": list(self.argv),
+            "params_file": PARAMS_FILE if self.ros_node is not None else None,
             "package": self.package,
             "executable": self.executable,
             "cpus": list(self.cpus),
@@ -204,6 +205,8 @@ def _params(
     applied).  ``catan.subchain`` and ``catan.period_ms`` describe its nodes
     when they run as one subchain (or one clock); a process hosting nodes of
     several puts them per node, as ``catan.nodes.<node>.subchain`` and so on.
+    ``catan.node`` names the DAG node of a ROS node hosting one: the ROS client's
+    default name for its runs (interfaces.md, "ROS 2 nodes").
     """
     flat: dict[str, ParamValue] = {}
     for node in nodes:
@@ -213,6 +216,8 @@ def _params(
             flat[entry.rate_param] = _rate_parameter(spec, node, period)
     groups = {membership.get(node, node) for node in nodes}
     catan: dict[str, ParamValue] = {"cpus": list(cpus), "priority": priority}
+    if len(nodes) == 1:
+        catan["node"] = nodes[0]
     if len(groups) == 1:
         catan.update(_node_params(spec, plan, nodes[0], membership, on))
     else:

@@ -23,7 +23,7 @@ import yaml
 
 from catanc.artifacts.deploy import Process, callback_groups, non_ros_threads, processes
 from catanc.artifacts.provenance import Provenance
-from catanc.artifacts.runtime_table import runtime_json
+from catanc.artifacts.runtime_table import PARAMS_FILE, runtime_json
 from catanc.errors import ExitCode
 from catanc.explain.analysis import explain_plan
 from catanc.explain.markdown import render_markdown
@@ -87,6 +87,7 @@ def emit(
             top_static_priority=max((process.static_priority for process in started), default=0),
             exit_no_privilege=int(ExitCode.NO_PRIVILEGE),
             grace_s=STOP_GRACE_S,
+            params_file=PARAMS_FILE,
         ),
         "launch.py": _render(
             "launch.py.j2",

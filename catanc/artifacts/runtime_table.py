@@ -104,7 +104,8 @@ class ProcessEntry(TypedDict):
     key: str
     ros_node: str | None
     nodes: list[str]
-    argv: list[str]
+    argv: list[str]  # the spec's command; a launcher appends ros_arguments(params_file) to it
+    params_file: NotRequired[str | None]  # beside the table, for a process hosting a ROS node (later field)
     package: str | None
     executable: str | None
     cpus: list[int]
@@ -116,6 +117,18 @@ class GeneratedBy(TypedDict):
     command: str
     spec: str
     spec_sha256: str
+
+
+PARAMS_FILE = "params.yaml"
+"""The ROS parameters beside the table: every process hosting a ROS node is started with them."""
+
+
+def ros_arguments(params_path: str) -> list[str]:
+    """What every launcher appends to the command of a process hosting a ROS node (interfaces.md, "Processes").
+
+    ``params_path`` is absolute: the process may run in any folder.
+    """
+    return ["--ros-args", "--params-file", params_path]
 
 
 # --------------------------------------------------------------------------- writing

@@ -97,7 +97,7 @@ def run_(
         if demo:
             start_demo(children, table.spec, socket_path)
         elif launch:
-            start_launch(children, table.processes, socket_path)
+            start_launch(children, table.processes, socket_path, table.path.parent)
 
     live = None
     if not quiet and sys.stdout.isatty():
@@ -166,7 +166,7 @@ def observe_(
     def begin(running: Observer) -> None:
         if not launch:
             return
-        start_launch(children, table.processes, None)
+        start_launch(children, table.processes, None, table.path.parent)
         nodes_of = {str(process.get("key")): list(process.get("nodes", [])) for process in table.processes}
         found, shared = launched_nodes((nodes_of.get(key, []), process.pid) for key, process in children.processes)
         for node, pid in found.items():

@@ -3,7 +3,8 @@
 - ``--demo``: one synthetic worker per scheduled node (:mod:`catanc.runtime.worker`),
   burning CPU as the node's compute profile says and talking to the
   enforcer through :mod:`catanc.client`: catanc at work without a robot;
-- ``--launch``: the spec's deploy commands, as the runtime table lists them;
+- ``--launch``: the spec's deploy commands, as the runtime table lists them (with the
+  table's ``params.yaml`` for a process hosting a ROS node);
 - ``--attach NODE=PID``: a running process that does not speak the protocol:
   its threads are pinned and prioritised as NODE's, and it keeps its own timer.
 
@@ -25,6 +26,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from catanc.artifacts.runtime_table import ros_arguments
 from catanc.errors import UsageError
 from catanc.runtime.protocol import SOCKET_ENV
 from catanc.runtime.worker.command import worker_command, worker_groups
@@ -105,12 +107,21 @@ def start_demo(children: Children, spec: Spec, socket_path: str, *, seed: int = 
         children.start(", ".join(group), argv, socket_path)
 
 
-def start_launch(children: Children, processes: Sequence[Mapping[str, object]], socket_path: str | None) -> None:
-    """The runtime table's processes that have a command."""
+def start_launch(
+    children: Children, processes: Sequence[Mapping[str, object]], socket_path: str | None, folder: Path
+) -> None:
+    """The runtime table's processes that have a command; ``folder``: the table's, which holds their parameters.
+
+    A process hosting a ROS node gets the folder's parameters file as launch.sh gives it.
+    """
     for process in processes:
         argv = process.get("argv")
         if isinstance(argv, list) and argv:
-            children.start(str(process.get("key")), [str(word) for word in argv], socket_path)
+            words = [str(word) for word in argv]
+            params_file = process.get("params_file")
+            if isinstance(params_file, str):
+                words += ros_arguments(str(folder.absolute() / params_file))
+            children.start(str(process.get("key")), words, socket_path)
 
 
 def parse_attach(items: Sequence[str], spec: Spec) -> dict[str, int]:

@@ -146,6 +146,13 @@ def standin_command(folder: Path, key: str, mode: str = "run", extra: str = "") 
     return " ".join(shlex.quote(word) for word in words) + (" " + extra if extra else "")
 
 
+def launched_argv(process: Process, folder: Path) -> list[str]:
+    """The command line a process runs with: its command, and for a ROS node the folder's parameters, by absolute
+    path (interfaces.md, "Processes")."""
+    ros_args = ["--ros-args", "--params-file", str(folder / "params.yaml")] if process.ros_node is not None else []
+    return [*process.argv, *ros_args]
+
+
 def name_of(key: str) -> str:
     return key.lstrip("/")
 
@@ -387,7 +394,7 @@ def test_each_process_runs_with_its_planned_policy_priority_and_cpus(
         pid = started[process.key]
         # The printed pid is the command itself: taskset and chrt exec'd it, no shell or wrapper in between.
         assert ready[process.key]["pid"] == pid
-        assert cmdline(pid) == list(process.argv)
+        assert cmdline(pid) == launched_argv(process, tmp_path)
         assert parent_of(pid) == run.proc.pid
         assert sched_of(pid) == expected(process), process.key
         seen = ready[process.key]  # the stand-in's own view, as it started
@@ -521,8 +528,9 @@ def test_commands_are_passed_literally(tmp_path: Path, two_cores: Plan, launcher
     want = shlex.split(commands["/slow"])
     assert want[5:8] == ["a;b", ";", ";"]  # the test's premise: shlex keeps these as words
     assert [process.argv for process in processes(spec, two_cores) if process.key == "/slow"] == [tuple(want)]
-    assert [sys.executable, *ready["/slow"]["argv"]] == want
-    assert cmdline(run.started()["/slow"]) == want
+    slow = next(process for process in processes(spec, two_cores) if process.key == "/slow")
+    assert [sys.executable, *ready["/slow"]["argv"]] == launched_argv(slow, tmp_path)
+    assert cmdline(run.started()["/slow"]) == launched_argv(slow, tmp_path)
     assert not [marker.name for marker in markers if marker.exists()]
     assert not (tmp_path / "out").exists()
     run.proc.send_signal(signal.SIGTERM)
