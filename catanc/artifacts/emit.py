@@ -92,8 +92,8 @@ def emit(
         "launch.py": _render(
             "launch.py.j2",
             context,
-            ros=[process for process in deployed if process.package is not None],
-            not_ros=[process for process in started if process.package is None],
+            launched=[process for process in deployed if process.package is not None or process.argv],
+            params_file=PARAMS_FILE,
         ),
         "PLAN.md": _render("PLAN.md.j2", context, report=render_markdown(report).rstrip()),
     }

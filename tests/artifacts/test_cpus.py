@@ -114,7 +114,7 @@ def test_params_and_thread_configurator_name_the_cpus(pair: tuple[Target, Target
         assert yaml.safe_load(moved.files[name]) == map_cpus_in(yaml.safe_load(plain.files[name])), name
 
 
-TASKSET = re.compile(r"taskset -c ([0-9,]+)")
+PROCESS_CPUS = re.compile(r'"cpus": "([0-9,]+)"')  # launch.py's table of processes
 START = re.compile(r"^  start (\S+) ([0-9,]+) ", re.MULTILINE)
 CHECK = re.compile(r"^check_cpus ([0-9 ]+)$", re.MULTILINE)
 
@@ -128,10 +128,10 @@ def test_launch_files_pin_to_the_cpus(pair: tuple[Target, Target]) -> None:
         new
     )
     old_py, new_py = plain.files["launch.py"], moved.files["launch.py"]
-    assert [mapped_list(cpus) for cpus in TASKSET.findall(old_py)] == TASKSET.findall(new_py)
-    assert len(TASKSET.findall(new_py)) == 10  # each ROS process with and without the enforcer
+    assert [mapped_list(cpus) for cpus in PROCESS_CPUS.findall(old_py)] == PROCESS_CPUS.findall(new_py)
+    assert len(PROCESS_CPUS.findall(new_py)) == 5  # each process, which launch.py pins as it starts it
     # Nothing else changes.
-    assert without_headers(TASKSET.sub("", old_py)) == without_headers(TASKSET.sub("", new_py))
+    assert without_headers(PROCESS_CPUS.sub("", old_py)) == without_headers(PROCESS_CPUS.sub("", new_py))
 
 
 def test_plan_md_says_which_cpu_each_core_is(pair: tuple[Target, Target]) -> None:

@@ -1,13 +1,13 @@
-"""launch.py, run against stand-ins of the ROS 2 launch API (no ROS here).
+"""launch.py, run against a recording stand-in of the ROS 2 launch API (tests/support/launch_api.py).
 
-Stand-in modules for ``launch`` and ``launch_ros`` record every action the
-file's ``generate_launch_description`` makes, with its condition; each test
-then asks which actions run with ``static:=false`` (the default) and
-``static:=true`` and compares them with the runtime table written beside it:
-the processes, their CPUs and SCHED_FIFO levels, and which subchains are
-shared (a shared core's process runs under SCHED_OTHER without the enforcer).
-The shell prefix that holds a node until the enforcer's socket is up is run
-for real.
+Each test loads an emitted launch.py for some launch arguments (``static``,
+``no_rt``) and compares the actions it makes with the runtime table written
+beside it: which processes start and how (a ``Node`` for a ROS package, an
+``ExecuteProcess`` for a command), their CPUs and policies, the parameters
+file, the enforcer and what happens when it exits.  The shell prefix that
+holds a process until the enforcer's socket is up is run for real;
+tests/ros/test_deploy_launch_py.py runs the resulting command lines with
+real rclpy nodes.
 """
 
 from __future__ import annotations
@@ -17,17 +17,15 @@ import json
 import shlex
 import socket
 import subprocess
-import sys
+import tempfile
 import time
-import types
-from collections.abc import Iterator
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import pytest
 
 from catanc.artifacts.compile import Target, compile_spec
+from tests.support.launch_api import Action, Description, describe
 
 ROOT = Path(__file__).parents[2]
 SPECS = sorted((ROOT / "specs").glob("*.yaml"))
@@ -56,90 +54,10 @@ deploy:
   cam: {ros_node: /sensors/camera, package: cams, executable: cam_node, rate_param: fps}
   det: {ros_node: /perception, package: percept, executable: perception, rate_param: rate}
   map: {ros_node: /mapper, package: mapping, executable: mapper, rate_param: rate}
-  plan: {ros_node: /planner, package: planning, executable: planner, rate_param: rate}
+  plan: {ros_node: /planner, command: "planner-node --fast", rate_param: rate}
   imu: {ros_node: /imu_driver, package: imu, executable: driver, rate_param: rate}
+  motor: {command: "motor-driver --port /dev/ttyUSB0"}
 """
-
-
-# --------------------------------------------------------------------------- stand-ins of the launch API
-
-
-@dataclass
-class Action:
-    kind: str
-    kwargs: dict[str, Any]
-    condition: Condition | None = None
-
-
-@dataclass
-class Condition:
-    argument: str
-    when: bool  # IfCondition: holds when the argument is true; UnlessCondition: when it is false
-
-    def holds(self, arguments: dict[str, bool]) -> bool:
-        return arguments[self.argument] == self.when
-
-
-@dataclass
-class Recorded:
-    actions: list[Action] = field(default_factory=list)
-    declared: dict[str, str] = field(default_factory=dict)
-
-    def running(self, **arguments: bool) -> list[Action]:
-        return [a for a in self.actions if a.condition is None or a.condition.holds(arguments)]
-
-
-def stand_in_modules() -> dict[str, types.ModuleType]:
-    modules = {
-        name: types.ModuleType(name)
-        for name in (
-            "launch",
-            "launch.actions",
-            "launch.conditions",
-            "launch.substitutions",
-            "launch_ros",
-            "launch_ros.actions",
-        )
-    }
-
-    def action(kind: str) -> Any:
-        def make(*args: Any, **kwargs: Any) -> Any:
-            if kind == "DeclareLaunchArgument":
-                return ("declare", args[0], kwargs.get("default_value"))
-            return Action(kind, kwargs, kwargs.pop("condition", None))
-
-        return make
-
-    modules["launch"].LaunchDescription = lambda actions: actions  # type: ignore[attr-defined]
-    modules["launch.actions"].DeclareLaunchArgument = action("DeclareLaunchArgument")  # type: ignore[attr-defined]
-    modules["launch.actions"].ExecuteProcess = action("ExecuteProcess")  # type: ignore[attr-defined]
-    modules["launch_ros.actions"].Node = action("Node")  # type: ignore[attr-defined]
-    modules["launch.substitutions"].LaunchConfiguration = lambda name: name  # type: ignore[attr-defined]
-    modules["launch.conditions"].IfCondition = lambda name: Condition(name, True)  # type: ignore[attr-defined]
-    modules["launch.conditions"].UnlessCondition = lambda name: Condition(name, False)  # type: ignore[attr-defined]
-    return modules
-
-
-def run_launch_file(folder: Path, monkeypatch: pytest.MonkeyPatch) -> Recorded:
-    """``folder/launch.py``'s description, made with the stand-ins."""
-    for name, module in stand_in_modules().items():
-        monkeypatch.setitem(sys.modules, name, module)
-    namespace: dict[str, Any] = {"__file__": str(folder / "launch.py"), "__name__": "launch_file"}
-    exec(compile((folder / "launch.py").read_text(), str(folder / "launch.py"), "exec"), namespace)
-    recorded = Recorded()
-    for item in namespace["generate_launch_description"]():
-        if isinstance(item, tuple):
-            recorded.declared[item[1]] = item[2]
-        else:
-            recorded.actions.append(item)
-    return recorded
-
-
-def write(target: Target, folder: Path) -> Path:
-    folder.mkdir(parents=True, exist_ok=True)
-    for name, text in target.files.items():
-        (folder / name).write_text(text)
-    return folder
 
 
 # --------------------------------------------------------------------------- what the table says
@@ -151,9 +69,43 @@ def shared_processes(table: dict[str, Any]) -> set[str]:
     return {p["key"] for p in table["processes"] if shared_nodes & set(p["nodes"])}
 
 
-def node_name(action: Action) -> str:
-    namespace = action.kwargs.get("namespace", "")
-    return f"{namespace}/{action.kwargs['name']}"
+def launched(table: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """The table's processes a launch starts (a ROS package or a command), by key."""
+    return {p["key"]: p for p in table["processes"] if p["package"] is not None or p["argv"]}
+
+
+def key_of(action: Action) -> str:
+    """The process an action starts: a Node's full name, an ExecuteProcess's ``name``."""
+    if action.kind == "Node":
+        namespace = action.kwargs["namespace"].rstrip("/")
+        return f"{namespace}/{action.kwargs['name']}"
+    return str(action.kwargs["name"])
+
+
+def processes_of(description: Description) -> dict[str, Action]:
+    found = {key_of(a): a for a in description.actions if a.kind == "Node" or "prefix" in a.kwargs}
+    assert len(found) == len([a for a in description.actions if a.kind == "Node" or "prefix" in a.kwargs])
+    return found
+
+
+def check_started_as_planned(action: Action, process: dict[str, Any], folder: Path) -> None:
+    """A Node for a ROS package with the folder's parameters; the command otherwise, with them for a ROS node."""
+    params = str(folder / "params.yaml")
+    if process["package"] is not None:
+        assert action.kind == "Node"
+        assert (action.kwargs["package"], action.kwargs["executable"]) == (process["package"], process["executable"])
+        assert action.kwargs["parameters"] == [params]
+    else:
+        assert action.kind == "ExecuteProcess"
+        ros = ["--ros-args", "--params-file", params] if process["ros_node"] is not None else []
+        assert action.kwargs["cmd"] == [*process["argv"], *ros]
+
+
+def write(target: Target, folder: Path) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    for name, text in target.files.items():
+        (folder / name).write_text(text)
+    return folder / "launch.py"
 
 
 @pytest.fixture(scope="module")
@@ -163,110 +115,157 @@ def robot(tmp_path_factory: pytest.TempPathFactory) -> Target:
     return compile_spec(path, 2)
 
 
-@pytest.fixture(scope="module")
-def examples() -> Iterator[Target]:
-    return iter([compile_spec(path, cores) for path in SPECS for cores in (1, 2)])
+@pytest.fixture
+def own_tmp(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """A temporary folder of the test's own for what launch.py makes with ``tempfile``."""
+    folder = tmp_path / "tmp"
+    folder.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(folder))
+    return folder
+
+
+def target_of(example: str, robot: Target) -> Target:
+    return robot if example == "robot" else compile_spec(ROOT / "specs" / f"{example[:-2]}.yaml", int(example[-1]))
+
+
+EXAMPLES = ["robot", *[f"{p.stem}-{k}" for p in SPECS for k in (1, 2)]]
 
 
 # --------------------------------------------------------------------------- the tests
 
 
-def test_the_robot_has_shared_and_dedicated_ros_processes(robot: Target) -> None:
-    """The premise: the static tests below see both policies."""
+def test_the_robot_has_every_kind_of_process(robot: Target) -> None:
+    """The premise: shared and dedicated ROS packages, a ROS node and a plain program started by command."""
     table = json.loads(robot.files["runtime.json"])
     ros = {p["key"] for p in table["processes"] if p["package"]}
     assert shared_processes(table) & ros
     assert ros - shared_processes(table)
+    commands = {p["key"]: p["ros_node"] for p in table["processes"] if p["argv"] and not p["package"]}
+    assert commands == {"/planner": "/planner", "motor": None}
 
 
-@pytest.mark.parametrize("example", ["robot", *[f"{p.stem}-{k}" for p in SPECS for k in (1, 2)]])
-def test_by_default_the_enforcer_runs_and_every_node_waits_for_its_socket(
-    example: str, robot: Target, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+@pytest.mark.parametrize("example", EXAMPLES)
+@pytest.mark.parametrize("no_rt", ["false", "true"])
+def test_by_default_the_enforcer_runs_and_every_process_waits_for_its_socket(  # noqa: PLR0917  fixtures
+    example: str, no_rt: str, robot: Target, tmp_path: Path, own_tmp: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    target = robot if example == "robot" else compile_spec(ROOT / "specs" / f"{example[:-2]}.yaml", int(example[-1]))
-    folder = write(target, tmp_path / "out")
-    recorded = run_launch_file(folder, monkeypatch)
+    target = target_of(example, robot)
+    launch_file = write(target, tmp_path / "out")
+    folder = launch_file.parent
     table = json.loads(target.files["runtime.json"])
-    ros = [p for p in table["processes"] if p["package"] is not None]
-    if not ros:  # nothing for ROS to launch (launch.sh starts the commands, with the enforcer)
-        assert recorded.actions == []
+    description = describe(launch_file, monkeypatch, no_rt=no_rt)
+    assert description.declared == {"static": "false", "no_rt": "false"}
+    want = launched(table)
+    if not want:  # nothing to start: no enforcer either
+        assert description.actions == []
+        assert list(own_tmp.iterdir()) == []
         return
-    assert recorded.declared == {"static": "false"}
-    running = recorded.running(static=False)
-    enforcers = [a for a in running if a.kind == "ExecuteProcess"]
-    assert len(enforcers) == 1
-    cmd = enforcers[0].kwargs["cmd"]
+    enforcer, on_exit, on_shutdown = description.actions[:3]
+    cmd = enforcer.kwargs["cmd"]
     assert cmd[1:3] == ["run", str(folder / "runtime.json")]
-    socket_path = cmd[cmd.index("--socket") + 1]
     assert cmd[cmd.index("--start") + 1] == "spec"
-    nodes = [a for a in running if a.kind == "Node"]
-    assert sorted(map(node_name, nodes)) == sorted(p["ros_node"] for p in ros)
-    by_name = {p["ros_node"]: p for p in ros}
-    for node in nodes:
-        process = by_name[node_name(node)]
-        assert node.kwargs["package"] == process["package"]
-        assert node.kwargs["executable"] == process["executable"]
-        assert node.kwargs["parameters"] == [str(folder / "params.yaml")]
-        assert node.kwargs["additional_env"] == {"CATANC_SOCKET": socket_path}
-        prefix = shlex.split(node.kwargs["prefix"])
+    assert ("--no-rt" in cmd) == (no_rt == "true")
+    socket_path = Path(cmd[cmd.index("--socket") + 1])
+    # The enforcer's exit shuts the whole launch down, and the shutdown removes the socket's folder.
+    handler = on_exit.kwargs["positional"][0]
+    assert handler.kind == "OnProcessExit"
+    assert handler.kwargs["target_action"] is enforcer
+    assert [action.kind for action in handler.kwargs["on_exit"]] == ["Shutdown"]
+    assert socket_path.parent.parent == own_tmp
+    assert socket_path.parent.is_dir()
+    for action in on_shutdown.kwargs["positional"][0].kwargs["on_shutdown"]:
+        action.kwargs["function"](None)
+    assert list(own_tmp.iterdir()) == []
+    started = processes_of(description)
+    assert sorted(started) == sorted(want)
+    for key, action in started.items():
+        process = want[key]
+        check_started_as_planned(action, process, folder)
+        assert action.kwargs["additional_env"] == {"CATANC_SOCKET": str(socket_path)}
+        prefix = shlex.split(action.kwargs["prefix"])
         assert prefix[:6] == ["taskset", "-c", ",".join(map(str, process["cpus"])), "chrt", "-o", "0"]
         assert prefix[6:8] == ["sh", "-c"]
 
 
-@pytest.mark.parametrize("example", ["robot", *[f"{p.stem}-{k}" for p in SPECS for k in (1, 2)]])
-def test_static_runs_shared_core_nodes_under_sched_other_and_no_enforcer(
-    example: str, robot: Target, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+@pytest.mark.parametrize("example", EXAMPLES)
+def test_static_runs_shared_core_processes_under_sched_other_and_no_enforcer(
+    example: str, robot: Target, tmp_path: Path, own_tmp: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    target = robot if example == "robot" else compile_spec(ROOT / "specs" / f"{example[:-2]}.yaml", int(example[-1]))
-    folder = write(target, tmp_path / "out")
+    target = target_of(example, robot)
+    launch_file = write(target, tmp_path / "out")
     table = json.loads(target.files["runtime.json"])
     shared = shared_processes(table)
-    running = run_launch_file(folder, monkeypatch).running(static=True)
-    assert [a for a in running if a.kind != "Node"] == []
-    by_name = {p["ros_node"]: p for p in table["processes"] if p["package"] is not None}
-    assert sorted(map(node_name, running)) == sorted(by_name)
+    scheduled = {node for sub in table["plan"]["subchains"].values() for node in sub["nodes"]}
+    description = describe(launch_file, monkeypatch, static="true")
+    started = processes_of(description)
+    assert len(started) == len(description.actions)  # no enforcer, no handlers
+    want = launched(table)
+    assert sorted(started) == sorted(want)
     fifo_levels: dict[int, list[int]] = {}
-    for node in running:
-        process = by_name[node_name(node)]
+    for key, action in started.items():
+        process = want[key]
+        check_started_as_planned(action, process, launch_file.parent)
         cpus = ",".join(map(str, process["cpus"]))
         if process["key"] in shared:
-            assert shlex.split(node.kwargs["prefix"]) == ["taskset", "-c", cpus, "chrt", "-o", "0"]
+            assert shlex.split(action.kwargs["prefix"]) == ["taskset", "-c", cpus, "chrt", "-o", "0"]
         else:
-            want = ["taskset", "-c", cpus, "chrt", "-f", str(process["priority"])]
-            assert shlex.split(node.kwargs["prefix"]) == want
-            for cpu in process["cpus"]:
-                fifo_levels.setdefault(cpu, []).append(process["priority"])
-        assert "additional_env" not in node.kwargs
-    # No two processes on a shared core at one SCHED_FIFO level.
+            want_prefix = ["taskset", "-c", cpus, "chrt", "-f", str(process["priority"])]
+            assert shlex.split(action.kwargs["prefix"]) == want_prefix
+            if set(process["nodes"]) & scheduled:
+                for cpu in process["cpus"]:
+                    fifo_levels.setdefault(cpu, []).append(process["priority"])
+        assert "additional_env" not in action.kwargs
+    # No two processes of subchains on a shared core at one SCHED_FIFO level.
     shared_cores = {core["core"] for core in table["plan"]["cores"]}
     for cpu in shared_cores:
         levels = fifo_levels.get(cpu, [])
         assert len(levels) == len(set(levels)), (cpu, levels)
+    assert list(own_tmp.iterdir()) == []  # no socket folder without the enforcer
 
 
-def test_the_file_is_python_and_imports_only_the_launch_api(examples: Iterator[Target]) -> None:
-    for target in examples:
+def test_static_without_rt_runs_everything_under_sched_other_on_its_cpus(
+    robot: Target, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    launch_file = write(robot, tmp_path / "out")
+    want = launched(json.loads(robot.files["runtime.json"]))
+    started = processes_of(describe(launch_file, monkeypatch, static="true", no_rt="true"))
+    assert sorted(started) == sorted(want)
+    for key, action in started.items():
+        cpus = ",".join(map(str, want[key]["cpus"]))
+        assert shlex.split(action.kwargs["prefix"]) == ["taskset", "-c", cpus, "chrt", "-o", "0"]
+
+
+def test_a_flag_that_is_not_true_or_false_is_an_error(
+    robot: Target, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    launch_file = write(robot, tmp_path / "out")
+    with pytest.raises(ValueError, match="no_rt:=yes: expected true or false"):
+        describe(launch_file, monkeypatch, no_rt="yes")
+
+
+def test_the_file_is_python_and_imports_only_the_launch_api(robot: Target) -> None:
+    for target in [robot, *[compile_spec(path, cores) for path in SPECS for cores in (1, 2)]]:
         tree = ast.parse(target.files["launch.py"])
         modules = {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
         modules |= {alias.name for n in ast.walk(tree) if isinstance(n, ast.Import) for alias in n.names}
         assert modules <= {
             "os",
+            "shutil",
             "tempfile",
             "pathlib",
             "launch",
             "launch.actions",
-            "launch.conditions",
-            "launch.substitutions",
+            "launch.event_handlers",
             "launch_ros.actions",
         }
 
 
-def test_the_prefix_holds_a_node_until_the_socket_is_up(
-    robot: Target, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+def test_the_prefix_holds_a_process_until_the_socket_is_up(
+    robot: Target, tmp_path: Path, own_tmp: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """The enforced prefix's shell, run for real: it waits for the socket, then execs the node's command."""
-    folder = write(robot, tmp_path / "out")
-    node = next(a for a in run_launch_file(folder, monkeypatch).running(static=False) if a.kind == "Node")
+    """The enforced prefix's shell, run for real: it waits for the socket, then execs the process's command."""
+    launch_file = write(robot, tmp_path / "out")
+    node = next(iter(processes_of(describe(launch_file, monkeypatch)).values()))
     prefix = shlex.split(node.kwargs["prefix"])
     socket_path = tmp_path / "enforcer.sock"
     marker = tmp_path / "ran"
