@@ -58,7 +58,14 @@ def run_(
     from catanc.errors import UsageError
     from catanc.runtime.endpoints import default_socket_path
     from catanc.runtime.enforcer import Enforcer
-    from catanc.runtime.processes import Children, parse_attach, start_demo, start_launch
+    from catanc.runtime.processes import (
+        MIDDLEWARE_CHECK_S,
+        Children,
+        MiddlewareWatch,
+        parse_attach,
+        start_demo,
+        start_launch,
+    )
     from catanc.runtime.sched import Restorer, check_fifo_allowed, threads_of
     from catanc.runtime.status import status_view
     from catanc.runtime.watchdog import Watchdog
@@ -97,7 +104,15 @@ def run_(
         if demo:
             start_demo(children, table.spec, socket_path)
         elif launch:
-            start_launch(children, table.processes, socket_path, table.path.parent)
+            # Plan core i runs on the table's i-th CPU, and in this run on its i-th usable one.
+            table_cpus = table.cpus if table.cpus is not None else range(table.cores)
+            start_launch(
+                children,
+                table.processes,
+                socket_path,
+                table.path.parent,
+                dict(zip(table_cpus, running.replanning.cpu_ids, strict=False)),
+            )
 
     live = None
     if not quiet and sys.stdout.isatty():
@@ -107,7 +122,14 @@ def run_(
         live = Live(console=stdout_console(), auto_refresh=False, transient=False)
         live.start()
 
+    middleware = MiddlewareWatch()
+
     def tick(running: Enforcer) -> None:
+        if launch and running.elapsed_s() < MIDDLEWARE_CHECK_S:
+            cpu_ids = running.replanning.cpu_ids
+            scheduled = {cpu_ids[core] for run in running.schedule.subchains.values() for core in run.cores}
+            for line in middleware.check(children, scheduled):
+                print(f"catanc run: {line}", file=sys.stderr, flush=True)
         if live is not None:
             live.update(
                 status_view(table.app, running.schedule.cores, running.status(), running.events, running.elapsed_s()),

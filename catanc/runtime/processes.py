@@ -22,18 +22,22 @@ import contextlib
 import os
 import signal
 import subprocess
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from catanc.artifacts.runtime_table import ros_arguments
 from catanc.errors import UsageError
 from catanc.runtime.protocol import SOCKET_ENV
+from catanc.runtime.sched import format_cpus, threads_of
 from catanc.runtime.worker.command import worker_command, worker_groups
 from catanc.runtime.worker.draws import Profile
 from catanc.spec.language import ModalCompute, Spec
+from catanc.text import plural
 
 STOP_GRACE_S = 2.0
+MIDDLEWARE_CHECK_S = 30.0
+"""How long into a run :class:`MiddlewareWatch` looks for new middleware threads (made at a node's init)."""
 
 
 @dataclass
@@ -42,13 +46,19 @@ class Children:
 
     processes: list[tuple[str, subprocess.Popen[bytes]]] = field(default_factory=list)
 
-    def start(self, name: str, argv: Sequence[str], socket_path: str | None) -> None:
-        """Start ``argv``; ``socket_path`` None: without ``CATANC_SOCKET`` (no enforcer: ``--observe``)."""
+    def start(
+        self, name: str, argv: Sequence[str], socket_path: str | None, cpus: Collection[int] | None = None
+    ) -> None:
+        """Start ``argv``; ``socket_path`` None: without ``CATANC_SOCKET`` (no enforcer: ``--observe``).
+
+        ``cpus``: the process may run only there from its first instruction, as under ``taskset``.
+        """
         env = {key: value for key, value in os.environ.items() if key != SOCKET_ENV}
         if socket_path is not None:
             env[SOCKET_ENV] = socket_path
         try:
-            process = subprocess.Popen(list(argv), env=env, start_new_session=True)
+            with _forking_on(cpus):
+                process = subprocess.Popen(list(argv), env=env, start_new_session=True)
         except OSError as exc:
             self.stop()
             raise UsageError(f"cannot start {name} ({argv[0]}): {exc.strerror or exc}") from None
@@ -69,6 +79,29 @@ class Children:
     def exited(self) -> list[tuple[str, int]]:
         """Started processes that have ended, with their status."""
         return [(name, code) for name, process in self.processes if (code := process.poll()) is not None]
+
+
+@contextlib.contextmanager
+def _forking_on(cpus: Collection[int] | None) -> Iterator[None]:
+    """The calling thread on ``cpus`` meanwhile: a child inherits the affinity of the thread that forks it.
+
+    So the child is pinned before it runs anything (every thread it makes inherits it too), without a
+    ``preexec_fn`` (unsafe in a process with threads) or a ``taskset`` in between.
+    """
+    if cpus is None:
+        yield
+        return
+    before = os.sched_getaffinity(0)
+    try:
+        os.sched_setaffinity(0, cpus)
+    except OSError as exc:
+        raise UsageError(
+            f"cannot pin a process to CPUs {format_cpus(cpus)} (allowed here: {format_cpus(before)}): {exc.strerror}"
+        ) from None
+    try:
+        yield
+    finally:
+        os.sched_setaffinity(0, before)
 
 
 def _signal_group(process: subprocess.Popen[bytes], signum: int) -> None:
@@ -108,11 +141,18 @@ def start_demo(children: Children, spec: Spec, socket_path: str, *, seed: int = 
 
 
 def start_launch(
-    children: Children, processes: Sequence[Mapping[str, object]], socket_path: str | None, folder: Path
+    children: Children,
+    processes: Sequence[Mapping[str, object]],
+    socket_path: str | None,
+    folder: Path,
+    on: Mapping[int, int] | None = None,
 ) -> None:
     """The runtime table's processes that have a command; ``folder``: the table's, which holds their parameters.
 
-    A process hosting a ROS node gets the folder's parameters file as launch.sh gives it.
+    As launch.sh starts them: a process hosting a ROS node gets the folder's parameters file, and each
+    runs only on its planned CPUs, ``on[cpu]`` for each CPU of the table's (the CPU this run put that
+    plan core on; every one of them for a process none of whose CPUs it has).  ``on`` None: no pinning
+    (``--observe`` changes nothing).
     """
     for process in processes:
         argv = process.get("argv")
@@ -121,7 +161,56 @@ def start_launch(
             params_file = process.get("params_file")
             if isinstance(params_file, str):
                 words += ros_arguments(str(folder.absolute() / params_file))
-            children.start(str(process.get("key")), words, socket_path)
+            cpus = process.get("cpus")
+            pinned = None
+            if on is not None and isinstance(cpus, list):
+                pinned = sorted({on[cpu] for cpu in cpus if cpu in on}) or sorted(set(on.values()))
+            children.start(str(process.get("key")), words, socket_path, pinned)
+
+
+MIDDLEWARE_THREADS = ("dds.", "recvUC", "recvMC", "dq.", "tev", "xmit.")
+"""How middleware names its threads (``/proc/PID/task/TID/comm``): Fast DDS ``dds.*``; Cyclone DDS ``recvUC``,
+``recvMC``, ``dq.*``, ``tev``, ``xmit.*``.  They never register: the enforcer neither triggers nor raises them."""
+
+
+def middleware_on(pid: int, cpus: Collection[int]) -> list[str]:
+    """Names of process ``pid``'s middleware threads that may run on any of ``cpus``."""
+    found = []
+    for tid in threads_of(pid):
+        try:
+            comm = Path(f"/proc/{pid}/task/{tid}/comm").read_text().strip()
+            allowed = os.sched_getaffinity(tid)
+        except OSError:  # gone meanwhile
+            continue
+        if comm.startswith(MIDDLEWARE_THREADS) and allowed & set(cpus):
+            found.append(comm)
+    return sorted(found)
+
+
+@dataclass
+class MiddlewareWatch:
+    """Says once per started process that middleware threads of it may run on CPUs the plan schedules.
+
+    They run under SCHED_OTHER: on a scheduled CPU they take what the subchains leave, and what they take
+    there a subchain may miss when it is not raised.  Checked again as processes make them (at init).
+    """
+
+    reported: set[str] = field(default_factory=set)
+
+    def check(self, children: Children, scheduled_cpus: Collection[int]) -> list[str]:
+        lines = []
+        for name, process in children.processes:
+            if name in self.reported or process.poll() is not None:
+                continue
+            threads = middleware_on(process.pid, scheduled_cpus)
+            if threads:
+                self.reported.add(name)
+                named = ", ".join(sorted(set(threads))[:3]) + (", ..." if len(set(threads)) > 3 else "")
+                lines.append(
+                    f"{name} (pid {process.pid}): {plural(len(threads), 'middleware thread')} ({named}) may run on "
+                    f"scheduled CPUs {format_cpus(scheduled_cpus)}, under SCHED_OTHER beside the subchains"
+                )
+        return lines
 
 
 def parse_attach(items: Sequence[str], spec: Spec) -> dict[str, int]:
