@@ -4,121 +4,144 @@
 """ROS 2 launch file: face_tracking as planned for 2 cores, with the parameters in ``params.yaml``.
 
 By default it starts the enforcer (``catanc run runtime.json``; the catanc
-command is ``$CATANC`` if set) and each node pinned to its CPUs under
+command is ``$CATANC`` if set) and each process pinned to its CPUs under
 SCHED_OTHER, once the enforcer's socket is up, with ``CATANC_SOCKET`` set:
 the enforcer triggers the nodes and raises the running ones to SCHED_FIFO.
-``static:=true`` deploys without it: a node with a subchain on a shared core
+When the enforcer exits, the whole launch shuts down.
+``static:=true`` deploys without it: a process with a node on a shared core
 runs under SCHED_OTHER at its planned rate (equal SCHED_FIFO levels would not
-time-slice), the others at their SCHED_FIFO priority.  Without real-time
-privileges, use ``launch.sh --static --no-rt`` instead.
+time-slice), the others at their SCHED_FIFO priority.  ``no_rt:=true``: no
+real-time priorities (``catanc run --no-rt``; with ``static:=true`` every
+process under SCHED_OTHER); the CPUs still apply.  Every process hosting a
+ROS node reads this folder's ``params.yaml``.
 """
 
 import os
+import shutil
 import tempfile
 from pathlib import Path
 
-from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, ExecuteProcess
-from launch.conditions import IfCondition, UnlessCondition
-from launch.substitutions import LaunchConfiguration
+from launch import LaunchContext, LaunchDescription
+from launch.actions import DeclareLaunchArgument, ExecuteProcess, OpaqueFunction, RegisterEventHandler, Shutdown
+from launch.event_handlers import OnProcessExit, OnShutdown
 from launch_ros.actions import Node
 
-PARAMS = str(Path(__file__).with_name("params.yaml"))
-RUNTIME = str(Path(__file__).with_name("runtime.json"))
+HERE = Path(__file__).resolve().parent
+PARAMS = str(HERE / "params.yaml")
+RUNTIME = str(HERE / "runtime.json")
 CATANC = os.environ.get("CATANC", "catanc")
-# Under the enforcer a node starts once its socket is up (its client connects at once).
+# Under the enforcer a process starts once its socket is up (its client connects at once).
 AFTER_ENFORCER = 'sh -c \'until [ -S "$CATANC_SOCKET" ]; do sleep 0.05; done; exec "$@"\' catanc-wait'
+
+# Each process: a ROS package's executable (a Node) or a command (run as it is, with the parameters when it
+# hosts a ROS node); its CPUs and its SCHED_FIFO priority without the enforcer (0: SCHED_OTHER).
+PROCESSES = [
+    {
+        "key": "/face_detector",
+        "package": "face_tracking_app",
+        "executable": "face_detector",
+        "name": "face_detector",
+        "namespace": "/",
+        "cpus": "0,1",
+        "static_priority": 2,
+    },
+    {
+        "key": "/pan_motor",
+        "package": "face_tracking_app",
+        "executable": "pan_motor_driver",
+        "name": "pan_motor",
+        "namespace": "/",
+        "cpus": "0,1",
+        "static_priority": 3,
+    },
+    {
+        "key": "/pan_planner",
+        "package": "face_tracking_app",
+        "executable": "pan_planner",
+        "name": "pan_planner",
+        "namespace": "/",
+        "cpus": "0,1",
+        "static_priority": 2,
+    },
+    {
+        "key": "/usb_cam",
+        "package": "usb_cam",
+        "executable": "usb_cam_node_exe",
+        "name": "usb_cam",
+        "namespace": "/",
+        "cpus": "0,1",
+        "static_priority": 2,
+    },
+]
 
 
 def generate_launch_description() -> LaunchDescription:
-    static = LaunchConfiguration("static")
-    enforced, unenforced = UnlessCondition(static), IfCondition(static)
-    socket = str(Path(tempfile.mkdtemp(prefix="catanc-launch.")) / "face_tracking.sock")
     return LaunchDescription(
         [
             DeclareLaunchArgument(
                 "static", default_value="false", description="true: deploy without the enforcer (catanc run)"
             ),
-            ExecuteProcess(
-                cmd=[CATANC, "run", RUNTIME, "--socket", socket, "--start", "spec", "--quiet"],
-                condition=enforced,
-                output="screen",
+            DeclareLaunchArgument(
+                "no_rt", default_value="false", description="true: no real-time priorities; the CPUs still apply"
             ),
-            Node(
-                package="face_tracking_app",
-                executable="face_detector",
-                name="face_detector",
-                prefix="taskset -c 0,1 chrt -o 0 " + AFTER_ENFORCER,
-                additional_env={"CATANC_SOCKET": socket},
-                parameters=[PARAMS],
-                output="screen",
-                condition=enforced,
-            ),
-            Node(
-                package="face_tracking_app",
-                executable="face_detector",
-                name="face_detector",
-                prefix="taskset -c 0,1 chrt -f 2",
-                parameters=[PARAMS],
-                output="screen",
-                condition=unenforced,
-            ),
-            Node(
-                package="face_tracking_app",
-                executable="pan_motor_driver",
-                name="pan_motor",
-                prefix="taskset -c 0,1 chrt -o 0 " + AFTER_ENFORCER,
-                additional_env={"CATANC_SOCKET": socket},
-                parameters=[PARAMS],
-                output="screen",
-                condition=enforced,
-            ),
-            Node(
-                package="face_tracking_app",
-                executable="pan_motor_driver",
-                name="pan_motor",
-                prefix="taskset -c 0,1 chrt -f 3",
-                parameters=[PARAMS],
-                output="screen",
-                condition=unenforced,
-            ),
-            Node(
-                package="face_tracking_app",
-                executable="pan_planner",
-                name="pan_planner",
-                prefix="taskset -c 0,1 chrt -o 0 " + AFTER_ENFORCER,
-                additional_env={"CATANC_SOCKET": socket},
-                parameters=[PARAMS],
-                output="screen",
-                condition=enforced,
-            ),
-            Node(
-                package="face_tracking_app",
-                executable="pan_planner",
-                name="pan_planner",
-                prefix="taskset -c 0,1 chrt -f 2",
-                parameters=[PARAMS],
-                output="screen",
-                condition=unenforced,
-            ),
-            Node(
-                package="usb_cam",
-                executable="usb_cam_node_exe",
-                name="usb_cam",
-                prefix="taskset -c 0,1 chrt -o 0 " + AFTER_ENFORCER,
-                additional_env={"CATANC_SOCKET": socket},
-                parameters=[PARAMS],
-                output="screen",
-                condition=enforced,
-            ),
-            Node(
-                package="usb_cam",
-                executable="usb_cam_node_exe",
-                name="usb_cam",
-                prefix="taskset -c 0,1 chrt -f 2",
-                parameters=[PARAMS],
-                output="screen",
-                condition=unenforced,
-            ),
+            OpaqueFunction(function=deploy),
         ]
     )
+
+
+def flag(context: LaunchContext, name: str) -> bool:
+    value = context.launch_configurations[name].strip().lower()
+    if value not in ("true", "false"):
+        raise ValueError(f"{name}:={value}: expected true or false")
+    return value == "true"
+
+
+def deploy(context: LaunchContext) -> list:
+    """The enforcer and the processes, as the launch arguments ask."""
+    static, rt = flag(context, "static"), not flag(context, "no_rt")
+    if not PROCESSES:
+        return []
+    if static:
+        return [start(process, schedule(process, rt), None) for process in PROCESSES]
+    folder = tempfile.mkdtemp(prefix="catanc-launch.")
+    socket = str(Path(folder) / "face_tracking.sock")
+    enforcer = ExecuteProcess(
+        cmd=[CATANC, "run", RUNTIME, "--socket", socket, "--start", "spec", "--quiet", *([] if rt else ["--no-rt"])],
+        output="screen",
+    )
+    return [
+        enforcer,
+        RegisterEventHandler(
+            OnProcessExit(target_action=enforcer, on_exit=[Shutdown(reason="the enforcer (catanc run) exited")])
+        ),
+        RegisterEventHandler(
+            OnShutdown(on_shutdown=[OpaqueFunction(function=lambda _: shutil.rmtree(folder, ignore_errors=True))])
+        ),
+        *[
+            start(process, "taskset -c " + process["cpus"] + " chrt -o 0 " + AFTER_ENFORCER, socket)
+            for process in PROCESSES
+        ],
+    ]
+
+
+def schedule(process: dict, rt: bool) -> str:
+    """The prefix that pins a process and sets its policy without the enforcer."""
+    policy = f"-f {process['static_priority']}" if rt and process["static_priority"] else "-o 0"
+    return f"taskset -c {process['cpus']} chrt {policy}"
+
+
+def start(process: dict, prefix: str, socket: "str | None") -> "Node | ExecuteProcess":
+    env = {"additional_env": {"CATANC_SOCKET": socket}} if socket is not None else {}
+    if "package" in process:
+        return Node(
+            package=process["package"],
+            executable=process["executable"],
+            name=process["name"],
+            namespace=process["namespace"],
+            parameters=[PARAMS],
+            prefix=prefix,
+            output="screen",
+            **env,
+        )
+    ros = ["--ros-args", "--params-file", PARAMS] if process["ros"] else []
+    return ExecuteProcess(cmd=[*process["command"], *ros], prefix=prefix, name=process["key"], output="screen", **env)

@@ -4,7 +4,8 @@
 # Do not edit: regenerate with `catanc compile specs/face_tracking.yaml --cores 2`.
 #
 # Deploys face_tracking as planned for 2 cores: the enforcer (catanc run runtime.json),
-# then these processes, each pinned to its CPUs:
+# then these processes, each pinned to its CPUs (one hosting a ROS node with --ros-args
+# --params-file and this folder's params.yaml, wherever the folder is):
 #   /face_detector: CPUs 0,1, --static: SCHED_FIFO 2 (detection)
 #   /pan_motor: CPUs 0,1, --static: SCHED_FIFO 3 (motor)
 #   /pan_planner: CPUs 0,1, --static: SCHED_FIFO 2 (planning)
@@ -207,10 +208,10 @@ fi
 if (( static )) || [[ -S ${socket-} ]]; then
   exec 2>/dev/null
   set -m
-  start /face_detector 0,1 2 ros2 run face_tracking_app face_detector
-  start /pan_motor 0,1 3 ros2 run face_tracking_app pan_motor_driver
-  start /pan_planner 0,1 2 ros2 run face_tracking_app pan_planner
-  start /usb_cam 0,1 2 ros2 run usb_cam usb_cam_node_exe
+  start /face_detector 0,1 2 ros2 run face_tracking_app face_detector --ros-args --params-file "$here"/params.yaml
+  start /pan_motor 0,1 3 ros2 run face_tracking_app pan_motor_driver --ros-args --params-file "$here"/params.yaml
+  start /pan_planner 0,1 2 ros2 run face_tracking_app pan_planner --ros-args --params-file "$here"/params.yaml
+  start /usb_cam 0,1 2 ros2 run usb_cam usb_cam_node_exe --ros-args --params-file "$here"/params.yaml
   set +m
   exec 2>&"$stderr"
 fi

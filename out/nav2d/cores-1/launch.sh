@@ -4,7 +4,8 @@
 # Do not edit: regenerate with `catanc compile specs/nav2d.yaml --cores 1`.
 #
 # Deploys nav2d as planned for 1 core: the enforcer (catanc run runtime.json),
-# then these processes, each pinned to its CPUs:
+# then these processes, each pinned to its CPUs (one hosting a ROS node with --ros-args
+# --params-file and this folder's params.yaml, wherever the folder is):
 #   /Mapper: CPUs 0, --static: SCHED_OTHER (GL, GM)
 #   /Navigator: CPUs 0, --static: SCHED_OTHER (GP, NC)
 #   /Operator: CPUs 0, --static: SCHED_OTHER (LM, LP)
@@ -207,10 +208,10 @@ fi
 if (( static )) || [[ -S ${socket-} ]]; then
   exec 2>/dev/null
   set -m
-  start /Mapper 0 0 ros2 run nav2d_karto mapper
-  start /Navigator 0 0 ros2 run nav2d_navigator navigator
-  start /Operator 0 0 ros2 run nav2d_operator operator
-  start /scan_shim 0 0 ros2 run catan_shims scan_shim
+  start /Mapper 0 0 ros2 run nav2d_karto mapper --ros-args --params-file "$here"/params.yaml
+  start /Navigator 0 0 ros2 run nav2d_navigator navigator --ros-args --params-file "$here"/params.yaml
+  start /Operator 0 0 ros2 run nav2d_operator operator --ros-args --params-file "$here"/params.yaml
+  start /scan_shim 0 0 ros2 run catan_shims scan_shim --ros-args --params-file "$here"/params.yaml
   set +m
   exec 2>&"$stderr"
 fi

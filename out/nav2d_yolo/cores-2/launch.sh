@@ -4,7 +4,8 @@
 # Do not edit: regenerate with `catanc compile specs/nav2d_yolo.yaml --cores 2`.
 #
 # Deploys nav2d_yolo as planned for 2 cores: the enforcer (catanc run runtime.json),
-# then these processes, each pinned to its CPUs:
+# then these processes, each pinned to its CPUs (one hosting a ROS node with --ros-args
+# --params-file and this folder's params.yaml, wherever the folder is):
 #   /Mapper: CPUs 1, --static: SCHED_OTHER (GL, GM)
 #   /Navigator: CPUs 1, --static: SCHED_OTHER (GP, NC)
 #   /Operator: CPUs 0, --static: SCHED_OTHER (LM, LP)
@@ -209,12 +210,12 @@ fi
 if (( static )) || [[ -S ${socket-} ]]; then
   exec 2>/dev/null
   set -m
-  start /Mapper 1 0 ros2 run nav2d_karto mapper
-  start /Navigator 1 0 ros2 run nav2d_navigator navigator
-  start /Operator 0 0 ros2 run nav2d_operator operator
-  start /image_shim 0 0 ros2 run catan_shims image_shim
-  start /scan_shim 0 0 ros2 run catan_shims scan_shim
-  start /yolo_detector 0 0 ros2 run yolo_cpu yolo_detector
+  start /Mapper 1 0 ros2 run nav2d_karto mapper --ros-args --params-file "$here"/params.yaml
+  start /Navigator 1 0 ros2 run nav2d_navigator navigator --ros-args --params-file "$here"/params.yaml
+  start /Operator 0 0 ros2 run nav2d_operator operator --ros-args --params-file "$here"/params.yaml
+  start /image_shim 0 0 ros2 run catan_shims image_shim --ros-args --params-file "$here"/params.yaml
+  start /scan_shim 0 0 ros2 run catan_shims scan_shim --ros-args --params-file "$here"/params.yaml
+  start /yolo_detector 0 0 ros2 run yolo_cpu yolo_detector --ros-args --params-file "$here"/params.yaml
   set +m
   exec 2>&"$stderr"
 fi

@@ -4,7 +4,8 @@
 # Do not edit: regenerate with `catanc compile specs/vr_illixr.yaml --cores 2`.
 #
 # Deploys vr_illixr as planned for 2 cores: the enforcer (catanc run runtime.json),
-# then these processes, each pinned to its CPUs:
+# then these processes, each pinned to its CPUs (one hosting a ROS node with --ros-args
+# --params-file and this folder's params.yaml, wherever the folder is):
 #   none: the spec's deploy section gives no command.
 #
 # Usage: ./launch.sh [--static] [--no-rt]
