@@ -1,8 +1,9 @@
 """What gets started, pinned and configured: the spec's ``deploy`` section applied to a plan.
 
-A *process* is one ROS node (every DAG node naming the same ``ros_node``
-runs in it, as nav2d's Mapper hosts GL and GM) or, for a DAG node without
-``ros_node``, that node alone.  :mod:`catanc.spec.deploy_checks` checks the
+A *process* is what ``deploy.<node>.process`` names (several ROS nodes,
+as in a component container), else one ROS node (every DAG node naming the
+same ``ros_node`` runs in it, as nav2d's Mapper hosts GL and GM) or, for a
+DAG node without either, that node alone.  :mod:`catanc.spec.deploy_checks` checks the
 section when the spec loads; :func:`processes` turns a plan into the
 processes the launchers start, each with the CPUs and the SCHED_FIFO
 priority catan-model.md section 6 gives its nodes, and the ROS parameters
@@ -30,7 +31,7 @@ from typing import TYPE_CHECKING, Any
 from catanc.artifacts.runtime_table import PARAMS_FILE, RATE_DIGITS, ProcessEntry, ms
 from catanc.core.priorities import resting_fifo, static_policy
 from catanc.errors import Diagnostic, SpecError
-from catanc.spec.deploy_checks import PERIOD_NS, RESERVED_PREFIX, process_key, qualified, split_command
+from catanc.spec.deploy_checks import PERIOD_NS, RESERVED_PREFIX, process_keys, qualified, split_command
 from catanc.spec.language import Spec
 
 if TYPE_CHECKING:
@@ -41,26 +42,47 @@ ParamTree = dict[str, Any]  # nested: {"local_map": {"update_frequency": 135.0}}
 
 
 @dataclass(frozen=True)
+class RosNode:
+    """One ROS node of a process, and its parameters in params.yaml."""
+
+    name: str  # fully qualified, with a leading ``/``
+    nodes: tuple[str, ...]  # DAG nodes it hosts, in spec order
+    params: ParamTree
+    any_namespace: bool = False  # params.yaml keys it /**/<name>: under any namespace the launch adds
+
+    @property
+    def params_key(self) -> str:
+        """Its key in params.yaml: ``/ns/name``, or ``/**/ns/name`` (rcl's wildcard for any namespace before it)."""
+        return "/**" + self.name if self.any_namespace else self.name
+
+    @property
+    def namespace(self) -> str:
+        """``/ns`` of ``/ns/name`` (``/`` for a top-level node)."""
+        return self.name.rsplit("/", 1)[0] or "/"
+
+    @property
+    def base_name(self) -> str:
+        return self.name.rsplit("/", 1)[1]
+
+
+@dataclass(frozen=True)
 class Process:
     """One process the launchers start (when it has a command or a ROS executable)."""
 
-    key: str  # the ROS node (``/Mapper``) or the DAG node's name
-    ros_node: str | None  # fully qualified, with a leading ``/``
+    key: str  # the ``process`` the spec names, else its ROS node (``/Mapper``), else the DAG node's name
+    ros_nodes: tuple[RosNode, ...]  # in spec order of their first DAG node
     nodes: tuple[str, ...]  # DAG nodes it hosts, in spec order
     argv: tuple[str, ...]  # the command, split as a shell would (empty: not started by launch.sh)
     package: str | None
     executable: str | None
     cpus: tuple[int, ...]
     priority: int  # SCHED_FIFO priority at launch
-    params: ParamTree  # ROS parameters (empty without ros_node)
     shared: bool = False  # hosts a node of a shared core's subchain
-    any_namespace: bool = False  # params.yaml keys it /**/<ros_node>: under any namespace the launch adds
 
     @property
-    def params_key(self) -> str:
-        """Its key in params.yaml: ``/ns/name``, or ``/**/ns/name`` (rcl's wildcard for any namespace before it)."""
-        assert self.ros_node is not None
-        return "/**" + self.ros_node if self.any_namespace else self.ros_node
+    def ros_node(self) -> str | None:
+        """Its one ROS node's name; None without a ROS node or with several (each keeps its code's name)."""
+        return self.ros_nodes[0].name if len(self.ros_nodes) == 1 else None
 
     @property
     def static_priority(self) -> int:
@@ -72,30 +94,22 @@ class Process:
         """
         return 0 if self.shared else self.priority
 
-    @property
-    def namespace(self) -> str:
-        """``/ns`` of ``/ns/name`` (``/`` for a top-level node)."""
-        assert self.ros_node is not None
-        return self.ros_node.rsplit("/", 1)[0] or "/"
-
-    @property
-    def name(self) -> str:
-        assert self.ros_node is not None
-        return self.ros_node.rsplit("/", 1)[1]
-
     def table_entry(self) -> ProcessEntry:
         """The process as the runtime table lists it (its ROS parameters are params.yaml's)."""
-        return {
+        entry: ProcessEntry = {
             "key": self.key,
             "ros_node": self.ros_node,
             "nodes": list(self.nodes),
             "argv": list(self.argv),
-            "params_file": PARAMS_FILE if self.ros_node is not None else None,
+            "params_file": PARAMS_FILE if self.ros_nodes else None,
             "package": self.package,
             "executable": self.executable,
             "cpus": list(self.cpus),
             "priority": self.priority,
         }
+        if len(self.ros_nodes) > 1:
+            entry["ros_nodes"] = {ros.name: list(ros.nodes) for ros in self.ros_nodes}
+        return entry
 
 
 # --------------------------------------------------------------------------- applying a plan
@@ -112,10 +126,11 @@ def processes(spec: Spec, plan: Plan, cpus: Sequence[int] | None = None) -> tupl
     ``cpus``: the CPUs plan cores run on (core ``i`` on ``cpus[i]``); default CPU ``i``.
     """
     on = machine_cpus(plan, cpus)
+    keys = process_keys(spec)
     grouped: dict[str, list[str]] = {}
     for name in spec.nodes:
         if name in spec.deploy:
-            grouped.setdefault(process_key(name, spec.deploy[name]), []).append(name)
+            grouped.setdefault(keys[name], []).append(name)
     membership = {node: sub.name for sub in plan.subchains.values() for node in sub.nodes}
     found = []
     for key in sorted(grouped):
@@ -129,25 +144,32 @@ def processes(spec: Spec, plan: Plan, cpus: Sequence[int] | None = None) -> tupl
             priority = max(priority, level)
         shared = any(node in membership and plan.subchains[membership[node]].shared for node in nodes)
         command = _first(entry.command for entry in entries)
-        ros_node = _first(entry.ros_node for entry in entries)
         process_cpus = tuple(sorted(used))
+        by_ros: dict[str, list[str]] = {}
+        for node in nodes:
+            ros_node = spec.deploy[node].ros_node
+            if ros_node is not None:
+                by_ros.setdefault(qualified(ros_node), []).append(node)
+        ros_nodes = tuple(
+            RosNode(
+                name=ros_name,
+                nodes=tuple(hosted),
+                params=_params(spec, plan, tuple(hosted), membership, on, cpus=process_cpus, priority=priority),
+                any_namespace=any(spec.deploy[node].any_namespace for node in hosted),
+            )
+            for ros_name, hosted in by_ros.items()
+        )
         found.append(
             Process(
                 key=key,
-                ros_node=qualified(ros_node) if ros_node is not None else None,
+                ros_nodes=ros_nodes,
                 nodes=nodes,
                 argv=tuple(split_command(command)) if command is not None else (),
                 package=_first(entry.package for entry in entries),
                 executable=_first(entry.executable for entry in entries),
                 cpus=process_cpus,
                 priority=priority,
-                params=(
-                    _params(spec, plan, nodes, membership, on, cpus=process_cpus, priority=priority)
-                    if ros_node is not None
-                    else {}
-                ),
                 shared=shared,
-                any_namespace=any(entry.any_namespace for entry in entries),
             )
         )
     return tuple(found)
@@ -199,7 +221,7 @@ def _params(
     cpus: tuple[int, ...],
     priority: int,
 ) -> ParamTree:
-    """The ROS parameters of one process: each node's rate parameter, then ``catan.*``.
+    """The ROS parameters of one ROS node of a process: each node's rate parameter, then ``catan.*``.
 
     ``catan.cpus`` and ``catan.priority`` are the process's (what the launcher
     applied).  ``catan.subchain`` and ``catan.period_ms`` describe its nodes

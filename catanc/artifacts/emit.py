@@ -112,9 +112,7 @@ def emit(
 def ros_parameters(deployed: Iterable[Process]) -> dict[str, Any]:
     """``{"/Operator": {"ros__parameters": {...}}}`` for every process that is a ROS node (``/**/Operator`` with
     ``any_namespace``)."""
-    return {
-        process.params_key: {"ros__parameters": process.params} for process in deployed if process.ros_node is not None
-    }
+    return {ros.params_key: {"ros__parameters": ros.params} for process in deployed for ros in process.ros_nodes}
 
 
 # --------------------------------------------------------------------------- templates

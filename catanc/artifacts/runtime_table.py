@@ -106,6 +106,7 @@ class ProcessEntry(TypedDict):
     nodes: list[str]
     argv: list[str]  # the spec's command; a launcher appends ros_arguments(params_file) to it
     params_file: NotRequired[str | None]  # beside the table, for a process hosting a ROS node (later field)
+    ros_nodes: NotRequired[dict[str, list[str]]]  # a process of several ROS nodes: each one's DAG nodes
     package: str | None
     executable: str | None
     cpus: list[int]
@@ -292,7 +293,7 @@ def normalised_spec(spec: Spec) -> dict[str, Any]:
     return data
 
 
-LATER_DEPLOY_DEFAULTS = {"rate_type": "float", "any_namespace": False}
+LATER_DEPLOY_DEFAULTS = {"rate_type": "float", "any_namespace": False, "process": None}
 """Fields ``deploy.<node>`` gained after tables were first written, with their defaults."""
 
 

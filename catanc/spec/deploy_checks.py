@@ -45,8 +45,22 @@ def qualified(ros_node: str) -> str:
     return ros_node if ros_node.startswith("/") else "/" + ros_node
 
 
-def process_key(name: str, entry: Deploy) -> str:
-    return qualified(entry.ros_node) if entry.ros_node is not None else name
+def process_keys(spec: Spec) -> dict[str, str]:
+    """The process each deployed node runs in: the ``process`` it or a node of its ROS node names (the first, in
+    spec order), else its ROS node's (``/name``), else its own (its name)."""
+    named: dict[str, str] = {}  # ROS node -> the process a node of it names
+    for entry in spec.deploy.values():
+        if entry.ros_node is not None and entry.process is not None:
+            named.setdefault(qualified(entry.ros_node), entry.process)
+    keys = {}
+    for name, entry in spec.deploy.items():
+        if entry.process is not None:
+            keys[name] = entry.process
+        elif entry.ros_node is not None:
+            keys[name] = named.get(qualified(entry.ros_node), qualified(entry.ros_node))
+        else:
+            keys[name] = name
+    return keys
 
 
 def split_command(command: str) -> list[str]:
@@ -60,9 +74,20 @@ def split_command(command: str) -> list[str]:
 def deploy_problems(spec: Spec) -> Iterator[tuple[FieldPath, str]]:
     """Every problem of the ``deploy`` section, as ``(field path, message)``; node names are checked elsewhere."""
     first_of: dict[str, dict[str, tuple[str, str]]] = {}  # process -> field -> (node, value)
-    params_of: dict[str, dict[str, str]] = {}  # process -> parameter -> node
+    params_of: dict[str, dict[str, str]] = {}  # ROS node (or process) -> parameter -> node
+    keys = process_keys(spec)
+    process_of_ros: dict[str, tuple[str, str]] = {}  # ROS node -> (node, the process it names)
     for name, entry in spec.deploy.items():
         where: FieldPath = ("deploy", name)
+        if entry.ros_node is not None and entry.process is not None:
+            ros = qualified(entry.ros_node)
+            other, process = process_of_ros.setdefault(ros, (name, entry.process))
+            if process != entry.process:
+                yield (
+                    (*where, "process"),
+                    f"{ros} runs in process {process!r} (from {other}): a ROS node runs in one process; "
+                    f"give {name} process {process!r}, or another ros_node",
+                )
         if entry.ros_node is not None and not ROS_NODE_PATTERN.fullmatch(entry.ros_node):
             yield (
                 (*where, "ros_node"),
@@ -84,32 +109,32 @@ def deploy_problems(spec: Spec) -> Iterator[tuple[FieldPath, str]]:
             yield (*where, "any_namespace"), "any_namespace needs ros_node (the ROS node whose parameters it keys)"
         if entry.rate_type != "float" and entry.rate_param is None:
             yield (*where, "rate_type"), "rate_type is the type of rate_param's value, and there is no rate_param"
-        key = process_key(name, entry)
+        key = keys[name]
         firsts = first_of.setdefault(key, {})
-        for field in ("command", "package", "executable", "any_namespace"):
+        for field in ("command", "package", "executable"):
             value = getattr(entry, field)
-            if value is None or value is False:
+            if value is None:
                 continue
-            value = str(value)
             if field in firsts and firsts[field][1] != value:
                 other = firsts[field][0]
                 yield (
                     (*where, field),
                     f"{key} already has {field} {firsts[field][1]!r} (from {other}); the nodes of one "
-                    f"ROS node share one process: give {field} once",
+                    f"process share one {field}: give it once, or put {name} in a process of its own",
                 )
             firsts.setdefault(field, (name, value))
+        own = qualified(entry.ros_node) if entry.ros_node is not None else key
         if entry.rate_param is not None:
             path = (*where, "rate_param")
             param = entry.rate_param
             node = spec.nodes.get(name)
-            taken = params_of.setdefault(key, {})
+            taken = params_of.setdefault(own, {})
             if not PARAMETER_PATTERN.fullmatch(param):
                 yield path, f"{param!r} is not a ROS parameter name (e.g. local_map.update_frequency)"
             elif param.split(".")[0] == RESERVED_PREFIX:
                 yield path, f"parameters under {RESERVED_PREFIX!r} are catanc's own; pick another name"
             elif (clash := _clash(param, taken)) is not None:
-                yield path, f"{key} already sets {clash!r} (for {taken[clash]}): {clash_reason(param, clash)}"
+                yield path, f"{own} already sets {clash!r} (for {taken[clash]}): {clash_reason(param, clash)}"
             elif node is not None and not node.scheduled and node.rate_hz is None:
                 yield path, f"node {name!r} is unscheduled and has no rate_hz: there is no rate to set"
             taken[param] = name

@@ -590,6 +590,13 @@ class Deploy(_Model):
     package: str | None = Field(default=None, description="ROS 2 package (for launch.py).")
     executable: str | None = Field(default=None, description="ROS 2 executable (for launch.py).")
     command: str | None = Field(default=None, description="Shell-free command line that starts the process.")
+    process: str | None = Field(
+        default=None,
+        pattern=APP_NAME_PATTERN,
+        description="The process the node runs in, by a name of your choice: nodes naming one process (several ROS "
+        "nodes, e.g. a component container) share one command, the union of their CPUs and the highest level. "
+        "Default: its ROS node's process (or its own).",
+    )
     callback_group: str | None = Field(
         default=None,
         description="The node's ROS 2 callback group as callback_isolated_executor's cie_thread_configurator "

@@ -307,7 +307,7 @@ def test_params_of_a_process_hosting_several_subchains() -> None:
     assert imu.cpus == (0, 1)
     assert imu.priority == 3
     assert imu.argv == ("imu_driver", "--port", "/dev/tty USB0")
-    assert imu.params["rate"] == 200.0
+    assert imu.ros_nodes[0].params["rate"] == 200.0
 
 
 # --------------------------------------------------------------------------- PLAN.md

@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import yaml
 
 from catanc.artifacts.compile import Target, compile_spec
 from tests.support.launch_api import Action, Description, describe
@@ -284,3 +285,45 @@ def test_the_prefix_holds_a_process_until_the_socket_is_up(
     finally:
         waiting.kill()
         waiting.wait()
+
+
+CONTAINER = ROBOT.replace(
+    "  cam: {ros_node: /sensors/camera, package: cams, executable: cam_node, rate_param: fps}\n"
+    "  det: {ros_node: /perception, package: percept, executable: perception, rate_param: rate}\n"
+    "  map: {ros_node: /mapper, package: mapping, executable: mapper, rate_param: rate}\n",
+    "  cam: {ros_node: /sensors/camera, package: robot, executable: container, rate_param: fps, process: box}\n"
+    "  det: {ros_node: /perception, rate_param: rate, process: box}\n"
+    "  map: {ros_node: /mapper, rate_param: rate, process: box}\n",
+)
+
+
+def test_a_process_of_several_ros_nodes_is_one_node_action_without_a_name(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``process: box`` holds three ROS nodes: one process on the union of their CPUs at the highest level, no
+    ``name=`` (rcl would give it to all three), and params.yaml sets each ROS node's own parameters."""
+    spec = tmp_path / "robot.yaml"
+    spec.write_text(CONTAINER)
+    assert CONTAINER != ROBOT  # the premise: the replacement took
+    target = compile_spec(spec, 2)
+    launch_file = write(target, tmp_path / "out")
+    table = json.loads(target.files["runtime.json"])
+    (box,) = [p for p in table["processes"] if p["key"] == "box"]
+    subchains = table["plan"]["subchains"]
+    of = {node: sub for sub in subchains.values() for node in sub["nodes"]}
+    assert box["nodes"] == ["cam", "det", "map"]
+    assert box["ros_nodes"] == {"/sensors/camera": ["cam"], "/perception": ["det"], "/mapper": ["map"]}
+    assert box["cpus"] == sorted({core for node in box["nodes"] for core in of[node]["cores"]})
+    levels = {2 if not of[node]["shared"] else 1 for node in box["nodes"]}  # dedicated 2, shared 1 (model sec. 6)
+    assert box["priority"] == max(levels)
+    for arguments in ({}, {"static": "true"}):
+        actions = describe(launch_file, monkeypatch, **arguments).actions
+        (action,) = [a for a in actions if a.kind == "Node" and a.kwargs["package"] == "robot"]
+        assert action.kwargs["executable"] == "container"
+        assert "name" not in action.kwargs
+        assert "namespace" not in action.kwargs
+    params = yaml.safe_load(target.files["params.yaml"])
+    for ros_node, node, param in (("/sensors/camera", "cam", "fps"), ("/perception", "det", "rate")):
+        own = params[ros_node]["ros__parameters"]
+        assert own["catan"]["node"] == node
+        assert own[param] == pytest.approx(1000.0 / of[node]["period_ms"], rel=1e-6)

@@ -44,19 +44,23 @@ objective:
 constraints:
   - {{node: gm, max_rate_hz: 5}}
 deploy:
-  cam: {{ros_node: /sensors/camera, rate_param: fps, package: cams, executable: cam_node}}
-  det: {{ros_node: /detector, rate_param: period, rate_unit: s, command: "{node} /detector=period"}}
+  cam: {{ros_node: /sensors/camera, rate_param: fps, package: cams, executable: vision, process: vision}}
+  det: {{ros_node: /detector, rate_param: period, rate_unit: s, process: vision}}
   gl: {{ros_node: /mapper, rate_param: scan_period, rate_unit: ms, command: "{node} /mapper=scan_period,map_rate"}}
   gm: {{ros_node: /mapper, rate_param: map_rate}}
   imu: {{ros_node: /imu, rate_param: rate, rate_type: int, package: imus, executable: imu_node}}
 """
-PROCESSES = 4
-# What each package's executable is here: rate_node making a node of its code's own name, which name= renames.
-EXECUTABLES = {("cams", "cam_node"): "/camera_driver=fps", ("imus", "imu_node"): "/imu_node=rate"}
+PROCESSES = 3
+# What each package's executable is here: rate_node making nodes.  The IMU's code names its node otherwise, and
+# name= renames it; the vision process (a container of two nodes) names its own nodes, and nothing renames them.
+EXECUTABLES = {
+    ("cams", "vision"): ["/sensors/camera=fps", "/detector=period"],
+    ("imus", "imu_node"): ["/imu_node=rate"],
+}
 
 
 def executable(package: str, name: str) -> Sequence[str]:
-    return [sys.executable, str(NODE_SCRIPT), EXECUTABLES[package, name]]
+    return [sys.executable, str(NODE_SCRIPT), *EXECUTABLES[package, name]]
 
 
 @pytest.fixture(scope="module")

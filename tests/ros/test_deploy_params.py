@@ -1,8 +1,9 @@
 """The plan's parameters reach real rclpy nodes under every launcher.
 
-A spec with four ROS processes (a camera at a rate in hertz, a detector whose rate
-parameter is a period in seconds, a Mapper-like ``/mapper`` hosting two DAG nodes, an
-unscheduled IMU on its own clock read as an integer) is compiled with ``-k 1 -k 2`` from
+A spec with three ROS processes (``vision``, one rclpy process hosting two ROS nodes: a
+camera at a rate in hertz and a detector whose rate parameter is a period in seconds; a
+Mapper-like ``/mapper`` hosting two DAG nodes; an unscheduled IMU on its own clock read as
+an integer) is compiled with ``-k 1 -k 2`` from
 a folder of its own; each output folder is then deployed from a third folder by
 ``launch.sh``, ``launch.sh --static`` and ``catanc run --launch``.  Every process is
 :mod:`tests.ros.rate_node`: its nodes declare their rate parameters with a code default
@@ -51,13 +52,14 @@ objective:
 constraints:
   - {{node: gm, max_rate_hz: 5}}
 deploy:
-  cam: {{ros_node: /sensors/camera, rate_param: fps, command: "{node} /sensors/camera=fps"}}
-  det: {{ros_node: /detector, rate_param: period, rate_unit: s, command: "{node} /detector=period"}}
+  cam: {{ros_node: /sensors/camera, rate_param: fps, process: vision,
+        command: "{node} /sensors/camera=fps /detector=period"}}
+  det: {{ros_node: /detector, rate_param: period, rate_unit: s, process: vision}}
   gl: {{ros_node: /mapper, rate_param: scan_period, rate_unit: ms, command: "{node} /mapper=scan_period,map_rate"}}
   gm: {{ros_node: /mapper, rate_param: map_rate}}
   imu: {{ros_node: /imu, rate_param: rate, rate_type: int, command: "{node} /imu=rate"}}
 """
-PROCESSES = 4  # /sensors/camera, /detector, /mapper, /imu
+PROCESSES = 3  # vision (/sensors/camera and /detector), /mapper, /imu
 LAUNCHERS = ("launch.sh", "launch.sh --static", "catanc run --launch")
 
 
@@ -70,9 +72,9 @@ def expected_parameters(folder: Path) -> dict[str, dict[str, Any]]:
         if name not in period_of:
             period_of[name] = 1000.0 / node["rate_hz"]
     found: dict[str, dict[str, Any]] = {}
-    for process in table["processes"]:
-        params = found.setdefault(process["ros_node"], {})
-        for node in process["nodes"]:
+    for ros_node, nodes in ros_nodes(table).items():
+        params = found.setdefault(ros_node, {})
+        for node in nodes:
             deploy = spec["deploy"][node]
             period_ms = period_of[node]
             unit = deploy.get("rate_unit", "hz").lower()
@@ -80,7 +82,17 @@ def expected_parameters(folder: Path) -> dict[str, dict[str, Any]]:
             if deploy.get("rate_type") == "int":
                 value = math.floor(value + 1e-9)
             params[deploy["rate_param"]] = value
-        params["catan.node"] = process["nodes"][0] if len(process["nodes"]) == 1 else ""
+        params["catan.node"] = nodes[0] if len(nodes) == 1 else ""
+    return found
+
+
+def ros_nodes(table: dict[str, Any]) -> dict[str, list[str]]:
+    """Every ROS node of the table's processes, with its DAG nodes (from the spec in the table)."""
+    found: dict[str, list[str]] = {}
+    for name, deploy in table["spec"]["deploy"].items():
+        ros_node = deploy.get("ros_node")
+        if ros_node is not None:
+            found.setdefault(ros_node if ros_node.startswith("/") else "/" + ros_node, []).append(name)
     return found
 
 

@@ -15,7 +15,7 @@ from typing import Any
 
 import pytest
 
-from tests.ros.test_deploy_params import PROCESSES, WAIT_S, compiled, deploy, stop
+from tests.ros.test_deploy_params import PROCESSES, WAIT_S, compiled, deploy, ros_nodes, stop
 from tests.support.linux import cpu_set, poll, threads_of
 
 __all__ = ["compiled", "deploy"]  # the fixtures these tests use
@@ -32,7 +32,10 @@ def allowed(pid: int, tid: int) -> tuple[str, frozenset[int]]:
 def planned_cpus(folder: Path) -> dict[str, frozenset[int]]:
     """Each ROS node's process's CPUs, from the runtime table."""
     table = json.loads((folder / "runtime.json").read_text())
-    return {p["ros_node"]: frozenset(p["cpus"]) for p in table["processes"]}
+    hosts = ros_nodes(table)
+    return {
+        ros: frozenset(p["cpus"]) for p in table["processes"] for ros in hosts if set(hosts[ros]) <= set(p["nodes"])
+    }
 
 
 @pytest.mark.parametrize("launcher", ["catanc run --launch", "launch.sh", "launch.sh --static"])
@@ -45,7 +48,7 @@ def test_every_thread_stays_on_its_process_cpus(compiled: Path, deploy: Any, lau
     records = poll(run.read_records, f"{PROCESSES} nodes' records from {launcher}", timeout=WAIT_S, step=0.1)
     middleware = 0
     for record in records:
-        (name,) = set(record["nodes"])  # each process here hosts one ROS node
+        name = next(iter(record["nodes"]))  # the process of all its ROS nodes
         for tid in threads_of(record["pid"]):
             comm, cpus = allowed(record["pid"], tid)
             middleware += comm.startswith("dds.")
