@@ -23,26 +23,13 @@ from pathlib import Path
 import pytest
 
 from tests.ros.rate_node import RECORDS_ENV
-from tests.ros.test_deploy_params import NODE_SCRIPT, WAIT_S, expected_parameters, received
+from tests.ros.test_deploy_params import GRAPH, NODE_SCRIPT, WAIT_S, expected_parameters, received
 from tests.support.launch_api import command_line, describe, environment_of
 from tests.support.linux import missing_tools, poll, require_fifo
 
-SPEC = """\
-catan: 1
-app: rospy_launch
-nodes:
-  cam: {{compute_ms: 2}}
-  det: {{compute_ms: 8}}
-  gl: {{compute_ms: 5}}
-  gm: {{compute_ms: 20}}
-  imu: {{scheduled: false, rate_hz: 100}}
-edges: [[cam, det], [imu, gl], [gl, gm]]
-subchains: {{front: [cam, det], gl: [gl], gm: [gm]}}
-objective:
-  - {{chain: [cam, det], weight: 1.0}}
-  - {{chain: [imu, gl, gm], weight: 0.1}}
-constraints:
-  - {{node: gm, max_rate_hz: 5}}
+SPEC = (
+    GRAPH
+    + """\
 deploy:
   cam: {{ros_node: /sensors/camera, rate_param: fps, package: cams, executable: vision, process: vision}}
   det: {{ros_node: /detector, rate_param: period, rate_unit: s, process: vision}}
@@ -50,6 +37,7 @@ deploy:
   gm: {{ros_node: /mapper, rate_param: map_rate}}
   imu: {{ros_node: /imu, rate_param: rate, rate_type: int, package: imus, executable: imu_node}}
 """
+)
 PROCESSES = 3
 # What each package's executable is here: rate_node making nodes.  The IMU's code names its node otherwise, and
 # name= renames it; the vision process (a container of two nodes) names its own nodes, and nothing renames them.
@@ -69,7 +57,7 @@ def folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
         pytest.skip(f"needs {', '.join(missing)}")
     require_fifo(3)
     spec = tmp_path_factory.mktemp("specs") / "rospy_launch.yaml"
-    spec.write_text(SPEC.format(node=f"{sys.executable} {NODE_SCRIPT}"))
+    spec.write_text(SPEC.format(app="rospy_launch", node=f"{sys.executable} {NODE_SCRIPT}"))
     out = tmp_path_factory.mktemp("compiled")
     catanc = str(Path(sys.executable).with_name("catanc"))
     subprocess.run([catanc, "compile", str(spec), "-k", "2", "--out", str(out)], check=True, timeout=300)

@@ -35,9 +35,9 @@ CATANC = str(Path(sys.executable).with_name("catanc"))
 WAIT_S = 60.0  # rclpy processes start slowly on a loaded machine
 TOKEN_ENV = "CATANC_DEPLOY_TEST"
 
-SPEC = """\
+GRAPH = """\
 catan: 1
-app: rosdeploy
+app: {app}
 nodes:
   cam: {{compute_ms: 2}}
   det: {{compute_ms: 8}}
@@ -51,6 +51,11 @@ objective:
   - {{chain: [imu, gl, gm], weight: 0.1}}
 constraints:
   - {{node: gm, max_rate_hz: 5}}
+"""
+"""The graph of the ROS tests' specs (``str.format`` fields: ``app``, and ``node`` in their deploy sections)."""
+SPEC = (
+    GRAPH
+    + """\
 deploy:
   cam: {{ros_node: /sensors/camera, rate_param: fps, process: vision,
         command: "{node} /sensors/camera=fps /detector=period"}}
@@ -59,6 +64,7 @@ deploy:
   gm: {{ros_node: /mapper, rate_param: map_rate}}
   imu: {{ros_node: /imu, rate_param: rate, rate_type: int, command: "{node} /imu=rate"}}
 """
+)
 PROCESSES = 3  # vision (/sensors/camera and /detector), /mapper, /imu
 LAUNCHERS = ("launch.sh", "launch.sh --static", "catanc run --launch")
 
@@ -178,7 +184,7 @@ def compiled(tmp_path_factory: pytest.TempPathFactory) -> Path:
     require_fifo(3)
     specs = tmp_path_factory.mktemp("specs")
     spec = specs / "rosdeploy.yaml"
-    spec.write_text(SPEC.format(node=f"{sys.executable} {NODE_SCRIPT}"))
+    spec.write_text(SPEC.format(app="rosdeploy", node=f"{sys.executable} {NODE_SCRIPT}"))
     elsewhere = tmp_path_factory.mktemp("compiled-here")
     subprocess.run([CATANC, "compile", str(spec), "-k", "1", "-k", "2"], cwd=elsewhere, check=True, timeout=300)
     return elsewhere / "out" / "rosdeploy"
