@@ -240,7 +240,8 @@ def test_launch_sh_deploys_the_node_under_the_enforcer_at_its_planned_rate(
     """The path a user takes: the spec's deploy command, compiled, started by ``bash launch.sh`` (its
     default: the enforcer first, then the process with CATANC_SOCKET), stopped by SIGINT."""
     command = " ".join([*node_argv, *served(COMPUTE)])
-    deploy = f'deploy:\n  A: {{ros_node: /ab, command: "{command}"}}\n  B: {{ros_node: /ab}}\n'
+    # One process for A and B; not a ROS node (launch.sh would append --ros-args for one, which it does not read).
+    deploy = f'deploy:\n  A: {{process: ab, command: "{command}"}}\n  B: {{process: ab}}\n'
     table = compile_table(SPEC + deploy, tmp_path, 1)
     catanc = str(Path(sys.executable).with_name("catanc"))  # this checkout's, as launch.sh's $CATANC
     proc = subprocess.Popen(
