@@ -57,11 +57,14 @@ class Children:
         if socket_path is not None:
             env[SOCKET_ENV] = socket_path
         try:
-            with _forking_on(cpus):
+            with _forking_on(name, cpus):
                 process = subprocess.Popen(list(argv), env=env, start_new_session=True)
         except OSError as exc:
             self.stop()
             raise UsageError(f"cannot start {name} ({argv[0]}): {exc.strerror or exc}") from None
+        except UsageError:
+            self.stop()
+            raise
         self.processes.append((name, process))
 
     def stop(self) -> None:
@@ -82,7 +85,7 @@ class Children:
 
 
 @contextlib.contextmanager
-def _forking_on(cpus: Collection[int] | None) -> Iterator[None]:
+def _forking_on(name: str, cpus: Collection[int] | None) -> Iterator[None]:
     """The calling thread on ``cpus`` meanwhile: a child inherits the affinity of the thread that forks it.
 
     So the child is pinned before it runs anything (every thread it makes inherits it too), without a
@@ -96,7 +99,7 @@ def _forking_on(cpus: Collection[int] | None) -> Iterator[None]:
         os.sched_setaffinity(0, cpus)
     except OSError as exc:
         raise UsageError(
-            f"cannot pin a process to CPUs {format_cpus(cpus)} (allowed here: {format_cpus(before)}): {exc.strerror}"
+            f"cannot pin {name} to CPUs {format_cpus(cpus)} (this thread may use {format_cpus(before)}): {exc.strerror}"
         ) from None
     try:
         yield
