@@ -297,6 +297,7 @@ CONTAINER = ROBOT.replace(
 )
 
 
+@pytest.mark.usefixtures("own_tmp")
 def test_a_process_of_several_ros_nodes_is_one_node_action_without_a_name(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
