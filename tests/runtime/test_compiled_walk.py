@@ -46,6 +46,7 @@ class Both:
     receivers: dict[str, socket.socket]  # the walk's
     reader_nodes: list[str]
     reader_inside: list[bool]  # not its subchain's head
+    reader_after: list[str]  # the node before it in its subchain ("" for a head)
     closing: list[socket.socket] = field(default_factory=list)
 
 
@@ -65,7 +66,14 @@ def made(rng: random.Random) -> Both:
     readers = [reader for name in names for reader in python.wiring.readers[name]]
     reader_nodes = [endpoint.node for _, endpoint, _ in readers]
     reader_inside = [index > 0 for index, _, _ in readers]
-    return Both(schedule, python, walk, names, core_ids, writers, receivers, reader_nodes, reader_inside, closing)
+    reader_after = [
+        schedule.subchains[name].nodes[index - 1] if index > 0 else ""
+        for name in names
+        for index, _, _ in python.wiring.readers[name]
+    ]
+    return Both(
+        schedule, python, walk, names, core_ids, writers, receivers, reader_nodes, reader_inside, reader_after, closing
+    )
 
 
 def close(both: Both) -> None:
@@ -113,9 +121,10 @@ def compare(both: Both, step: str) -> None:
     runs = [(e[1], names[int(e[2])], int(e[3]), e[4]) for e in events if e[0] == wa.EV_RUN]
     assert runs == [tuple(r) for r in seen.runs], f"{step}: runs done"
     hops = [
-        (names[int(e[1])], both.reader_nodes[int(e[2])], e[3], both.reader_inside[int(e[2])])
+        (names[int(e[1])], both.reader_nodes[r], e[3], both.reader_inside[r], both.reader_after[r])
         for e in events
         if e[0] == wa.EV_HOP
+        for r in (int(e[2]),)
     ]
     assert hops == [tuple(h) for h in seen.hops], f"{step}: hop delays"
     switches = [int(e[1]) for e in events if e[0] == wa.EV_SWITCH]
