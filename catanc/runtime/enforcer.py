@@ -341,6 +341,10 @@ class Enforcer:
                 if now >= deadline:
                     return
                 until = min(until, deadline)
+            if compiled is not None:
+                # A bye or a re-plan handled since the last pass may have closed a ring the walk reads: the walk
+                # must be laid out again, from fresh wiring, before it runs on.
+                self._fresh_wiring()
             if compiled is not None and compiled.load(now, self.clocks):
                 ready = compiled.wait(fds, until)
                 compiled.store(self.clocks)
