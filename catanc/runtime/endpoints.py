@@ -268,6 +268,7 @@ class Endpoint:
     kernel_mark_ns: int | None = None  # its thread's CPU time at the last check of a suspicious report
     shares_thread: bool = False  # its thread hosts another registered node too: the thread's CPU is not its own
     error: str = "closed"  # why the last send failed
+    on_input: bool = False  # it runs on its input (a subscription): no node sends it triggers
 
     def send(self, datagram: bytes) -> bool:
         """Send without blocking; False (and :attr:`failed`) if the node is gone or not reading."""
@@ -293,7 +294,7 @@ class Endpoint:
             self.sock = None
 
 
-def open_endpoint(node: str, pid: int, tid: int, address: Address) -> Endpoint:
+def open_endpoint(node: str, pid: int, tid: int, address: Address, *, on_input: bool = False) -> Endpoint:
     """A new endpoint for a node thread at ``address``: its socket connected there, its ring made and welcomed.
 
     Raises ``OSError`` if the node's socket is gone already (nothing is left open then).
@@ -313,7 +314,7 @@ def open_endpoint(node: str, pid: int, tid: int, address: Address) -> Endpoint:
         if fd is not None:
             os.close(fd)
         raise
-    return Endpoint(node, pid, tid, address, sock, reader, fd)
+    return Endpoint(node, pid, tid, address, sock, reader, fd, on_input=on_input)
 
 
 class Registry:
@@ -354,7 +355,7 @@ class Registry:
         if not limit.take() or not self._overall.take():
             return "too many registrations: slow down", False  # not even a reject: a flood gets no answers
         if hello.node not in self.nodes:
-            return f"no node {hello.node!r} in this app", True
+            return f"no node {hello.node!r} in this app (its nodes: {', '.join(sorted(self.nodes))})", True
         key = (hello.node, hello.tid)
         if key not in self.by_key:
             if len(self.by_node.get(hello.node, ())) >= protocol.MAX_THREADS_PER_NODE:

@@ -89,7 +89,7 @@ class NodeThreads:
         if received.sender is None:
             return None
         try:
-            endpoint = open_endpoint(hello.node, hello.pid, hello.tid, received.sender)
+            endpoint = open_endpoint(hello.node, hello.pid, hello.tid, received.sender, on_input=hello.on_input)
         except OSError:
             return None  # its socket is gone already
         try:
@@ -192,7 +192,7 @@ class NodeThreads:
             False,
             None if after is None else after.node,
             run.threads_of(index + 1)[0] if after is not None else 1,
-            None if after is None else _raw(after.address),
+            None if after is None or after.on_input else _raw(after.address),  # its message wakes it
             None if before is None else _raw(before.address),
         )
 

@@ -27,6 +27,8 @@ ignored by both sides (so later versions may add some); a datagram whose first w
 Node -> enforcer (sent to the path in ``$CATANC_SOCKET``)::
 
     catanc/2 hello NODE PID TID       thread TID of process PID registers as NODE
+    catanc/2 hello NODE PID TID input ... as NODE, which runs on its input (a ROS subscription):
+                                      no node sends it triggers, its message wakes it
     catanc/2 bye NODE TID             the thread leaves NODE (it takes no more triggers)
     catanc/2 done NODE TID SEQ        run SEQ is over; only when the route asks for it (NOTIFY 1)
 
@@ -37,6 +39,8 @@ Enforcer -> node (each from the node's own *enforcer address*, the sender of its
 
     catanc/2 welcome NODE SLOTS       registered; carries the node's ring (SCM_RIGHTS, one fd)
     catanc/2 route NODE NOTIFY NEXT NEXT_THREADS NEXT_ADDR PREV_ADDR
+                                      NEXT_ADDR ``-`` with a NEXT named: NEXT runs on its
+                                      input (its hello said ``input``): send it no trigger
     catanc/2 trigger NODE SEQ THREADS run once now, on THREADS threads (run SEQ of its subchain)
     catanc/2 reject NODE REASON...    refused (registration) or dropped; REASON is the rest
     catanc/2 stop                     the enforcer ends: leave the trigger loop
@@ -77,7 +81,14 @@ A client, step by step
    ``NOTIFY 1``, and after a trigger sent ``sched_yield()``: the next node runs at this thread's
    priority, so on this CPU it goes first instead of waiting for this thread's next receive.
    On ``stop``, leave the loop (its last run is still appended).
-4. A node no trigger starts (a subscription callback) appends a ring entry with SEQ 0 per run.
+4. A node no trigger starts (a subscription callback) registers with ``input`` in its hello and
+   appends a ring entry with SEQ 0 per run.  Its predecessor's route then names it with
+   NEXT_ADDR ``-``: the predecessor sends it no trigger (its message wakes it; a trigger
+   before the message would start a run on the previous message's data).
+6. A run's *origin* is when the data it carries was sensed (a ROS ``header.stamp``): the node
+   converts it from ``CLOCK_REALTIME`` to ``CLOCK_MONOTONIC`` (subtract
+   ``realtime_now - monotonic_now``) and writes it into the entry (0: none).  The enforcer logs
+   each run's age, its end minus its origin (a head's run without one: its start).
 5. Leaving on its own, send ``catanc/2 bye NODE TID`` (also if no welcome was read yet: the
    enforcer may have sent one; a bye of a thread it does not know is ignored).  While waiting, check every second or so
    that the path still names a socket that takes datagrams: if not, the enforcer is gone.
@@ -192,20 +203,29 @@ class _Message:
         return data
 
 
+HELLO_INPUT = "input"
+"""A hello's optional last word: the node runs on its input (no node-to-node trigger for it)."""
+
+
 @dataclass(frozen=True)
 class Hello(_Message):
-    """Node -> enforcer: thread ``tid`` of process ``pid`` registers as DAG node ``node``."""
+    """Node -> enforcer: thread ``tid`` of process ``pid`` registers as DAG node ``node``; ``on_input``:
+    the node runs on its input (a subscription callback), so no node sends it triggers."""
 
     TYPE: ClassVar[str] = "hello"
     FIELDS: ClassVar[tuple[str, ...]] = ("node", "pid", "tid")
     node: str
     pid: int
     tid: int
+    on_input: bool = False
 
     def __post_init__(self) -> None:
         check_name(self.node)
         _check_int("hello.pid", self.pid, 1)
         _check_int("hello.tid", self.tid, 1)
+
+    def words(self) -> list[str]:
+        return [*super().words(), *([HELLO_INPUT] if self.on_input else [])]
 
 
 @dataclass(frozen=True)
@@ -266,8 +286,9 @@ class Welcome(_Message):
 
 @dataclass(frozen=True)
 class Route(_Message):
-    """Enforcer -> node: where its runs go next (``next_node`` at ``next_address`` on ``next_threads`` threads),
-    who may trigger it besides the enforcer (``prev_address``), and whether to send ``done`` after each run."""
+    """Enforcer -> node: where its runs go next (``next_node`` at ``next_address`` on ``next_threads`` threads;
+    no address: the next node runs on its input, send it nothing), who may trigger it besides the enforcer
+    (``prev_address``), and whether to send ``done`` after each run."""
 
     TYPE: ClassVar[str] = "route"
     FIELDS: ClassVar[tuple[str, ...]] = ("node", "notify", "next_node", "next_threads", "next_address", "prev_address")
@@ -283,8 +304,8 @@ class Route(_Message):
         if self.next_node is not None:
             check_name(self.next_node)
         _check_int("route.next_threads", self.next_threads, 1)
-        if (self.next_node is None) != (self.next_address is None):
-            raise ProtocolError("route: a next node and its address go together")
+        if self.next_node is None and self.next_address is not None:
+            raise ProtocolError("route: a next address needs its next node")
 
     def words(self) -> list[str]:
         return [
@@ -377,6 +398,8 @@ def decode(data: bytes) -> Message:
             if not args:
                 raise ProtocolError("reject: missing its node")
             return Reject(args[0].decode("ascii"), b" ".join(args[1:]).decode("utf-8", "replace"))
+        if cls is Hello and len(args) == 4 and args[3] == HELLO_INPUT.encode():
+            return Hello(args[0].decode("ascii"), _int(kind, "pid", args[1]), _int(kind, "tid", args[2]), True)
         if len(args) != len(cls.FIELDS):
             raise ProtocolError(f"{kind.decode()}: expected {len(cls.FIELDS)} fields ({' '.join(cls.FIELDS)})")
         if cls is Route:

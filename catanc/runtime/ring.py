@@ -23,7 +23,11 @@ Layout (host byte order, every field naturally aligned; offsets in bytes)::
                            time; a run on several threads: its wall time), or 2**64-1: unknown
       32  u32  threads     threads the run used
       36  u32  zero
-      40  u64  zero
+      40  u64  origin_ns   CLOCK_MONOTONIC when the data the run carries was sensed (a ROS
+                           header.stamp, converted from CLOCK_REALTIME by the node), or 0: none
+
+``origin_ns`` was a zero word in the first clients: they write "none", so the layout version
+stays 1 (a reader need not tell them apart, and an older enforcer ignores the word).
 
 To append entry ``k = written``: write the entry, then store ``written = k + 1`` (in C or C++ a
 release store, so the entry is visible first).  The reader takes entries ``max(last, w - N)``
@@ -52,7 +56,7 @@ UNKNOWN = 2**64 - 1
 """``compute_ns`` of a run the node did not measure."""
 
 HEADER = struct.Struct("=IIIIQ")
-ENTRY = struct.Struct("=QQQQII")
+ENTRY = struct.Struct("=QQQQIIQ")
 WRITTEN_OFFSET = 16
 
 
@@ -68,6 +72,7 @@ class Entry(NamedTuple):
     end_ns: int
     compute_ns: int  # UNKNOWN when not measured
     threads: int
+    origin_ns: int = 0  # CLOCK_MONOTONIC when its data was sensed; 0: none
 
     @property
     def compute_ms(self) -> float | None:
@@ -125,8 +130,8 @@ class RingReader:
         found = []
         for k in range(first, written):
             offset = HEADER_SIZE + (k % self.slots) * ENTRY_SIZE
-            seq, start, end, compute, threads, _ = ENTRY.unpack_from(self._map, offset)
-            found.append((k, Entry(seq, start, end, compute, threads)))
+            seq, start, end, compute, threads, _, origin = ENTRY.unpack_from(self._map, offset)
+            found.append((k, Entry(seq, start, end, compute, threads, origin)))
         again = int(self.words[2])
         self.last = written
         return [entry for k, entry in found if k >= again - self.slots]
@@ -156,9 +161,11 @@ class RingWriter:
         self._header = memoryview(self._map)[:HEADER_SIZE].cast("Q")
         self.written = written
 
-    def append(self, seq: int, start_ns: int, end_ns: int, compute_ns: int = UNKNOWN, threads: int = 1) -> None:
+    def append(
+        self, seq: int, start_ns: int, end_ns: int, compute_ns: int = UNKNOWN, threads: int = 1, *, origin_ns: int = 0
+    ) -> None:
         offset = HEADER_SIZE + (self.written % self.slots) * ENTRY_SIZE
-        ENTRY.pack_into(self._map, offset, seq, start_ns, end_ns, compute_ns, threads, 0)
+        ENTRY.pack_into(self._map, offset, seq, start_ns, end_ns, compute_ns, threads, 0, origin_ns)
         self.written += 1
         self._header[WRITTEN_OFFSET // 8] = self.written
 

@@ -108,6 +108,10 @@ def test_the_wire_format_is_words_after_the_protocol_and_version() -> None:
     assert route.encode() == b"catanc/2 route LM 0 LP 1 003030613166 -"
     assert Route("LP").encode() == b"catanc/2 route LP 0 - 1 - -"
     assert decode(b"catanc/2 route LP 1 - 1 - 0030303031") == Route("LP", True, None, 1, None, b"\x000001")
+    # A node that runs on its input says so; its predecessor's route names it without an address.
+    assert Hello("LP", 4242, 4246, on_input=True).encode() == b"catanc/2 hello LP 4242 4246 input"
+    assert decode(b"catanc/2 hello LP 4242 4246 input") == Hello("LP", 4242, 4246, True)
+    assert decode(b"catanc/2 route LM 0 LP 1 - -") == Route("LM", False, "LP", 1, None, None)
 
 
 def test_addresses_are_the_hex_of_the_socket_name() -> None:
@@ -139,7 +143,8 @@ def test_addresses_are_the_hex_of_the_socket_name() -> None:
         (b"catanc/2 trigger LM 1 0", "trigger.threads: expected a positive integer"),
         (b"catanc/2 set_cores 0", "set_cores.cores: expected a positive integer"),
         (b"catanc/2 route LM 2 - 1 - -", "route.notify: expected 0 or 1"),
-        (b"catanc/2 route LM 0 LP 1 - -", "a next node and its address go together"),
+        (b"catanc/2 route LM 0 - 1 0030 -", "a next address needs its next node"),
+        (b"catanc/2 hello LM 1 2 output", "hello: expected 3 fields"),
         (b"catanc/2 route LM 0 - 1 0x -", "hex digits"),
         (b"catanc/2 reject", "reject: missing its node"),
         (b" " * (MAX_DATAGRAM + 1), f"at most {MAX_DATAGRAM} are accepted"),
@@ -365,7 +370,7 @@ def test_the_registry_keeps_one_endpoint_per_node_and_thread() -> None:
     registry = Registry({"LM", "LP"})
     mine = Credentials(os.getpid(), os.geteuid(), os.getegid())
     assert registry.check(_hello("LM"), mine) == (None, True)
-    assert registry.check(_hello("XX"), mine) == ("no node 'XX' in this app", True)
+    assert registry.check(_hello("XX"), mine) == ("no node 'XX' in this app (its nodes: LM, LP)", True)
     first = Endpoint("LM", os.getpid(), threading.get_native_id(), b"\x00a")
     second = Endpoint("LM", os.getpid(), threading.get_native_id(), b"\x00b")
     assert registry.add(first) is None
