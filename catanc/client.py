@@ -20,13 +20,20 @@ measures it itself; :meth:`Node.interrupt` ends the loop from another thread or 
 handler.  Calling :meth:`Node.wait` without :meth:`Node.done` reports the pending run first.
 
 A node that is not triggered (a ROS subscription callback later in a subchain: its input
-wakes it) registers the thread its callback runs in and reports each run, waiting for
-nothing::
+wakes it) says so with ``on_input=True``, registers the thread its callback runs in and
+reports each run, waiting for nothing; no node sends it a trigger (its message wakes it), and
+without ``$CATANC_SOCKET`` it just runs (no enforcer to report to, no warning)::
 
-    node = Node("LP"); node.register()      # from the executor thread that runs the callback
+    node = Node("LP", on_input=True); node.register()  # from the executor thread that runs the callback
     def on_scan(msg):
-        with node.run():                    # or: start = node.begin(); ...; node.done()
+        with node.run(origin_ns=stamp_ns(msg.header.stamp)):  # or: node.begin(); ...; node.done(origin_ns=...)
             plan(msg)
+
+A run's origin (``done(origin_ns=...)``) is when the data it carries was sensed, in
+``CLOCK_REALTIME`` nanoseconds (``time.time_ns()``, the clock of a ROS ``header.stamp``): the
+enforcer logs each run's age (its end minus its origin).  An executor that waits on many things
+watches :meth:`Node.fd` (readable when a datagram waits), takes the trigger with
+``node.wait(0)``, and asks :meth:`Node.alive` whether the enforcer is still there.
 
 Multi-threaded nodes: ``trigger.threads`` is how many threads the plan gives this run.
 Spread the work over that many and report the run's time with ``node.done(compute_ms=...)``
@@ -125,6 +132,14 @@ def _address(text: bytes) -> bytes | None:
     return None if text == b"-" else bytes.fromhex(text.decode("ascii"))
 
 
+def _monotonic_origin(origin_ns: int | None) -> int:
+    """A ``CLOCK_REALTIME`` origin as ``CLOCK_MONOTONIC`` ns, the ring's clock (0: none, or not a time)."""
+    if origin_ns is None or isinstance(origin_ns, bool) or not isinstance(origin_ns, int) or origin_ns <= 0:
+        return 0
+    monotonic = origin_ns - time.time_ns() + time.monotonic_ns()
+    return min(max(monotonic, 1), _UNKNOWN - 1)
+
+
 class Node:
     """One DAG node's trigger loop, run by the thread that registers it.
 
@@ -133,6 +148,8 @@ class Node:
     socket is still there; if it went away without a stop, :meth:`wait` returns None and
     :attr:`lost` says why.  ``fallback_period_ms``: where neither ``socket_path`` nor
     ``$CATANC_SOCKET`` names an enforcer, trigger this node every that many ms on its own.
+    ``on_input``: the node runs on its input (:meth:`begin` and :meth:`done`, never :meth:`wait`):
+    it tells the enforcer, so no node sends it triggers; without an enforcer it runs unreported.
     """
 
     PROBE_S = 1.0
@@ -144,16 +161,25 @@ class Node:
         socket_path: str | os.PathLike[str] | None = None,
         timeout_s: float = 5.0,
         fallback_period_ms: float | None = None,
+        on_input: bool = False,
     ):
         _check_name(name)
+        if on_input and fallback_period_ms is not None:
+            raise ClientError(f"node {name!r}: a node that runs on its input has no fallback timer (on_input=True)")
         period_ok = isinstance(fallback_period_ms, (int, float)) and 0 < fallback_period_ms < math.inf
         if fallback_period_ms is not None and (isinstance(fallback_period_ms, bool) or not period_ok):
             raise ClientError(f"node {name!r}: fallback_period_ms is a number of ms > 0, not {fallback_period_ms!r}")
         self.fallback_period_ms: float | None = None
         """The period of the node's own timer when no enforcer runs (None: with an enforcer)."""
+        self.on_input = bool(on_input)
+        """The node runs on its input (no trigger starts it); without an enforcer it runs unreported."""
+        self.standalone = False
+        """An ``on_input`` node without an enforcer: its runs are reported to no one."""
         if socket_path is None:
             socket_path = os.environ.get(SOCKET_ENV)
-            if not socket_path:
+            if not socket_path and on_input:
+                self.standalone = True
+            elif not socket_path:
                 if fallback_period_ms is None:
                     raise ClientError(
                         f"no catanc enforcer socket: {SOCKET_ENV} is not set (`catanc run` sets it for the nodes it "
@@ -171,6 +197,7 @@ class Node:
         """The trigger being worked on (until :meth:`done`)."""
         self._start_ns = 0
         self._cpu_start = 0.0
+        self._origin_ns = 0  # the pending run's origin given to begin() (CLOCK_MONOTONIC; 0: none)
         self._thread: int | None = None
         self._sock: socket.socket | None = None
         self._poller: select.poll | None = None  # the socket and the interrupt pipe, made once: waiting is the hot path
@@ -224,12 +251,15 @@ class Node:
             )
             self._next_tick_ns = time.monotonic_ns()
             return
+        if self.standalone:
+            return
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         try:
             sock.settimeout(None)  # blocking whatever socket.setdefaulttimeout() says: waiting blocks in the receive
             sock.bind("")  # Linux autobind: a unique abstract address the enforcer and the previous node send to
             info = Path(self.socket_path).stat()
-            sock.sendto(b"%s hello %s %d %d" % (PROTOCOL, self.name.encode(), os.getpid(), self.tid), self.socket_path)
+            hello = b"%s hello %s %d %d" % (PROTOCOL, self.name.encode(), os.getpid(), self.tid)
+            sock.sendto(hello + b" input" if self.on_input else hello, self.socket_path)
         except OSError as exc:
             sock.close()
             self.close()
@@ -344,29 +374,51 @@ class Node:
                         pass
         return None
 
-    def begin(self) -> int:
-        """Start a run nothing triggered (a subscription callback): its CLOCK_MONOTONIC start in ns."""
+    def begin(self, origin_ns: int | None = None) -> int:
+        """Start a run nothing triggered (a subscription callback): its CLOCK_MONOTONIC start in ns.
+
+        ``origin_ns``: when its data was sensed (``CLOCK_REALTIME`` ns), unless :meth:`done` says.
+        """
         self._check_thread("begin")
         self.trigger = Trigger(self.name, 0, 1)
         self._start_ns = time.monotonic_ns()
         self._cpu_start = time.thread_time()
+        self._origin_ns = _monotonic_origin(origin_ns)
         return self._start_ns
 
     @contextlib.contextmanager
-    def run(self) -> Iterator[None]:
-        """``with node.run(): body``: :meth:`begin`, the body, then :meth:`done`."""
-        self.begin()
+    def run(self, origin_ns: int | None = None) -> Iterator[None]:
+        """``with node.run(): body``: :meth:`begin`, the body, then :meth:`done` (with ``origin_ns``)."""
+        self.begin(origin_ns)
         try:
             yield
         finally:
             self.done()
 
-    def done(self, compute_ms: float | None = None) -> None:
+    def fd(self) -> int | None:
+        """The registered socket's descriptor, readable when a datagram (a trigger, a route, a stop) waits:
+        for an executor that waits on it with other things, then takes the trigger with ``wait(0)``.
+        None without an enforcer (on a fallback timer, or an ``on_input`` node without one)."""
+        return None if self._sock is None else self._sock.fileno()
+
+    def alive(self) -> bool:
+        """Whether the enforcer is still there: registered, not stopped, not lost, and its socket takes
+        datagrams (a stat and a connect: ask it now and then, not per run).  False without an enforcer."""
+        if self._sock is None or self._ended or not self._registered:
+            return False
+        if not self._enforcer_alive():
+            self._lose(f"it went away without stopping node {self.name!r}")
+            return False
+        return True
+
+    def done(self, compute_ms: float | None = None, *, origin_ns: int | None = None) -> None:
         """Report the current run as finished, and wake the subchain's next node (on this CPU it
         runs before this returns: this thread yields to it).
 
         ``compute_ms`` defaults to this thread's CPU time since the trigger arrived, which time
-        spent preempted does not inflate.
+        spent preempted does not inflate.  ``origin_ns``: when the data the run carries was sensed,
+        in ``CLOCK_REALTIME`` ns (``time.time_ns()``; a ROS ``header.stamp``), or None: the one
+        :meth:`begin` took, else none (the enforcer then takes a head's start).
         """
         self._check_thread("done")
         trigger = self.trigger
@@ -374,6 +426,8 @@ class Node:
             raise ClientError(f"node {self.name!r}: done() without a trigger (call it once per run, after wait())")
         self.trigger = None
         end_ns = time.monotonic_ns()
+        origin = self._origin_ns if origin_ns is None else _monotonic_origin(origin_ns)
+        self._origin_ns = 0
         if compute_ms is None:
             compute_ns = int((time.thread_time() - self._cpu_start) * 1e9)
         elif math.isfinite(compute_ms) and compute_ms >= 0:
@@ -393,7 +447,7 @@ class Node:
                 woke_next = True
             except OSError:  # the next node is gone: the enforcer sees its run lost
                 pass
-        self._record(trigger, end_ns, compute_ns)  # after a stop too: the enforcer reads its last runs' reports
+        self._record(trigger, end_ns, compute_ns, origin)  # after a stop too: the enforcer reads its last runs' reports
         if sock is None or self._ended:
             return
         if self._notify:
@@ -405,12 +459,12 @@ class Node:
             # until this thread blocks in its next wait: let it run first, this thread's way back after.
             _sched_yield()
 
-    def _record(self, trigger: Trigger, end_ns: int, compute_ns: int) -> None:
+    def _record(self, trigger: Trigger, end_ns: int, compute_ns: int, origin_ns: int = 0) -> None:
         ring, header = self._ring, self._header
         if ring is None or header is None:
             return
         offset = _HEADER_SIZE + (self._written % self._slots) * _ENTRY_SIZE
-        _ENTRY.pack_into(ring, offset, trigger.seq, self._start_ns, end_ns, compute_ns, trigger.threads, 0, 0)
+        _ENTRY.pack_into(ring, offset, trigger.seq, self._start_ns, end_ns, compute_ns, trigger.threads, 0, origin_ns)
         self._written += 1
         header[2] = self._written  # after the entry: the enforcer reads up to `written`
 
@@ -473,7 +527,8 @@ class Node:
         return f"no catanc enforcer at {self.socket_path} ({reason}): is `catanc run` running?"
 
     def _check_thread(self, what: str) -> None:
-        on_timer = self.fallback_period_ms is not None and self._thread is not None and not self._closed
+        on_timer = (self.fallback_period_ms is not None or self.standalone) and self._thread is not None
+        on_timer = on_timer and not self._closed
         if not on_timer and (self._sock is None or not (self._registered or self.stopped)):
             raise ClientError(f"node {self.name!r}: register before {what}() (use `with Node(...) as node:`)")
         if threading.get_ident() != self._thread:
