@@ -19,6 +19,9 @@
 // that does the work, and call wait() and done() from it.  `done(compute_ms)` reports a time the
 // node measured itself (a run spread over trigger->threads threads: its wall time).  `begin()`
 // then `done()` reports a run nothing triggered (a subscription callback later in a subchain).
+// `done(catanc::Origin{stamp_ns})` (or `done(compute_ms, catanc::Origin{...})`) also reports when
+// the data the run carries was sensed, in CLOCK_REALTIME ns (a ROS header.stamp): the enforcer
+// logs each run's age (its end minus its origin).
 // `interrupt()` ends the loop from another thread or a signal handler (it is async-signal-safe).
 // Errors (no enforcer, a rejected registration) are catanc::Error, a std::runtime_error whose
 // what() gives the reason the enforcer gave.  If the enforcer goes away without stopping the
@@ -143,12 +146,25 @@ struct Trigger {
   unsigned threads = 1;
 };
 
+// When the data a run carries was sensed: CLOCK_REALTIME ns, the clock of a ROS header.stamp
+// (0 or less: none).
+struct Origin {
+  std::int64_t realtime_ns = 0;
+};
+
 namespace detail {
 
 inline std::int64_t now_ns(clockid_t clock) {
   timespec ts{};
   ::clock_gettime(clock, &ts);
   return static_cast<std::int64_t>(ts.tv_sec) * 1000000000 + ts.tv_nsec;
+}
+
+// An origin as the ring's CLOCK_MONOTONIC ns (0: none).
+inline std::uint64_t monotonic_origin(Origin origin) {
+  if (origin.realtime_ns <= 0) return 0;
+  const std::int64_t monotonic = origin.realtime_ns - now_ns(CLOCK_REALTIME) + now_ns(CLOCK_MONOTONIC);
+  return static_cast<std::uint64_t>(monotonic > 0 ? monotonic : 1);
 }
 
 inline bool valid_name(const std::string& name) {
@@ -294,6 +310,10 @@ class Node {
   // Reports the current run with the compute time the node measured (ms; negative or not finite:
   // unknown).
   void done(double compute_ms) { finish(compute_ms); }
+
+  // Reports the current run with its origin: when the data it carries was sensed (CLOCK_REALTIME).
+  void done(Origin origin) { finish(std::nullopt, origin); }
+  void done(double compute_ms, Origin origin) { finish(compute_ms, origin); }
 
   // Ends the loop: a blocked wait() returns empty.  Safe from any thread and from signal handlers
   // (an atomic store and a write(2)), while the Node exists.
@@ -471,7 +491,7 @@ class Node {
     }
   }
 
-  void finish(std::optional<double> compute_ms) {
+  void finish(std::optional<double> compute_ms, Origin origin = Origin{0}) {
     check_thread("done");
     if (!current_) {
       throw Error("node '" + name_ + "': done() without a trigger (call it once per run, after wait())");
@@ -494,7 +514,7 @@ class Node {
       woke_next = send_to(next_address_, std::string(kProtocol) + " trigger " + next_node_ + " " +
                                              std::to_string(trigger.seq) + " " + std::to_string(next_threads_));
     }
-    record(trigger, end_ns, compute_ns);  // after a stop too: the enforcer reads its last runs' reports
+    record(trigger, end_ns, compute_ns, detail::monotonic_origin(origin));  // after a stop too: the enforcer reads its last runs' reports
     if (!ended_ && notify_) {
       send_to(socket_path_, std::string(kProtocol) + " done " + name_ + " " + std::to_string(tid_) + " " +
                                 std::to_string(trigger.seq));
@@ -504,17 +524,16 @@ class Node {
     if (woke_next) ::sched_yield();
   }
 
-  void record(const Trigger& trigger, std::int64_t end_ns, std::uint64_t compute_ns) {
+  void record(const Trigger& trigger, std::int64_t end_ns, std::uint64_t compute_ns, std::uint64_t origin_ns) {
     if (ring_ == nullptr) return;
-    // u64 seq, start_ns, end_ns, compute_ns; u32 threads, zero; u64 zero (host byte order).
+    // u64 seq, start_ns, end_ns, compute_ns; u32 threads, zero; u64 origin_ns (host byte order).
     const std::uint64_t times[4] = {trigger.seq, static_cast<std::uint64_t>(start_ns_),
                                     static_cast<std::uint64_t>(end_ns), compute_ns};
     const std::uint32_t threads[2] = {trigger.threads, 0};
-    const std::uint64_t zero = 0;
     unsigned char* slot = ring_ + kRingHeaderSize + (written_ % slots_) * kRingEntrySize;
     std::memcpy(slot, times, sizeof times);
     std::memcpy(slot + 32, threads, sizeof threads);
-    std::memcpy(slot + 40, &zero, sizeof zero);
+    std::memcpy(slot + 40, &origin_ns, sizeof origin_ns);
     ++written_;
     // A release store: the entry is visible before the count that covers it.
     auto* written = reinterpret_cast<std::uint64_t*>(ring_ + kRingWrittenOffset);
