@@ -195,6 +195,8 @@ class Node:
         """The registered thread's native id (set by :meth:`register`)."""
         self.trigger: Trigger | None = None
         """The trigger being worked on (until :meth:`done`)."""
+        self.routed = False
+        """True once the enforcer sent the node its route: it is placed (pinned, prioritised) by then."""
         self._start_ns = 0
         self._cpu_start = 0.0
         self._origin_ns = 0  # the pending run's origin given to begin() (CLOCK_MONOTONIC; 0: none)
@@ -678,6 +680,7 @@ class Node:
             except ValueError:
                 return
             self._notify = words[3] == b"1"
+            self.routed = True
             self._prev = prev_address
             next_prefix = _trigger_prefix(words[4].decode("ascii"))
             self._next = None if next_address is None else (next_address, next_prefix, threads)
