@@ -334,11 +334,11 @@ class CompiledLoop:
         if len(computes):
             at, reader, threads = computes[:, 1].tolist(), computes[:, 2].astype(np.int64).tolist(), computes[:, 6]
             # NaN (unknown) as None, as the Python walk has it; object arrays keep the rows' floats as they are.
-            values = computes[:, 3:6].astype(object)
-            values[np.isnan(computes[:, 3:6])] = None
+            values = computes[:, [3, 4, 5, 7]].astype(object)  # ms, reported, kernel, age
+            values[np.isnan(computes[:, [3, 4, 5, 7]])] = None
             seen.computes.extend(
-                ComputeSample(t, nodes[r], ms, reported, kernel, k)
-                for t, r, (ms, reported, kernel), k in zip(
+                ComputeSample(t, nodes[r], ms, reported, kernel, k, age)
+                for t, r, (ms, reported, kernel, age), k in zip(
                     at, reader, values.tolist(), threads.astype(np.int64).tolist(), strict=True
                 )
             )

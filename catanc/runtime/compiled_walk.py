@@ -365,7 +365,10 @@ def take(w: Walk, s: int, r: int, entry: int, now: float, last: bool) -> None:
     if not math.isnan(compute) and threads > 1:
         speedups = w.r_speedup[r]
         compute *= speedups[min(threads, speedups.size - 1)]
-    log(w, EV_COMPUTE, end_ms, r, compute, own, kernel_ms, float(max(threads, 1)), 0.0)
+    origin = words[entry + 5]  # CLOCK_MONOTONIC ns; 0: none, then a head's start (RunBook._take's run_age_ms)
+    origin_ms = float(origin) / 1e6 if origin != 0 else (start_ms if index == 0 else math.nan)
+    age_ms = math.nan if math.isnan(origin_ms) else max(end_ms - origin_ms, 0.0)
+    log(w, EV_COMPUTE, end_ms, r, compute, own, kernel_ms, float(max(threads, 1)), age_ms)
     head_done = w.fl_index[s, k] == 0
     flight_until = w.fl_until[s, k]
     if w.fl_index[s, k] + 1 < w.length[s]:

@@ -18,6 +18,11 @@ The ``start`` event carries ``format`` (:data:`LOG_FORMAT`), bumped when a
 reader of the log (``catanc profile``) would misread an older one.  A
 ``compute`` sample's ``threads`` is how many threads its run used (its
 ``ms`` is already one-thread time, converted with the spec's speedup).
+Its ``age_ms`` is the run's end minus its origin, in ms: the origin is when
+the data the run carries was sensed (a ROS ``header.stamp``, reported by the
+node), or, for a triggered head's run that reports none, its start; null for
+a later node's run without one.  A chain's response is the age of its last
+node's runs.
 """
 
 from __future__ import annotations
@@ -39,7 +44,7 @@ LOG_FORMAT = 1
 """The log's format version, in its ``start`` event (logs without one are older)."""
 
 BATCHED: dict[str, tuple[str, tuple[tuple[str, int | None], ...]]] = {
-    "compute": ("node", (("ms", 4), ("reported_ms", None), ("kernel_ms", 4), ("threads", None))),
+    "compute": ("node", (("ms", 4), ("reported_ms", None), ("kernel_ms", 4), ("threads", None), ("age_ms", 3))),
     "run": ("subchain", (("seq", None), ("latency_ms", 3))),
 }
 """Sampled events: the field that names what was sampled, and the value fields with their rounding."""

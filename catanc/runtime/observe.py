@@ -190,7 +190,7 @@ class Observer:
         if used_ms is not None:
             self.counts[observed.node] += 1
             t_s = (now - self.started_ns) / 1e9
-            log.sample("compute", t_s, observed.node, (round(used_ms, 4), None, round(used_ms, 4), 1))
+            log.sample("compute", t_s, observed.node, (round(used_ms, 4), None, round(used_ms, 4), 1, None))
 
 
 def launched_nodes(processes: Iterable[tuple[Iterable[str], int]]) -> tuple[dict[str, int], list[list[str]]]:

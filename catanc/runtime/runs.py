@@ -83,6 +83,7 @@ class ComputeSample(NamedTuple):
     reported_ms: float | None
     kernel_ms: float | None
     threads: int  # threads the run used (``ms`` is one-thread time)
+    age_ms: float | None = None  # its end minus its origin (when its data was sensed), None without one
 
 
 class RunSample(NamedTuple):
@@ -246,7 +247,8 @@ class RunBook:
         if compute is not None and entry.threads > 1:
             _, speedup = threads_and_speedup(self.speedups.get(node, (1.0,)), entry.threads)
             compute *= speedup  # a run on q threads: back to the one-thread time the planner budgets
-        seen.computes.append(ComputeSample(end_ms, node, compute, own, kernel_ms, max(entry.threads, 1)))
+        age_ms = run_age_ms(entry.origin_ns, start_ms if index == 0 else None, end_ms)
+        seen.computes.append(ComputeSample(end_ms, node, compute, own, kernel_ms, max(entry.threads, 1), age_ms))
         handoff = state.node_done(seq, length)
         if handoff is None:  # pragma: no cover - matched just above
             return
@@ -312,6 +314,13 @@ def kernel_checked(head: Endpoint | None) -> TypeGuard[Endpoint]:
     return head is not None and not head.shares_thread
 
 
+def run_age_ms(origin_ns: int, head_start_ms: float | None, end_ms: float) -> float | None:
+    """A run's age at its end: ``end_ms`` minus its origin (``origin_ns``, CLOCK_MONOTONIC; 0: none, then a
+    triggered head's start, which senses when it runs), never negative; None for a later node without one."""
+    origin_ms = origin_ns / 1e6 if origin_ns else head_start_ms
+    return None if origin_ms is None else max(end_ms - origin_ms, 0.0)
+
+
 def _head_again(state: SubchainRuns, seq: int) -> bool:
     """Whether the head was triggered again after run ``seq`` (its thread's CPU since spans that run too)."""
     if state.pending is not None:
@@ -356,7 +365,7 @@ class Reader:
                     "compute",
                     compute.at_ms,
                     compute.node,
-                    (compute.ms, compute.reported_ms, compute.kernel_ms, compute.threads),
+                    (compute.ms, compute.reported_ms, compute.kernel_ms, compute.threads, compute.age_ms),
                 )
             seen.computes.clear()
         if seen.runs:

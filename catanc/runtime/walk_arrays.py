@@ -27,7 +27,7 @@ FLIGHTS = 64
 DATAGRAM = 128  # bytes of a trigger datagram, at most
 
 # Event log records: (kind, a, b, c, d, e, f, g) as float64.
-EV_COMPUTE = 1.0  # at_ms, reader, ms (nan: unknown), reported_ms (nan), kernel_ms (nan), threads
+EV_COMPUTE = 1.0  # at_ms, reader, ms (nan: unknown), reported_ms (nan), kernel_ms (nan), threads, age_ms (nan)
 EV_RUN = 2.0  # at_ms, subchain, seq, latency_ms
 EV_HOP = 3.0  # subchain, reader, delay_ms
 EV_SWITCH = 4.0  # core, latency_ms

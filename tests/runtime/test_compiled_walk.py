@@ -112,7 +112,7 @@ def compare(both: Both, step: str) -> None:
     assert wa.wake_ms(walk) == python.cores.wake_ms, f"{step}: the next wake-up"
     events = compiled_state.events(walk)
     computes = [
-        (e[1], both.reader_nodes[int(e[2])], _none(e[3]), _none(e[4]), _none(e[5]), int(e[6]))
+        (e[1], both.reader_nodes[int(e[2])], _none(e[3]), _none(e[4]), _none(e[5]), int(e[6]), _none(e[7]))
         for e in events
         if e[0] == wa.EV_COMPUTE
     ]

@@ -16,7 +16,7 @@ Sample = tuple[str, str, tuple[float | int | None, ...]]
 NAMES = st.sampled_from(["LM", "LP", "scan", "local", "GL"])
 MS = st.one_of(st.none(), st.floats(min_value=0, max_value=1e4, allow_nan=False))
 SAMPLE = st.one_of(
-    st.tuples(st.just("compute"), NAMES, st.tuples(MS, MS, MS, st.integers(1, 8))),
+    st.tuples(st.just("compute"), NAMES, st.tuples(MS, MS, MS, st.integers(1, 8), MS)),
     st.tuples(st.just("run"), NAMES, st.tuples(st.integers(0, 10**6), st.floats(0, 1e4, allow_nan=False))),
 )
 
@@ -28,9 +28,9 @@ def expected(event: str, t: float, key: str, values: tuple[float | int | None, .
         return None if value is None else round(value, digits)
 
     if event == "compute":
-        ms, reported, kernel, threads = values
+        ms, reported, kernel, threads, age = values
         return {"t": round(t, 6), "event": "compute", "node": key, "ms": rounded(ms, 4), "reported_ms": reported,
-                "kernel_ms": rounded(kernel, 4), "threads": threads}  # fmt: skip
+                "kernel_ms": rounded(kernel, 4), "threads": threads, "age_ms": rounded(age, 3)}  # fmt: skip
     seq, latency = values
     return {"t": round(t, 6), "event": "run", "subchain": key, "seq": seq, "latency_ms": rounded(latency, 3)}
 
@@ -63,7 +63,7 @@ def test_a_batch_is_one_line_per_key_and_flush(tmp_path: Path) -> None:
     path = tmp_path / "run.jsonl"
     with RunLog(path) as log:
         for i in range(100):
-            log.sample("compute", i / 100, "LM" if i % 2 else "LP", (1.0, 1.0, None, 1))
+            log.sample("compute", i / 100, "LM" if i % 2 else "LP", (1.0, 1.0, None, 1, None))
     lines = [json.loads(line) for line in path.read_text(encoding="utf-8").splitlines()]
     assert [(line["event"], line["node"], len(line["at"])) for line in lines] == [
         ("compute_batch", "LP", 50),
@@ -94,14 +94,32 @@ def test_samples_from_many_threads_are_all_written(tmp_path: Path) -> None:
 
 
 def test_a_batch_without_a_later_column_reads_it_as_unknown(tmp_path: Path) -> None:
-    """A log of a catanc that wrote no ``threads`` column: its samples come back, threads None."""
+    """A log of a catanc that wrote no ``threads`` or ``age_ms`` column: its samples come back, those None."""
     path = tmp_path / "run.jsonl"
     old = {"t": 2.0, "event": "compute_batch", "node": "n", "at": [1.0, 2.0], "ms": [1.5, 2.5],
            "reported_ms": [1.5, None], "kernel_ms": [None, None]}  # fmt: skip
     path.write_text(json.dumps(old) + "\n", encoding="utf-8")
     assert read_log(path) == [
-        {"t": 1.0, "event": "compute", "node": "n", "ms": 1.5, "reported_ms": 1.5, "kernel_ms": None, "threads": None},
-        {"t": 2.0, "event": "compute", "node": "n", "ms": 2.5, "reported_ms": None, "kernel_ms": None, "threads": None},
+        {
+            "t": 1.0,
+            "event": "compute",
+            "node": "n",
+            "ms": 1.5,
+            "reported_ms": 1.5,
+            "kernel_ms": None,
+            "threads": None,
+            "age_ms": None,
+        },
+        {
+            "t": 2.0,
+            "event": "compute",
+            "node": "n",
+            "ms": 2.5,
+            "reported_ms": None,
+            "kernel_ms": None,
+            "threads": None,
+            "age_ms": None,
+        },
     ]
 
 

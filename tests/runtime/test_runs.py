@@ -70,6 +70,25 @@ def test_a_run_goes_node_by_node_and_its_latency_hops_and_computes_are_seen(two_
     assert book.state("s").late == 0
 
 
+def test_a_runs_age_is_its_end_minus_its_origin_or_a_heads_start(two_nodes: TwoNodes) -> None:
+    """Worked by hand: the age a chain's response is measured from (``age_ms`` in the log)."""
+    book, run, (a, b), readers = two_nodes
+    ages = []
+    for origin_a, origin_b in ((0, 0), (95 * MS, 0), (0, 97 * MS), (0, 200 * MS)):
+        started = book.trigger(run, 100.0, None, until_ms=110.0)
+        assert started is not None
+        a.append(started.seq, 100_200 * 1000, 103_000 * 1000, 2 * MS, origin_ns=origin_a)
+        b.append(started.seq, 103_100 * 1000, 106_000 * 1000, 2 * MS, origin_ns=origin_b)
+        seen = read(book, run, readers, 107.0)
+        ages.append([(c.node, None if c.age_ms is None else round(c.age_ms, 6)) for c in seen.computes])
+    assert ages == [
+        [("a", 2.8), ("b", None)],  # no origin: the head's start (100.2 ms) to its end; none for b
+        [("a", 8.0), ("b", None)],  # sensed at 95 ms, a ended at 103 ms
+        [("a", 2.8), ("b", 9.0)],  # b's own origin: 97 ms to its end at 106 ms
+        [("a", 2.8), ("b", 0.0)],  # an origin after the run's end (a bad clock): never negative
+    ]
+
+
 def test_hops_after_the_slot_are_waits_not_costs(two_nodes: TwoNodes) -> None:
     book, run, (a, b), readers = two_nodes
     started = book.trigger(run, 0.0, None, until_ms=5.0)  # raised until 5 ms

@@ -133,8 +133,14 @@ def report_runs(
                 start = before + rng.uniform(-0.5, 2.0)
                 end = start + rng.uniform(0.0, 3.0)
                 compute = ring.UNKNOWN if rng.random() < 0.1 else int(rng.uniform(0.0, 4.0) * MS)
+                origin = 0 if rng.random() < 0.5 else max(int((start - rng.uniform(-1.0, 5.0)) * MS), 1)
                 writers[node].append(
-                    seq, max(int(start * MS), 0), max(int(end * MS), 0), compute, rng.choice((1, 1, 2, 3))
+                    seq,
+                    max(int(start * MS), 0),
+                    max(int(end * MS), 0),
+                    compute,
+                    rng.choice((1, 1, 2, 3)),
+                    origin_ns=origin,  # when its data was sensed (0: none); after its end sometimes: a bad clock
                 )
 
 
