@@ -150,6 +150,7 @@ class Node:
     ``$CATANC_SOCKET`` names an enforcer, trigger this node every that many ms on its own.
     ``on_input``: the node runs on its input (:meth:`begin` and :meth:`done`, never :meth:`wait`):
     it tells the enforcer, so no node sends it triggers; without an enforcer it runs unreported.
+    ``quiet``: write nothing to stderr when the enforcer is lost (the caller logs :attr:`lost` itself).
     """
 
     PROBE_S = 1.0
@@ -162,6 +163,7 @@ class Node:
         timeout_s: float = 5.0,
         fallback_period_ms: float | None = None,
         on_input: bool = False,
+        quiet: bool = False,
     ):
         _check_name(name)
         if on_input and fallback_period_ms is not None:
@@ -172,6 +174,7 @@ class Node:
         self.fallback_period_ms: float | None = None
         """The period of the node's own timer when no enforcer runs (None: with an enforcer)."""
         self.on_input = bool(on_input)
+        self.quiet = quiet  # the caller tells of a lost enforcer itself (catanc.ros, in the node's log)
         """The node runs on its input (no trigger starts it); without an enforcer it runs unreported."""
         self.standalone = False
         """An ``on_input`` node without an enforcer: its runs are reported to no one."""
@@ -643,7 +646,8 @@ class Node:
         """The enforcer is gone: end the loop (wait() returns None), and say so once."""
         self._ended = True
         self.lost = f"lost the catanc enforcer at {self.socket_path}: {reason}"
-        sys.stderr.write(f"catanc: {self.lost}\n")
+        if not self.quiet:
+            sys.stderr.write(f"catanc: {self.lost}\n")
 
     def _handle(self, data: bytes, ancillary: list[tuple[int, int, bytes]], sender: object) -> None:
         fds: list[int] = []
