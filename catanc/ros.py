@@ -154,7 +154,7 @@ class _Registration:
             self.failed = True
             return False
         try:
-            client = _Client(self.name, on_input=self.on_input)
+            client = _Client(self.name, on_input=self.on_input, quiet=True)
             client.register()
         except ClientError as exc:
             logger.error(f"catanc: ROS node {self.node.get_name()!r}: {exc}; it runs on its own, unscheduled")

@@ -1,0 +1,112 @@
+"""A small rclpy app on catanc.ros, run as a process by the tests here (and by benchmarks/ros_dispatch.py).
+
+``python tests/ros/ros_app.py ROLE [options] [--ros-args ...]``:
+
+- ``head``: a ROS node whose timer (``catanc_ros.create_timer``) burns ``--burn-ms`` of CPU and
+  publishes a ``geometry_msgs/PointStamped`` stamped with the time it started;
+- ``sub``: a ROS node whose subscription (``catanc_ros.reported``) burns ``--burn-ms`` per message;
+- ``plain``: a head on a plain ``node.create_timer`` (the benchmark's baseline).
+
+Each callback prints one JSON line to stdout: ``{"event": "tick" | "message", "tid": its thread,
+"main": the spinning thread, "mono_ns": CLOCK_MONOTONIC at its start, "expected_ns": when a plain
+timer was due}``, so the tests read what ran where and when without asking catanc.  The DAG node
+name comes from ``--ros-args -p catan.node:=NAME`` as params.yaml gives it, or ``--name``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import threading
+import time
+from typing import Any
+
+import rclpy
+from geometry_msgs.msg import PointStamped
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
+from rclpy.node import Node
+
+from catanc import ros as catanc_ros
+
+TOPIC = "catanc_test_points"
+
+
+def burn(ms: float) -> None:
+    start = time.thread_time()
+    while time.thread_time() - start < ms / 1000.0:
+        pass
+
+
+def say(**fields: Any) -> None:
+    sys.stdout.write(json.dumps(fields) + "\n")
+    sys.stdout.flush()
+
+
+class App(Node):  # type: ignore[misc]
+    def __init__(self, options: argparse.Namespace, main: int) -> None:
+        super().__init__(f"catanc_test_{options.role}")
+        self.options = options
+        self.main = main
+        self.expected_ns = 0
+        if options.role == "sub":
+            callback = catanc_ros.reported(self, self.on_point, name=options.name)
+            self.create_subscription(PointStamped, TOPIC, callback, 10)
+            return
+        self.publisher = self.create_publisher(PointStamped, TOPIC, 10)
+        period_s = options.period_ms / 1000.0
+        if options.role == "plain":
+            self.timer = self.create_timer(period_s, self.tick)
+        else:
+            self.timer = catanc_ros.create_timer(self, period_s, self.tick, name=options.name, on_loss=options.on_loss)
+
+    def tick(self) -> None:
+        now = time.monotonic_ns()
+        message = PointStamped()
+        message.header.stamp = self.get_clock().now().to_msg()  # sensed now: the run's origin downstream
+        period_ns = int(self.options.period_ms * 1e6)
+        if self.options.role == "plain":  # when the timer was due: its last call's due time plus a period
+            due = self.expected_ns + period_ns if self.expected_ns else now
+            self.expected_ns = due if now - due < period_ns else now
+        say(event="tick", tid=threading.get_native_id(), main=self.main, mono_ns=now, expected_ns=self.expected_ns)
+        burn(self.options.burn_ms)
+        self.publisher.publish(message)
+
+    def on_point(self, message: PointStamped) -> None:
+        stamp_ns = message.header.stamp.sec * 1_000_000_000 + message.header.stamp.nanosec
+        say(event="message", tid=threading.get_native_id(), main=self.main, stamp_ns=stamp_ns, real_ns=time.time_ns())
+        burn(self.options.burn_ms)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("role", choices=["head", "sub", "plain"])
+    parser.add_argument("--name", default=None)
+    parser.add_argument("--period-ms", type=float, default=20.0)
+    parser.add_argument("--burn-ms", type=float, default=1.0)
+    parser.add_argument("--on-loss", default="timer")
+    parser.add_argument("--executor", choices=["single", "multi"], default="single")
+    options = parser.parse_args(rclpy.utilities.remove_ros_args(sys.argv)[1:])
+    rclpy.init(args=sys.argv)
+    main_tid = threading.get_native_id()
+    node = App(options, main_tid)
+    executor = SingleThreadedExecutor() if options.executor == "single" else MultiThreadedExecutor(num_threads=2)
+    executor.add_node(node)
+    say(event="spinning", main=main_tid)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except catanc_ros.CatancRosError as exc:
+        say(event="error", text=str(exc))
+        return 3
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    say(event="exit")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
