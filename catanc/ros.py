@@ -128,11 +128,11 @@ class _Registration:
         self.node = node
         self.name = _dag_name(node, name)
         self.on_input = on_input
-        self.client: Any | None = None
+        self.client: _Client | None = None
         self.thread: int | None = None
         self.failed = False  # no enforcer for this node: it runs on its own (after one log line)
         self.closed = False
-        self._lock = threading.Lock()
+        self.lock = threading.RLock()  # held through a run: a shutdown from another thread waits for its report
         self.guard = node.create_guard_condition(on_guard or self._on_guard, callback_group=callback_group)
         node.context.on_shutdown(self.close)
         self.guard.trigger()  # registers at the first spin, in the executor's thread
@@ -172,9 +172,13 @@ class _Registration:
                 "than the one running its callback now: spin its node in one SingleThreadedExecutor"
             )
 
+    def holds(self, client: _Client) -> bool:
+        """Whether ``client`` is still this node's (not closed by a shutdown meanwhile)."""
+        return self.client is client
+
     def close(self) -> None:
         """Leave catanc (a bye), once; from the context's shutdown too."""
-        with self._lock:
+        with self.lock:
             if self.closed:
                 return
             self.closed = True
@@ -243,17 +247,24 @@ class CatancTimer:
             self._taken.set()
 
     def _take(self) -> None:
-        client = self._registration.client
+        registration = self._registration
+        client = registration.client
+        if client is None:
+            return
         context = self.node.context
-        while client is not None and context.ok():
-            trigger = client.wait(0)
-            if trigger is None:
-                break
-            try:
-                self.callback()
-            finally:
-                client.done()
-        if client is not None and client.stopped and not self._registration.closed:
+        while context.ok():
+            with registration.lock:
+                if not registration.holds(client):
+                    return  # closed: the context shut down
+                trigger = client.wait(0)
+                if trigger is None:
+                    break
+                try:
+                    self.callback()
+                finally:
+                    if registration.holds(client):  # unless the callback shut the context down
+                        client.done()
+        if client.stopped and not registration.closed:
             self._fall_back(client.lost or "the enforcer stopped")
 
     def _fall_back(self, why: str | None) -> None:
@@ -347,10 +358,14 @@ def reported(node: Any, callback: Callable[[T], Any], *, name: str | None = None
         if client is None:  # closed: the context is shutting down
             return callback(message)
         registration.check_thread()
-        client.begin(_stamp_ns(message))
-        try:
-            return callback(message)
-        finally:
-            client.done()
+        with registration.lock:
+            if not registration.holds(client):
+                return callback(message)
+            client.begin(_stamp_ns(message))
+            try:
+                return callback(message)
+            finally:
+                if registration.holds(client):  # unless the callback shut the context down
+                    client.done()
 
     return run

@@ -49,6 +49,7 @@ class App(Node):  # type: ignore[misc]
         self.options = options
         self.main = main
         self.expected_ns = 0
+        self.ticks = 0
         if options.role == "sub":
             callback = catanc_ros.reported(self, self.on_point, name=options.name)
             self.create_subscription(PointStamped, TOPIC, callback, 10)
@@ -71,6 +72,9 @@ class App(Node):  # type: ignore[misc]
         say(event="tick", tid=threading.get_native_id(), main=self.main, mono_ns=now, expected_ns=self.expected_ns)
         burn(self.options.burn_ms)
         self.publisher.publish(message)
+        self.ticks += 1
+        if self.ticks == self.options.shutdown_after:
+            rclpy.try_shutdown()  # from inside the callback, as a node that is done would
 
     def on_point(self, message: PointStamped) -> None:
         stamp_ns = message.header.stamp.sec * 1_000_000_000 + message.header.stamp.nanosec
@@ -85,6 +89,7 @@ def main() -> int:
     parser.add_argument("--period-ms", type=float, default=20.0)
     parser.add_argument("--burn-ms", type=float, default=1.0)
     parser.add_argument("--on-loss", default="timer")
+    parser.add_argument("--shutdown-after", type=int, default=0, help="ticks, then rclpy.try_shutdown()")
     parser.add_argument("--executor", choices=["single", "multi"], default="single")
     options = parser.parse_args(rclpy.utilities.remove_ros_args(sys.argv)[1:])
     rclpy.init(args=sys.argv)

@@ -120,6 +120,16 @@ def test_ctrl_c_ends_every_node_at_once_with_exit_0(run: RosRun, table: Path) ->
         assert node.of("exit")
 
 
+def test_a_callback_that_shuts_the_context_down_ends_the_node_cleanly(run: RosRun, table: Path) -> None:
+    run.start(table, duration=30.0)
+    cam = run.node("head", "--shutdown-after", "20", dag="cam")
+    run.node("sub", dag="det")  # the subchain runs once all its nodes are there
+    run.registered(["cam", "det"])
+    assert exits_within(cam.proc, 20.0) == 0, cam.stderr()
+    assert len(cam.of("tick")) == 20
+    assert "Traceback" not in cam.stderr()
+
+
 def test_a_name_the_plan_lacks_is_one_error_then_the_fallback_timer(run: RosRun, table: Path) -> None:
     run.start(table, duration=30.0)
     cam = run.node("head", dag="nope")
