@@ -239,6 +239,11 @@ inline socklen_t make_address(const std::string& path, sockaddr_un& to) {
 
 }  // namespace detail
 
+// Tags a Node that runs on its input (a subscription callback later in a subchain): it reports
+// each run with begin() and done(), no node sends it triggers, and without $CATANC_SOCKET it just
+// runs, unreported (no fallback period, no warning).
+struct OnInput {};
+
 // One DAG node's trigger loop, run by the thread that constructs it.
 class Node {
  public:
@@ -246,7 +251,14 @@ class Node {
   // 5 s for its welcome).  Where $CATANC_SOCKET is unset and `fallback_period_ms` > 0, the node
   // runs on its own timer at that period instead; where it is unset and there is no fallback, or
   // the enforcer cannot be reached or rejects the node, this throws catanc::Error.
-  explicit Node(std::string name, double fallback_period_ms = 0.0) : name_(std::move(name)) {
+  explicit Node(std::string name, double fallback_period_ms = 0.0) : Node(std::move(name), fallback_period_ms, false) {}
+
+  // Registers the calling thread as node `name`, which runs on its input: `catanc::Node node("LP",
+  // catanc::OnInput{});` then `node.begin(); ...; node.done(catanc::Origin{stamp_ns});` per message.
+  Node(std::string name, OnInput) : Node(std::move(name), 0.0, true) {}
+
+ private:
+  Node(std::string name, double fallback_period_ms, bool on_input) : name_(std::move(name)), on_input_(on_input) {
     if (!detail::valid_name(name_)) {
       throw Error("bad node name '" + name_ + "': an identifier of 1 to 128 characters");
     }
@@ -259,6 +271,10 @@ class Node {
     thread_ = std::this_thread::get_id();
     const char* path = std::getenv(kSocketEnv);
     if (path == nullptr || *path == '\0') {
+      if (on_input_) {
+        standalone_ = true;  // no enforcer to report to: its runs are its own
+        return;
+      }
       if (fallback_period_ms <= 0.0) {
         ::close(wake_);
         throw Error(std::string("no catanc enforcer socket: ") + kSocketEnv +
@@ -280,6 +296,8 @@ class Node {
       throw;
     }
   }
+
+ public:
 
   Node(const Node&) = delete;
   Node& operator=(const Node&) = delete;
@@ -342,6 +360,8 @@ class Node {
 
  private:
   std::string name_;
+  bool on_input_ = false;    // it runs on its input: its hello says so
+  bool standalone_ = false;  // on its input without an enforcer
   std::string socket_path_;
   std::string enforcer_;  // the address the enforcer talks to this node from (the welcome's sender)
   std::string next_address_, next_node_, prev_address_;
@@ -391,7 +411,7 @@ class Node {
     socket_dev_ = info.st_dev;
     socket_ino_ = info.st_ino;
     const std::string hello = std::string(kProtocol) + " hello " + name_ + " " + std::to_string(::getpid()) + " " +
-                              std::to_string(tid_);
+                              std::to_string(tid_) + (on_input_ ? " input" : "");
     sockaddr_un to{};
     const socklen_t length = detail::make_address(socket_path_, to);
     if (length == 0) throw Error(absent("the path is too long for a socket"));
@@ -448,6 +468,7 @@ class Node {
     check_thread("wait");
     if (current_) finish(std::nullopt);
     if (period_ns_ > 0) return tick(deadline);
+    if (standalone_) return std::nullopt;  // nothing triggers a node on its input
     while (!stopped()) {
       if (!queued_.empty()) {
         Trigger trigger = std::move(queued_.front());
@@ -506,7 +527,7 @@ class Node {
     } else if (std::isfinite(*compute_ms) && *compute_ms >= 0.0 && *compute_ms < 1.8e13) {
       compute_ns = static_cast<std::uint64_t>(*compute_ms * 1e6);
     }
-    if (period_ns_ > 0) return;  // on the timer: nobody to tell
+    if (period_ns_ > 0 || standalone_) return;  // on the timer, or no enforcer: nobody to tell
     drain();  // a route that changed while the run went on, a stop
     bool woke_next = false;
     if (!ended_ && !next_address_.empty() && trigger.seq != 0) {
