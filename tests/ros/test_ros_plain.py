@@ -133,3 +133,16 @@ def test_the_copied_file_works_beside_a_copied_client(tmp_path: Path, client_nam
     assert done.returncode == 0, done.stderr
     module = client_name.removesuffix(".py")
     assert done.stdout.split() == [module, "False"]  # the copied client; catanc itself never imported
+
+
+def test_the_cli_prints_where_catanc_ros_is(tmp_path: Path) -> None:
+    def catanc(*args: str) -> subprocess.CompletedProcess[str]:
+        argv = [sys.executable, "-m", "catanc", "client", *args]
+        return subprocess.run(argv, capture_output=True, text=True, timeout=60, check=False, cwd=tmp_path)
+
+    printed = catanc("--ros")
+    assert printed.returncode == 0, printed.stderr
+    assert Path(printed.stdout.strip()).read_bytes() == (PACKAGE / "ros.py").read_bytes()
+    both = catanc("--ros", "--python")
+    assert both.returncode == 2
+    assert "--ros" in both.stderr
