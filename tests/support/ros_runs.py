@@ -49,6 +49,7 @@ constraints:
 runtime: {first_solve_after_s: 100, stage2_every_s: 100, stage1_every_s: 100}
 """
 PLANNED_HZ = 50.0
+REGISTER_S = 30.0
 
 
 @dataclass
@@ -115,6 +116,16 @@ class RosRun(EnforcerRun):
         node = RosNode(proc, out, err)
         self.nodes.append(node)
         return node
+
+    def registered(self, nodes: Sequence[str]) -> dict[str, tuple[int, int]]:
+        """Wait until every node in ``nodes`` registered (``{node: (pid, tid)}``): up to 30 s, as a process that
+        imports rclpy can take 10 s to start on a loaded 2-core VM."""
+
+        def check() -> dict[str, tuple[int, int]] | None:
+            found = {e["node"]: (e["pid"], e["tid"]) for e in of_kind(self.events(), "register")}
+            return found if set(nodes) <= set(found) else None
+
+        return poll(check, f"nodes {sorted(nodes)} to register", timeout=REGISTER_S)
 
     def registered_tids(self, nodes: Sequence[str]) -> dict[str, int]:
         return {node: tid for node, (_, tid) in self.registered(nodes).items()}
