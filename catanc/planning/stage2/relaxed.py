@@ -19,6 +19,7 @@ separate step.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
 from collections.abc import Mapping
@@ -178,7 +179,14 @@ class RelaxedStage2(LayoutModel):
 
     def solve_least_scale(self) -> RelaxedSolution | None:
         """The relaxed plan needing the smallest scale on the bounds (its ``objective`` is that scale)."""
-        return self._run(self.problem_scale)
+        found = self._run(self.problem_scale)
+        if found is not None:
+            return found
+        # Where the floor s >= 1 binds with the bounds far from tight (4x in issue 48's example),
+        # Clarabel can stall on this program (InsufficientProgress) though a plan exists. A plan
+        # meeting the bounds as written proves the least scale is exactly the floor.
+        within = self.solve(1.0)
+        return None if within is None else dataclasses.replace(within, objective=1.0)
 
     def _run(self, problem: cp.Problem) -> RelaxedSolution | None:
         try:
