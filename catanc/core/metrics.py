@@ -139,15 +139,23 @@ def evaluate_chain(problem: Problem, chain: Chain, timings: Mapping[str, Timing]
 
 def form_metrics(form: ChainForm, timings: Mapping[str, Timing]) -> ChainMetrics:
     """A chain's metrics from its :class:`ChainForm` (the fast path; :func:`evaluate_chain` is the reference)."""
-    latency = math.fsum(
-        [
-            form.constant,
-            *(timings[name].latency_ms for name in form.latency_of),
-            *(timings[name].period_ms for name in form.period_of),
-        ]
-    )
-    period = max([form.floor, *(timings[name].period_ms for name in form.longest_of)])
+    latency, period = _latency_period(form, timings)
     return ChainMetrics(latency, period, latency + period)
+
+
+def _latency_period(form: ChainForm, timings: Mapping[str, Timing]) -> tuple[float, float]:
+    # fsum is exactly rounded and max exact: any order of the terms gives the same bits.
+    parts = [timings[name].latency_ms for name in form.latency_of]
+    parts += [timings[name].period_ms for name in form.period_of]
+    parts.append(form.constant)
+    longest = [timings[name].period_ms for name in form.longest_of]
+    longest.append(form.floor)
+    return math.fsum(parts), max(longest)
+
+
+def _response(form: ChainForm, timings: Mapping[str, Timing]) -> float:
+    latency, period = _latency_period(form, timings)
+    return latency + period
 
 
 def chain_metrics_of(problem: Problem, index: int, timings: Mapping[str, Timing]) -> ChainMetrics:
@@ -157,13 +165,12 @@ def chain_metrics_of(problem: Problem, index: int, timings: Mapping[str, Timing]
 
 def objective(problem: Problem, timings: Mapping[str, Timing]) -> float:
     """``sum w_t R_t + sum w_i p_i`` over the problem's terms (ms)."""
-    responses = {
-        term.chain: chain_metrics_of(problem, term.chain, timings).response_ms for term in problem.response_terms
-    }
-    return math.fsum(
-        [term.weight * responses[term.chain] for term in problem.response_terms]
-        + [term.weight * timings[term.subchain].period_ms for term in problem.period_terms]
-    )
+    forms = problem.chain_forms
+    chains = dict.fromkeys(term.chain for term in problem.response_terms)  # several terms may weigh one chain
+    responses = {index: _response(forms[index], timings) for index in chains}
+    terms = [term.weight * responses[term.chain] for term in problem.response_terms]
+    terms += [term.weight * timings[term.subchain].period_ms for term in problem.period_terms]
+    return math.fsum(terms)
 
 
 def bound_scale(problem: Problem, timings: Mapping[str, Timing]) -> float:
@@ -173,9 +180,9 @@ def bound_scale(problem: Problem, timings: Mapping[str, Timing]) -> float:
     period) needs ``p / p_max``.  1.0 means every bound holds as written.
     """
     scale = 1.0
+    forms = problem.chain_forms
     for bound in problem.response_bounds:
-        response = chain_metrics_of(problem, bound.chain, timings).response_ms
-        scale = max(scale, response / bound.max_response_ms)
+        scale = max(scale, _response(forms[bound.chain], timings) / bound.max_response_ms)
     for sub in problem.subchains:
         if sub.max_period_ms < math.inf:
             scale = max(scale, timings[sub.name].period_ms / sub.max_period_ms)
