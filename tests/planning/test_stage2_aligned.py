@@ -30,6 +30,7 @@ from catanc.planning.stage2.conic import ConicStage2
 from catanc.planning.stage2.convex import OPEN
 from catanc.planning.stage2.integer import most_runs
 from catanc.planning.stage2.onebatch import OneBatchRuns
+from catanc.planning.stage2.whole import WholeRuns
 from catanc.spec.language import Schedule, Spec
 from tests.planning.test_stage2_conic import apps
 
@@ -205,3 +206,47 @@ def test_one_batch_with_caps_against_enumeration(app: tuple[Spec, Layout, dict[s
     if least is not OPEN and least is not None:
         assert not isinstance(least, type(OPEN))
         assert least.objective <= least_scale * (1 + 1e-9), "an (x, k) of the grid needs a smaller scale"
+
+
+# --------------------------------------------------------------------------- a cutoff on fixed runs
+
+
+@st.composite
+def capped_whole_apps(draw: st.DrawFn) -> tuple[Spec, Layout, dict[str, int]]:
+    spec, layout = draw(apps(max_subchains=5))
+    problem = build_problem(spec)
+    shared = [name for core in layout.shared for name in core.subchains]
+    assume(not any(problem.subchain(name).batch for name in shared))
+    assume(any(problem.subchain(name).min_period_ms > 0 for name in shared))  # lengths are searched
+    runs = {
+        name: draw(st.integers(1, min(most_runs(problem.subchain(name).compute_ms, spec.schedule), 8)))
+        for name in shared
+    }
+    return spec, layout, runs
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
+@given(
+    app=capped_whole_apps(),
+    scale=st.sampled_from([1.0, 1e6]),
+    least_scale=st.booleans(),
+    factor=st.sampled_from([0.5, 0.999, 1.0, 1.001, 2.0]),
+)
+def test_a_cutoff_keeps_exactly_the_plans_below_it(
+    app: tuple[Spec, Layout, dict[str, int]], scale: float, least_scale: bool, factor: float
+) -> None:
+    # The search's leaves skip lengths whose bound reaches the incumbent: against the search
+    # without one, a cutoff may only turn a plan that does not beat it into None.
+    spec, layout, runs = app
+    problem = build_problem(spec)
+    closed = WholeRuns(ConicStage2(problem, layout, spec.schedule), problem)
+    assert closed.aligned_matters
+    full = closed.fixed_runs(runs, scale, least_scale=least_scale)
+    assume(full is not None)
+    assert full is not None
+    cutoff = full.objective * factor
+    cut = closed.fixed_runs(runs, scale, least_scale=least_scale, cutoff=cutoff)
+    if full.objective < cutoff:
+        assert cut == full
+    else:
+        assert cut is None

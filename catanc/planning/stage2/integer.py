@@ -141,7 +141,10 @@ def solve_integer(
         nonlocal best, threshold
         exact: RelaxedSolution | Open | None = OPEN
         if fixed is not None:  # every n fixed and at most one batch subchain: no solver needed
-            exact = fixed.fixed_runs({name: low for name, (low, _) in box.items()}, scale, least_scale=least_scale)
+            # A point no better than the incumbent changes nothing: not even the split below, as
+            # its value then exceeds the box's bound anyway (that is below the incumbent).
+            runs = {name: low for name, (low, _) in box.items()}
+            exact = fixed.fixed_runs(runs, scale, least_scale=least_scale, cutoff=threshold)
         if isinstance(exact, Open):
             exact = relax(box)
         if exact is None:

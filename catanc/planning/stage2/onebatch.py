@@ -187,8 +187,11 @@ class OneBatchRuns:
             return x
         return self.whole.solve(runs, scale, least_scale=least_scale, batch={self.batch: x}, aligned=False)
 
-    def fixed_runs(self, runs: dict[str, int], scale: float, *, least_scale: bool) -> RelaxedSolution | Open | None:
-        """The exact optimum with these runs (None: they miss the scaled bounds; OPEN: ask the solver).
+    def fixed_runs(
+        self, runs: dict[str, int], scale: float, *, least_scale: bool, cutoff: float = math.inf
+    ) -> RelaxedSolution | Open | None:
+        """The exact optimum with these runs (None: they miss the scaled bounds, or no plan beats
+        ``cutoff`` where lengths are searched; OPEN: ask the solver).
 
         Where a shared subchain's ``k`` can exceed its ``n`` (a rate cap or a fixed rate), the
         relaxation is only a bound: the lengths of the other cores are searched as
@@ -207,6 +210,7 @@ class OneBatchRuns:
                 fixed_cores=frozenset({self.core.core}),
                 leaf=lambda lengths: self._batch_core(runs, scale, lengths, least_scale=least_scale),
                 relaxed_leaf=lambda lengths: self._relaxed(runs, scale, lengths, least_scale=least_scale),
+                cutoff=cutoff,
             )
         except _OpenError:
             return OPEN

@@ -133,10 +133,16 @@ class WholeRuns:
             objective=value,
         )
 
-    def fixed_runs(self, runs: dict[str, int], scale: float, *, least_scale: bool) -> RelaxedSolution | None:
-        """The exact optimum with these runs: over the lengths where some ``k`` can exceed ``n``."""
+    def fixed_runs(
+        self, runs: dict[str, int], scale: float, *, least_scale: bool, cutoff: float = math.inf
+    ) -> RelaxedSolution | None:
+        """The exact optimum with these runs: over the lengths where some ``k`` can exceed ``n``.
+
+        Only a plan better than ``cutoff`` is of interest: where the lengths are searched, None
+        then also means that none is (a caller holding a plan of that value loses nothing).
+        """
         if self.aligned_matters:
-            return self.exact(runs, scale, least_scale=least_scale)
+            return self.exact(runs, scale, least_scale=least_scale, cutoff=cutoff)
         return self.solve(runs, scale, least_scale=least_scale)
 
     def capped(self, core: SharedCore) -> list[str]:
@@ -160,8 +166,10 @@ class WholeRuns:
         fixed_cores: frozenset[int] = frozenset(),
         leaf: Callable[[dict[int, float]], RelaxedSolution | None] | None = None,
         relaxed_leaf: Callable[[dict[int, float]], float | None] | None = None,
+        cutoff: float = math.inf,
     ) -> RelaxedSolution | None:
-        """The best plan with these runs over every core's ``T`` (the module's search); None: infeasible.
+        """The best plan with these runs over every core's ``T`` (the module's search); None: infeasible,
+        or no plan better than ``cutoff`` (lengths whose bound reaches it are not scored).
 
         Cores in ``fixed_cores`` keep the ``T`` that fits (a batch core's, chosen by the caller);
         ``leaf`` and ``relaxed_leaf`` score a choice of lengths exactly and relaxed (default: this
@@ -193,13 +201,13 @@ class WholeRuns:
             nonlocal best
             if level == len(searched):
                 found = leaf(chosen)
-                if found is not None and (best is None or found.objective < best.objective):
+                if found is not None and found.objective < (cutoff if best is None else best.objective):
                     best = found
                 return
             for length in options[level]:
                 trial = {**chosen, searched[level].core: length}
                 bound = relaxed_leaf(trial)  # the cores not chosen yet at the least T: a lower bound
-                if bound is None or (best is not None and bound >= best.objective):
+                if bound is None or bound >= (cutoff if best is None else best.objective):
                     break  # and every longer T of this core: the relaxation only grows with it
                 visit(level + 1, trial)
 
