@@ -197,21 +197,24 @@ class WholeRuns:
         ]
         best: RelaxedSolution | None = None
 
-        def visit(level: int, chosen: dict[int, float]) -> None:
+        def visit(level: int, chosen: dict[int, float], known: float | None) -> None:
+            """Search the cores from ``level`` on; ``known`` is ``chosen``'s bound (NaN: not computed)."""
             nonlocal best
             if level == len(searched):
                 found = leaf(chosen)
                 if found is not None and found.objective < (cutoff if best is None else best.objective):
                     best = found
                 return
-            for length in options[level]:
+            for index, length in enumerate(options[level]):
                 trial = {**chosen, searched[level].core: length}
-                bound = relaxed_leaf(trial)  # the cores not chosen yet at the least T: a lower bound
+                # The cores not chosen yet at the least T: a lower bound. The first option is that
+                # least T, so its bound is the one ``chosen`` already has.
+                bound = known if index == 0 and not _unknown(known) else relaxed_leaf(trial)
                 if bound is None or bound >= (cutoff if best is None else best.objective):
                     break  # and every longer T of this core: the relaxation only grows with it
-                visit(level + 1, trial)
+                visit(level + 1, trial, bound)
 
-        visit(0, dict(lengths or {}))
+        visit(0, dict(lengths or {}), math.nan)
         return best
 
     def best(self, box: dict[str, tuple[int, int]], scale: float, *, least_scale: bool) -> Enumerated | None:
@@ -290,3 +293,7 @@ class WholeRuns:
     @staticmethod
     def size(box: dict[str, tuple[int, int]]) -> int:
         return math.prod(high - low + 1 for low, high in box.values())
+
+
+def _unknown(bound: float | None) -> bool:
+    return bound is not None and math.isnan(bound)
