@@ -10,6 +10,8 @@ Sections:
   (1 core), warm, with every compute time drifting by up to 3% between
   calls (as the runtime's re-measured p95s do); where the time goes; one
   relaxation re-solve alone, by the conic model and by cvxpy.
+- ``at_scale``: the Autoware reference system (benchmarks/autoware.yaml) on 1-8 cores:
+  the first plan, then warm ``resolve`` and ``reallocate`` calls with drifting times.
 - ``cold``: a fresh process: importing the planner, building a
   ``Replanner`` (both stages, runners-up included) and its first resolve.
 - ``commands``: whole-process times of ``catanc validate`` and ``catanc explain``.
@@ -106,6 +108,45 @@ def resolve_speed(name: str, cores: int, repeats: int, gap: float) -> dict[str, 
     return row
 
 
+def at_scale(cores: int, repeats: int) -> dict[str, float]:
+    """The Autoware reference system (benchmarks/autoware.yaml): ``Replanner.resolve`` and ``reallocate``, warm.
+
+    Every compute time drifts by up to :data:`DRIFT` between calls, with the runtime's default gap.
+    """
+    from catanc.planning.replan import Replanner  # noqa: PLC0415
+
+    spec = load_spec(ROOT / "benchmarks" / "autoware.yaml")
+    started = time.perf_counter()
+    replanner = Replanner(spec, cores)
+    first_ms = (time.perf_counter() - started) * 1000
+    times = {
+        node: c
+        for sub in replanner.spec_problem.subchains
+        for node, c in zip(sub.nodes, sub.node_compute_ms, strict=True)
+    }
+    rng = random.Random(1)
+
+    def drifted() -> dict[str, float]:
+        return {node: c * rng.uniform(1 - DRIFT, 1 + DRIFT) for node, c in times.items()}
+
+    resolves, reallocations = [], []
+    for _ in range(repeats):
+        started = time.perf_counter()
+        replanner.resolve(drifted())
+        resolves.append((time.perf_counter() - started) * 1000)
+    for _ in range(max(3, repeats // 20)):
+        started = time.perf_counter()
+        replanner.reallocate(drifted())
+        reallocations.append((time.perf_counter() - started) * 1000)
+    return {
+        "first_plan_ms": round(first_ms, 1),
+        "resolve_median_ms": round(statistics.median(resolves), 2),
+        "resolve_max_ms": round(max(resolves), 2),
+        "reallocate_median_ms": round(statistics.median(reallocations), 1),
+        "reallocate_max_ms": round(max(reallocations), 1),
+    }
+
+
 def cold(name: str, cores: int) -> dict[str, float]:
     """A fresh interpreter: import, build a Replanner (both stages), first resolve."""
     script = f"""
@@ -199,6 +240,7 @@ def main() -> None:
             for name, cores in [("nav2d", 2), ("vr_illixr", 1)]
             for gap, label in [(0.0, ", exact"), (RUNTIME_GAP, ", default gap")]
         },
+        "at_scale": {f"autoware, {cores} core(s)": at_scale(cores, repeats // 10) for cores in (1, 2, 4, 8)},
         "cold": {f"{name}, {cores} core(s)": cold(name, cores) for name, cores in [("nav2d", 2), ("vr_illixr", 1)]},
         "commands": commands(3 if args.quick else 7),
         "runners_up": runners_up(),
@@ -216,6 +258,13 @@ def main() -> None:
             f"{label:<34}{row['resolve_median_ms']:>10}{row['resolve_p90_ms']:>8}{row['target_ms']:>8}{row['vs_paper']:>9}"
             f"{row['relaxations_per_resolve']:>10}{row['share_in_relaxations']:>8.0%}"
             f"{row.get('one_relaxation_conic_ms', '-'):>12}{row.get('one_relaxation_cvxpy_ms', '-'):>12}"
+        )
+    print(f"\nThe Autoware reference system, warm (drift up to {DRIFT:.0%} per call, default gap; ms)")
+    print(f"{'':<22}{'first plan':>11}{'resolve':>9}{'max':>9}{'reallocate':>12}{'max':>9}")
+    for label, row in report["at_scale"].items():
+        print(
+            f"{label:<22}{row['first_plan_ms']:>11}{row['resolve_median_ms']:>9}{row['resolve_max_ms']:>9}"
+            f"{row['reallocate_median_ms']:>12}{row['reallocate_max_ms']:>9}"
         )
     print("\nCold, in a fresh process (median of 3; ms)")
     for label, row in report["cold"].items():
