@@ -10,6 +10,12 @@ Markers (registered in pyproject.toml; pytest runs with ``--strict-markers``):
 - ``slow``: takes more than ~10 s on the 2-core development VM;
   ``pytest -m "not slow"`` is the quick pass.
 
+Hypothesis profiles: ``ci`` (derandomized, no example database) wherever ``CI`` is set, as
+``.ci/run`` has it; ``explore`` elsewhere (new examples each run, failures kept in the
+gitignored ``.hypothesis/``).  ``--hypothesis-profile`` picks one by name.  Neither has a
+deadline or the too-slow health check: a loaded machine must not fail a test (speed lives in
+the benchmarks).
+
 Helpers that are not fixtures live in :mod:`tests.support`.  ``untraded`` plans without Stage II's
 executor trade.
 """
@@ -17,13 +23,15 @@ executor trade.
 from __future__ import annotations
 
 import importlib.util
+import os
 import shutil
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import pytest
+from hypothesis import HealthCheck, settings
 
 from tests.support.linux import missing_tools, nobody_ids, require_fifo
 
@@ -31,6 +39,18 @@ if TYPE_CHECKING:
     from catanc.runtime.compiled_entry import WalkEntry
 
 REALTIME_FIXTURES = frozenset({"real_kernel", "nobody"})
+
+settings.register_profile("explore", deadline=None, suppress_health_check=[HealthCheck.too_slow], print_blob=True)
+settings.register_profile("ci", settings.get_profile("explore"), derandomize=True, database=None)
+
+
+def hypothesis_profile(environ: Mapping[str, str]) -> str:
+    """The profile a run takes unless ``--hypothesis-profile`` names one: ``ci`` where ``CI`` is set at all
+    (Hypothesis' own rule for its built-in profile of that name), else ``explore``."""
+    return "ci" if "CI" in environ else "explore"
+
+
+settings.load_profile(hypothesis_profile(os.environ))
 
 
 @pytest.fixture(scope="module")
