@@ -7,8 +7,11 @@ Markers (registered in pyproject.toml; pytest runs with ``--strict-markers``):
   :func:`nobody` fixture gets it here, so ``pytest -m "not realtime"`` runs
   anywhere.  Such a test also skips, with the reason, where the machine
   lacks the part.
-- ``slow``: takes more than ~10 s on the 2-core development VM;
-  ``pytest -m "not slow"`` is the quick pass.
+- ``slow``: out of the fast tier, ``pytest -m "not slow and not realtime and not ros"``:
+  takes more than ~10 s on the 2-core development VM, or belongs to a module whose
+  tests each start processes (the CLI, node processes, ``catanc run``) or run numba-compiled
+  code whose first build costs a minute (the compiled loop, the simulator's kernel).  Given
+  here by rule (:data:`SLOW_MODULES`, :data:`COMPILED_FIXTURES`), and by hand on single tests.
 
 Hypothesis profiles: ``ci`` (derandomized, no example database) wherever ``CI`` is set, as
 ``.ci/run`` has it; ``explore`` elsewhere (new examples each run, failures kept in the
@@ -39,6 +42,42 @@ if TYPE_CHECKING:
     from catanc.runtime.compiled_entry import WalkEntry
 
 REALTIME_FIXTURES = frozenset({"real_kernel", "nobody"})
+COMPILED_FIXTURES = frozenset({"compiled_loop_built", "compiled_loop"})
+"""The compiled loop: built from scratch (a fresh clone) it takes about a minute of CPU."""
+
+TESTS = Path(__file__).parent
+SLOW_MODULES = frozenset(
+    {
+        # the compiled simulator in every test: its numba build takes ~47 s of CPU from an empty cache
+        "sim/test_kernel.py",
+        "sim/test_numba_cache.py",
+        "sim/test_plots.py",
+        "sim/test_simulate.py",
+        "sim/test_stealing.py",
+        "explain/test_executor_caps.py",
+        "explain/test_executors.py",
+        "planning/test_executor_trade.py",
+        # re-plans against fresh cvxpy solves, seconds each
+        "planning/test_replan.py",
+        # processes in most tests: the CLI, node processes, catanc run, compilers
+        "artifacts/test_launch_py.py",
+        "cli/test_progress.py",
+        "realbench/test_bench.py",
+        "runtime/test_compiled_ready.py",
+        "runtime/test_doctor.py",
+        "runtime/test_enforcer.py",
+        "runtime/test_enforcer_processes.py",
+        "runtime/test_hostile_clients.py",
+        "runtime/test_observe.py",
+        "runtime/test_ring_counter.py",
+        "runtime/test_runtime_costs.py",
+        "runtime/test_sched.py",
+        "runtime/test_watchdog.py",
+        "test_client_cpp.py",
+        "test_clients_on_the_kernel.py",
+    }
+)
+"""Modules (under tests/) out of the fast tier as a whole."""
 
 settings.register_profile("explore", deadline=None, suppress_health_check=[HealthCheck.too_slow], print_blob=True)
 settings.register_profile("ci", settings.get_profile("explore"), derandomize=True, database=None)
@@ -110,8 +149,16 @@ def shared_folder() -> Iterator[Path]:
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     for item in items:
-        if REALTIME_FIXTURES & set(getattr(item, "fixturenames", ())):
+        fixtures = set(getattr(item, "fixturenames", ()))
+        if REALTIME_FIXTURES & fixtures:
             item.add_marker(pytest.mark.realtime)
+        if COMPILED_FIXTURES & fixtures or module_of(item) in SLOW_MODULES:
+            item.add_marker(pytest.mark.slow)
+
+
+def module_of(item: pytest.Item) -> str:
+    """The item's file relative to tests/, as :data:`SLOW_MODULES` names it ("" outside it)."""
+    return item.path.relative_to(TESTS).as_posix() if item.path.is_relative_to(TESTS) else ""
 
 
 @pytest.fixture

@@ -83,6 +83,7 @@ def targets(compiled: dict[tuple[str, int], Target]) -> Iterator[Target]:
 # --------------------------------------------------------------------------- the folder and its headers
 
 
+@pytest.mark.slow
 def test_every_folder_has_exactly_the_five_files(compiled: dict[tuple[str, int], Target]) -> None:
     for (stem, cores), target in compiled.items():
         assert sorted(target.files) == sorted(FILES)
@@ -327,6 +328,7 @@ def test_plan_md_is_the_explain_report(compiled: dict[tuple[str, int], Target]) 
 # --------------------------------------------------------------------------- determinism
 
 
+@pytest.mark.slow
 def test_fresh_processes_write_the_same_bytes(tmp_path: Path) -> None:
     """Every example spec at 1 and 2 cores, compiled twice in fresh processes with different hash seeds."""
     work = tmp_path / "work"
@@ -465,6 +467,7 @@ def test_usage_errors(robot: Path, arguments: list[str], message: str) -> None:
 # --------------------------------------------------------------------------- the documented CI check
 
 
+@pytest.mark.slow
 def test_committed_output_passes_the_documented_check_and_hook(monkeypatch: pytest.MonkeyPatch) -> None:
     """The deploying guide's CI command and the pre-commit hook's entry, run on this repository's own out/."""
     monkeypatch.chdir(ROOT)

@@ -667,6 +667,7 @@ def example_scripts(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]
     return scripts
 
 
+@pytest.mark.slow
 def test_every_example_script_parses(example_scripts: dict[str, Path]) -> None:
     if missing_tools("bash"):
         pytest.skip("needs bash")

@@ -259,6 +259,7 @@ rt: {runtime_us: 950000, period_us: 1000000}
 """
 
 
+@pytest.mark.slow
 def test_simulate_on_a_machine_profile_simulates_the_spec_with_its_costs_raised(tmp_path: Path) -> None:
     # The oracle: the same spec with the two costs worked out above written into its schedule by hand.
     machine = tmp_path / "slow.yaml"

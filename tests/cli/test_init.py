@@ -24,6 +24,7 @@ def catanc(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-m", "catanc", *args], cwd=cwd, capture_output=True, text=True, check=False)
 
 
+@pytest.mark.slow
 def test_init_then_compile_succeeds_through_the_real_cli(tmp_path: Path) -> None:
     made = catanc("init", "--out", "x.yaml", cwd=tmp_path)
     assert made.returncode == 0, made.stderr

@@ -235,6 +235,7 @@ TWO_TIMERS = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("engine", ["python", "compiled"])
 def test_the_simulator_runs_an_executors_nodes_one_after_the_other(engine: EngineChoice) -> None:
     # Baseline on 3 cores, a and b (10 ms each) on 10 Hz timers from t = 0. Apart, each takes a core:

@@ -361,6 +361,7 @@ def test_highs_is_silent_from_construction() -> None:
     assert flag is False
 
 
+@pytest.mark.slow
 def test_same_allocation_in_fresh_processes() -> None:
     # Determinism across runs: two separate processes, MILP and enumerator, same bytes.
     outputs = set()

@@ -184,6 +184,7 @@ def capped_one_batch_apps(draw: st.DrawFn) -> tuple[Spec, Layout, dict[str, int]
     return spec, layout, runs
 
 
+@pytest.mark.slow
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
 @given(app=capped_one_batch_apps(), scale=st.sampled_from([1.0, 2.0, 1e6]))
 def test_one_batch_with_caps_against_enumeration(app: tuple[Spec, Layout, dict[str, int]], scale: float) -> None:

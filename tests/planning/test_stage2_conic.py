@@ -155,6 +155,7 @@ def changed(problem: Problem, factors: list[float]) -> Problem:
     return replace(problem, subchains=subchains)
 
 
+@pytest.mark.slow
 @settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(
     app=apps(),
@@ -189,6 +190,7 @@ def test_conic_model_agrees_with_the_reference(
                 assert least.objective >= 1.0 - 1e-7
 
 
+@pytest.mark.slow
 @settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(app=apps(max_subchains=4, longest_runs=6), scale=st.sampled_from([1.0, 1e6]))
 def test_integer_search_agrees_with_either_model(app: tuple[Spec, Layout], scale: float) -> None:

@@ -67,6 +67,7 @@ def test_slack_and_switch_cost_stretch_the_period() -> None:
     assert solution.fraction["A"] == pytest.approx(1.0, rel=1e-6)
 
 
+@pytest.mark.slow
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(document=spec_documents(max_subchains=5), cores=st.integers(1, 3))
 def test_gp_value_is_the_models_objective(document: dict[str, object], cores: int) -> None:
