@@ -79,7 +79,14 @@ SLOW_MODULES = frozenset(
 )
 """Modules (under tests/) out of the fast tier as a whole."""
 
-settings.register_profile("explore", deadline=None, suppress_health_check=[HealthCheck.too_slow], print_blob=True)
+# On Hypothesis' own default, not on the profile loaded now (its built-in ci one where CI is set).
+settings.register_profile(
+    "explore",
+    settings.get_profile("default"),
+    deadline=None,
+    suppress_health_check=[HealthCheck.too_slow],
+    print_blob=True,
+)
 settings.register_profile("ci", settings.get_profile("explore"), derandomize=True, database=None)
 
 
