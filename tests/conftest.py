@@ -57,11 +57,14 @@ SLOW_MODULES = frozenset(
         "explain/test_executor_caps.py",
         "explain/test_executors.py",
         "planning/test_executor_trade.py",
+        # the compiled walk against the Python one: its numba build, as the simulator's
+        "runtime/test_compiled_walk.py",
         # re-plans against fresh cvxpy solves, seconds each
         "planning/test_replan.py",
         # processes in most tests: the CLI, node processes, catanc run, compilers
         "artifacts/test_launch_py.py",
         "cli/test_progress.py",
+        "explain/test_explain_piped.py",
         "realbench/test_bench.py",
         "runtime/test_compiled_ready.py",
         "runtime/test_doctor.py",
