@@ -527,15 +527,18 @@ def test_without_a_socket_a_fallback_period_runs_the_loop_on_a_timer(
 
 def test_the_fallback_timer_skips_the_ticks_a_long_run_overran(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.delenv(SOCKET_ENV, raising=False)
-    with Node("LM", fallback_period_ms=10.0) as node:
+    # At a 100 ms period a busy machine's late wake-ups (tens of ms) stay apart from both wrong answers:
+    # a tick at once (0 ms) and a timer restarted at the late run's end (100 ms).  (At 10 ms, a 5 ms
+    # bound of 4 ms failed under load.)
+    with Node("LM", fallback_period_ms=100.0) as node:
         first = node.wait()
-        time.sleep(0.055)  # five ticks and a half
+        time.sleep(0.55)  # five ticks and a half
         second = node.wait()
         began = time.monotonic()
         third = node.wait()
         waited = time.monotonic() - began
     assert (first, second, third) == (Trigger("LM", 1), Trigger("LM", 2), Trigger("LM", 3))
-    assert waited == pytest.approx(0.005, abs=0.004)  # the next tick on the timer's phase, not 10 ms later
+    assert waited == pytest.approx(0.05, abs=0.04)  # the next tick on the timer's phase, not 100 ms later
 
 
 def test_the_fallback_timer_waits_with_a_timeout_and_stops_on_interrupt(monkeypatch: pytest.MonkeyPatch) -> None:
