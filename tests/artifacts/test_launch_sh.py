@@ -677,6 +677,7 @@ def test_every_example_script_parses(example_scripts: dict[str, Path]) -> None:
         assert result.returncode == 0, f"{name}: {result.stderr}"
 
 
+@pytest.mark.slow
 def test_every_example_script_passes_shellcheck(
     example_scripts: dict[str, Path], tmp_path: Path, two_cores: Plan
 ) -> None:
