@@ -49,6 +49,7 @@ TESTS = Path(__file__).parent
 SLOW_MODULES = frozenset(
     {
         # the compiled simulator in every test: its numba build takes ~47 s of CPU from an empty cache
+        "sim/test_fifo_static.py",
         "sim/test_kernel.py",
         "sim/test_numba_cache.py",
         "sim/test_plots.py",
