@@ -18,14 +18,18 @@ from pathlib import Path
 CACHE_SUFFIXES = (".nbi", ".nbc")  # numba's index and data files
 
 
-def drop_stale_cache(source: Path) -> list[Path]:
+def drop_stale_cache(source: Path, depends_on: tuple[Path, ...] = ()) -> list[Path]:
     """Remove the numba cache files of ``source`` in its ``__pycache__`` that are older than it; the removed.
+
+    ``depends_on``: the modules whose compiled functions or constants ``source``'s functions use.  numba
+    checks only the stamp of a function's own file, so code compiled against an older one of these
+    would be loaded as current: a cache file older than any of them goes too.
 
     Never raises: a file another process removed first, or a read-only install, leaves it as it is.
     """
     removed: list[Path] = []
     try:
-        stamp = source.stat().st_mtime
+        stamp = max(path.stat().st_mtime for path in (source, *depends_on))
         candidates = sorted((source.parent / "__pycache__").glob(f"{source.stem}.*"))
     except OSError:
         return removed

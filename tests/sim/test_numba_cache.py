@@ -36,6 +36,23 @@ def test_only_the_cache_files_older_than_the_source_go(tmp_path: Path) -> None:
     assert all(path.exists() for path in fresh + others)
 
 
+def test_cache_files_older_than_a_module_the_source_depends_on_go_too(tmp_path: Path) -> None:
+    # numba would load code compiled against the older dependency: only the source's own stamp is checked.
+    source = tmp_path / "kernel.py"
+    source.write_text("from policy import DECIDE\n")
+    now = source.stat().st_mtime
+    dependency = tmp_path / "policy.py"
+    dependency.write_text("DECIDE = 1\n")
+    os.utime(dependency, (now + HOUR_S, now + HOUR_S))
+    cache = tmp_path / "__pycache__"
+    cache.mkdir()
+    compiled_before = touch(cache / "kernel.switch-80.py311.nbi", now + 1)
+    compiled_after = touch(cache / "kernel.switch-80.py311.1.nbc", now + 2 * HOUR_S)
+    assert drop_stale_cache(source) == []
+    assert drop_stale_cache(source, depends_on=(dependency,)) == [compiled_before]
+    assert compiled_after.exists()
+
+
 def test_a_missing_source_or_cache_folder_is_no_error(tmp_path: Path) -> None:
     assert drop_stale_cache(tmp_path / "gone.py") == []
     (tmp_path / "alone.py").write_text("")
