@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING, Any, Literal
 
 from catanc.errors import LoopError, OutputError
 from catanc.files import write_files
+from catanc.runtime import compiled_sources
 
 if TYPE_CHECKING:  # the entry imports numpy, which the enforcer must not before its planner's fork
     from catanc.runtime.compiled_entry import Layout, WalkEntry
@@ -44,9 +45,7 @@ CACHE_ENV = "CATANC_CACHE_DIR"
 
 STAMP_NAME = "compiled_walk.ready.json"
 OBJECT_NAME = "compiled_walk.o"
-SOURCES = tuple(
-    Path(__file__).with_name(name) for name in ("compiled_walk.py", "walk_arrays.py", "compiled_build.py")
-)  # what the object file is compiled from
+SOURCES = compiled_sources.SOURCES  # what the object file is compiled from
 PR_SET_PDEATHSIG = 1
 CPU_FIELDS = ("model name", "flags", "Features", "CPU implementer", "CPU part")  # x86-64 and aarch64
 

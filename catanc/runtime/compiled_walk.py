@@ -26,6 +26,8 @@ from __future__ import annotations
 
 import math
 import os
+import socket
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar, cast
@@ -35,7 +37,11 @@ import numpy as np
 from numba import types
 from numba.extending import intrinsic
 
+from catanc.core import priorities
 from catanc.numba_cache import drop_stale_cache
+from catanc.runtime import compiled_sources, ring
+from catanc.runtime.measure import CLIENT_WORK_MS, RECONCILE_ABS_TOL_MS, RECONCILE_REL_TOL
+from catanc.runtime.runs import KERNEL_CHECK_EVERY, KERNEL_SLACK_MS, SUSPICIOUS
 from catanc.runtime.walk_arrays import (
     CALLS,
     CLOCKS,
@@ -75,7 +81,7 @@ def compiled(function: F) -> F:
     return cast(F, numba.njit(cache=True, nogil=True, error_model="numpy")(function))
 
 
-drop_stale_cache(Path(__file__))
+drop_stale_cache(Path(__file__), compiled_sources.SOURCES)
 
 # libc, by name (pointers and sizes as 64-bit integers: the same registers on x86-64 and aarch64).
 _sched_setscheduler = types.ExternalFunction("sched_setscheduler", types.intc(types.intc, types.intc, types.intp))
@@ -84,18 +90,10 @@ _pread = types.ExternalFunction("pread", types.intp(types.intc, types.intp, type
 _clock_gettime = types.ExternalFunction("clock_gettime", types.intc(types.intc, types.intp))
 
 SCHED_FIFO = os.SCHED_FIFO
-MSG_DONTWAIT = 0x40  # socket.MSG_DONTWAIT on Linux
-CLOCK_MONOTONIC = 1
-RUNNING_FIFO = 2  # catanc.core.priorities.RUNNING_FIFO: the slot owner's level
-
-# As in catanc.runtime.runs and catanc.runtime.measure.
-KERNEL_CHECK_EVERY = 8
-SUSPICIOUS = 3.0
-KERNEL_SLACK_MS = 0.05
-RECONCILE_REL_TOL = 0.10
-RECONCILE_ABS_TOL_MS = 0.05
-CLIENT_WORK_MS = 0.5
-UNKNOWN = np.uint64(2**64 - 1)  # a ring entry's compute_ns the node did not measure
+MSG_DONTWAIT = int(socket.MSG_DONTWAIT)  # an int: numba compiles no IntFlag
+CLOCK_MONOTONIC = time.CLOCK_MONOTONIC
+RUNNING_FIFO = priorities.RUNNING_FIFO  # the slot owner's level
+UNKNOWN = np.uint64(ring.UNKNOWN)  # a ring entry's compute_ns the node did not measure
 
 
 @intrinsic  # type: ignore[untyped-decorator]

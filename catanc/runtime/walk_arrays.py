@@ -15,11 +15,13 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
+from catanc.runtime.ring import ENTRY_SIZE, HEADER_SIZE
+
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 
-HEADER_WORDS = 8  # catanc.runtime.ring: a 64-byte header, 48-byte entries
-ENTRY_WORDS = 6
+HEADER_WORDS = HEADER_SIZE // 8  # a ring's header and entries as uint64 words
+ENTRY_WORDS = ENTRY_SIZE // 8
 
 NONE = -1  # an integer that is not there (a subchain, a thread, a seq, a level)
 FLIGHTS = 64

@@ -38,6 +38,9 @@ import numpy.typing as npt
 from numba.experimental import structref
 
 from catanc.numba_cache import drop_stale_cache
+from catanc.sim import cpu, policies
+from catanc.sim.cpu import DONE_EPS_MS
+from catanc.sim.policies import DEDICATED, RAISED, RESTING_SHARED
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -65,7 +68,9 @@ def inlined(function: F) -> F:
     return cast(F, numba.njit(cache=True, nogil=True, inline="always")(function))
 
 
-drop_stale_cache(Path(__file__))  # numba reads the cache at a function's first call: see numba_cache
+# numba reads the cache at a function's first call (see numba_cache); the constants compiled in come from these
+COMPILED_FROM = tuple(Path(str(module.__file__)) for module in (cpu, policies))
+drop_stale_cache(Path(__file__), COMPILED_FROM)
 
 
 # Event kinds (an event is (time, order, kind, a, b, c, d, e, f): what a kind needs of a..f).
@@ -77,8 +82,6 @@ FINISHED, REOPTIMISE_NOW, NEED_DRAWS = 0, 1, 2
 # Policies.
 CATAN, CATAN_MEASURED, TIMER_FAIR, TIMER_FIFO = 0, 1, 2, 3
 
-RAISED, RESTING_SHARED, DEDICATED = 2, 1, 2  # as in catanc.sim.policies
-DONE_EPS_MS = 1e-9  # as in catanc.sim.cpu
 NO_SEQ = -1
 ROOM_TURNS = 64  # loop turns that make_room leaves room for
 

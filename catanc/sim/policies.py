@@ -26,6 +26,7 @@ from catanc.control.flights import Flight, Flights, NodeQueues
 from catanc.control.policy import Cadence, SlotRule, boundary_ms, decide, slot_rules
 from catanc.control.schedule import CoreSchedule, RuntimeSchedule, SubchainRun, is_late, runtime_schedule
 from catanc.control.timers import Triggers, trigger_rules
+from catanc.core.priorities import RUNNING_FIFO, SHARED_FIFO
 from catanc.planning.replan import Replanner
 from catanc.runtime.measure import Measurements
 from catanc.sim.cpu import Discipline, Job, Pool
@@ -37,7 +38,9 @@ from catanc.spec.language import Spec
 Sampler = Callable[[str, float], float]
 """(node, seconds into the run) -> one run's compute time in ms on one thread."""
 
-RAISED, RESTING_SHARED, DEDICATED = 2, 1, 2  # the enforcer's SCHED_FIFO levels (catan-model.md section 6)
+RAISED, RESTING_SHARED, DEDICATED = RUNNING_FIFO, SHARED_FIFO, RUNNING_FIFO
+"""The enforcer's SCHED_FIFO levels (catan-model.md section 6) as job priorities: the slot owner's, a shared
+subchain's between its slices, a dedicated subchain's."""
 
 
 def start_sensors(engine: Engine, flow: Dataflow, spec: Spec) -> None:
