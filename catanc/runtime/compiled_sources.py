@@ -13,6 +13,7 @@ _PACKAGE = _RUNTIME.parent
 
 SOURCES = (
     *(_RUNTIME / name for name in ("compiled_walk.py", "walk_arrays.py", "compiled_build.py")),
+    *(_PACKAGE / "control" / name for name in ("compiled_policy.py", "slot_table.py")),  # the slot rule
     *(_RUNTIME / name for name in ("measure.py", "ring.py", "runs.py")),  # constants compiled in
     _PACKAGE / "core" / "priorities.py",
 )

@@ -20,6 +20,7 @@ import numpy.typing as npt
 
 from catanc.control.policy import CoreCursor, SlotRule, slot_rules
 from catanc.control.schedule import CoreSchedule, RuntimeSchedule
+from catanc.control.slot_table import ACTIONS, empty_rules, lay_out_rules
 from catanc.runtime import walk_arrays as wa
 from catanc.runtime.endpoints import Endpoint
 from catanc.runtime.levels import Levels
@@ -122,15 +123,16 @@ def install(
 
     states = [book.state(name) for name in names]
     runs = [schedule.subchains[name] for name in names]
+    rule_sub, rule_every, rule_thieves = empty_rules(versions, n_cores, slots)
     walk = wa.Walk(
         period=np.zeros((versions, n_cores)),
         switch=np.zeros((versions, n_cores)),
         nslots=np.ones((versions, n_cores), dtype=np.int64),
         slot_start=np.zeros((versions, n_cores, slots)),
         slot_length=np.zeros((versions, n_cores, slots)),
-        rule_sub=np.full((versions, n_cores, slots + 1), wa.NONE, dtype=np.int64),
-        rule_every=np.zeros((versions, n_cores, slots + 1), dtype=np.int64),
-        rule_thieves=np.full((versions, n_cores, slots + 1, slots), wa.NONE, dtype=np.int64),
+        rule_sub=rule_sub,
+        rule_every=rule_every,
+        rule_thieves=rule_thieves,
         core_every=np.ones((versions, n_cores), dtype=np.int64),
         latest=np.zeros(n_cores, dtype=np.int64),
         version=np.zeros(n_cores, dtype=np.int64),
@@ -152,6 +154,8 @@ def install(
         unmatched=np.array([state.unmatched for state in states], dtype=np.int64),
         steals=np.array([state.steals for state in states], dtype=np.int64),
         flying=np.zeros(n_subs, dtype=np.int64),
+        thief_late=np.zeros(n_subs, dtype=np.int64),
+        actions=np.full(ACTIONS, wa.NONE, dtype=np.int64),
         fl_seq=np.zeros((n_subs, wa.FLIGHTS), dtype=np.int64),
         fl_index=np.zeros((n_subs, wa.FLIGHTS), dtype=np.int64),
         fl_triggered=np.zeros((n_subs, wa.FLIGHTS)),
@@ -252,18 +256,9 @@ def lay_out_core(
     if len(core.slots) > width:
         raise ValueError(f"core {core.core} has {len(core.slots)} slots, the walk room for {width}")
     walk.period[v, c], walk.switch[v, c], walk.nslots[v, c] = core.period_ms, core.switch_ms, len(core.slots)
-    walk.rule_sub[v, c] = wa.NONE
-    walk.rule_every[v, c] = 0
-    walk.rule_thieves[v, c] = wa.NONE
     for j, slot in enumerate(core.slots):
         walk.slot_start[v, c, j], walk.slot_length[v, c, j] = slot.start_ms, slot.length_ms
-    for j, rule in enumerate(rules):
-        if rule.subchain is None:
-            continue
-        walk.rule_sub[v, c, j] = sub[rule.subchain]
-        walk.rule_every[v, c, j] = rule.every or 0
-        for t, thief in enumerate(rule.thieves):
-            walk.rule_thieves[v, c, j, t] = sub[thief]
+    lay_out_rules((walk.rule_sub, walk.rule_every, walk.rule_thieves), v, c, rules, sub)
     walk.core_every[v, c] = max((rule.every or 1 for rule in rules), default=1)
 
 

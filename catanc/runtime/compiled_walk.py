@@ -5,9 +5,11 @@ enforcer does on its shared cores is said in Python by :mod:`catanc.runtime.core
 walk, the slot owner, the levels, the slot-aligned triggers), :mod:`catanc.runtime.runs` (the
 rings read into runs in flight, every report checked and clamped) and
 :mod:`catanc.control.policy` (the decisions); :func:`run_due` does exactly that, step for step,
-over the arrays of one :class:`Walk`, so that a wake-up costs no interpreter.  The Python stays
-the readable statement and the oracle: tests/runtime/test_compiled_walk.py holds the two to the
-same levels, triggers, runs in flight and samples, boundary by boundary.  Keep them in step.
+over the arrays of one :class:`Walk`, so that a wake-up costs no interpreter.  The decision at a
+boundary is :mod:`catanc.control.compiled_policy`'s, the simulator's kernel's too: this module
+says who is late and carries its actions out with system calls.  The Python stays the readable
+statement and the oracle: tests/runtime/test_compiled_walk.py holds the two to the same levels,
+triggers, runs in flight and samples, boundary by boundary.
 
 What needs Python is left to it, through :class:`Walk`'s event log (replayed at each return):
 the samples (compute times, run latencies, hop delays, switch latencies) for the measurements
@@ -37,6 +39,9 @@ import numpy as np
 from numba import types
 from numba.extending import intrinsic
 
+from catanc.control.compiled_policy import boundary_ms as slot_boundary_ms
+from catanc.control.compiled_policy import decide, hand_over, thieves, triggers
+from catanc.control.slot_table import HANDOVER, RAISE, STEAL, TRIGGER
 from catanc.core import priorities
 from catanc.numba_cache import drop_stale_cache
 from catanc.runtime import compiled_sources, ring
@@ -116,10 +121,7 @@ def ring_words(w: Walk, r: int) -> Any:
 @compiled
 def boundary_ms(w: Walk, v: int, c: int, start: float, position: int) -> float:
     """:func:`catanc.control.policy.boundary_ms` for core ``c``'s schedule version ``v``."""
-    n = w.nslots[v, c]
-    if position < n:
-        return float(start + w.slot_start[v, c, position] - w.switch[v, c])
-    return float(start + w.slot_start[v, c, n - 1] + w.slot_length[v, c, n - 1])
+    return slot_boundary_ms(w.slot_start, w.slot_length, w.switch, w.nslots, v, c, start, position)
 
 
 @compiled
@@ -442,13 +444,13 @@ def lower_on(w: Walk, c: int) -> None:
 
 
 @compiled
-def raise_owner(w: Walk, c: int, owner: int, triggered: bool) -> None:
-    """:meth:`SharedCores.raise_owner`."""
-    if w.raised[c] != owner:
-        w.raised[c] = owner
+def raise_owner(w: Walk, c: int, triggered: bool) -> None:
+    """:meth:`SharedCores.raise_owner`: a hand-over's actions (``w.actions``) carried out on core ``c``."""
+    if w.actions[HANDOVER] != 0:
         w.raised_from[c] = NONE
         if w.raised_count[c] > 0:
             lower_on(w, c)
+    owner = w.actions[RAISE]
     if owner == NONE:
         return
     first = 0 if triggered else first_index(w, owner)
@@ -480,35 +482,29 @@ def boundary(w: Walk, c: int, now: float, sample: bool) -> None:
     """:meth:`SharedCores._boundary`."""
     v, position = w.version[c], w.position[c]
     sub = w.rule_sub[v, c, position]
-    owner, trig, stolen = NONE, NONE, False
-    if sub != NONE:
+    if sub != NONE:  # who is late, and how far the runs got: what the rings say now
         raised = w.raised[c]
-        for t in range(w.rule_thieves.shape[3]):
+        count = thieves(w.rule_thieves, v, c, position)
+        for t in range(count):
             thief = w.rule_thieves[v, c, position, t]
-            if thief == NONE:
-                break
             if pending_entries(w, thief):
                 read(w, thief, now)
         if pending_entries(w, sub):
             read(w, sub, now)
         if raised != NONE and pending_entries(w, raised):
             read(w, raised, now)
-        owner = sub
-        for t in range(w.rule_thieves.shape[3]):  # best first: the first late one takes the slot
+        for t in range(count):
             thief = w.rule_thieves[v, c, position, t]
-            if thief == NONE:
-                break
-            if is_late(w, thief, now):
-                owner = thief
-                break
-        every = w.rule_every[v, c, position]
-        if every > 0 and w.period_index[c] % every == 0:
-            trig = sub
-        stolen = owner != sub
-    if stolen:
+            w.thief_late[thief] = 1 if is_late(w, thief, now) else 0
+    actions = w.actions
+    decide(
+        w.rule_sub, w.rule_every, w.rule_thieves, v, c, position, w.period_index[c], w.thief_late, w.raised, c, actions
+    )
+    owner, trig = actions[RAISE], actions[TRIGGER]
+    if actions[STEAL] != 0:
         w.steals[owner] += 1
     calls = w.flags[CALLS]
-    raise_owner(w, c, owner, trig != NONE and trig == owner)
+    raise_owner(w, c, trig != NONE and trig == owner)
     if trig != NONE:
         until = math.nan
         if owner == trig:
@@ -542,8 +538,7 @@ def next_wake(w: Walk, c: int) -> float:
     same = w.latest[c] == v
     position, index, start = w.position[c], w.period_index[c], w.start[c]
     for _ in range((w.core_every[v, c] + 1) * (n + 1)):
-        every = w.rule_every[v, c, position]
-        if every > 0 and index % every == 0:
+        if triggers(w.rule_every, v, c, position, index):
             return boundary_ms(w, v, c, start, position)
         position += 1
         if position > n:
@@ -611,7 +606,8 @@ def fire_clocks(w: Walk, now: float) -> int:
             read(w, s, now)
             c = w.sub_core[s]
             if w.shared[s] == 1 and c != NONE and w.raised[c] == s:
-                raise_owner(w, c, s, True)
+                hand_over(w.raised, c, s, w.actions)
+                raise_owner(w, c, True)
             trigger(w, s, now, math.nan if w.shared[s] == 1 else math.inf)
         w.clk_due[k] = max(w.clk_due[k] + w.clk_period[k], now)
         shared = shared or w.shared[s] == 1

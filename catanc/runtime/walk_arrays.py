@@ -15,6 +15,7 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
+from catanc.control import slot_table
 from catanc.runtime.ring import ENTRY_SIZE, HEADER_SIZE
 
 FloatArray = npt.NDArray[np.float64]
@@ -23,7 +24,7 @@ IntArray = npt.NDArray[np.int64]
 HEADER_WORDS = HEADER_SIZE // 8  # a ring's header and entries as uint64 words
 ENTRY_WORDS = ENTRY_SIZE // 8
 
-NONE = -1  # an integer that is not there (a subchain, a thread, a seq, a level)
+NONE = slot_table.NONE  # an integer that is not there (a subchain, a thread, a seq, a level)
 FLIGHTS = 64
 """Runs in flight a subchain may have here; one more returns :data:`FULL` before its boundary."""
 DATAGRAM = 128  # bytes of a trigger datagram, at most
@@ -58,9 +59,9 @@ class Walk(NamedTuple):
     nslots: IntArray  # [V, C]
     slot_start: FloatArray  # [V, C, M]
     slot_length: FloatArray  # [V, C, M]
-    rule_sub: IntArray  # [V, C, M + 1]: the slot's subchain; NONE at the end of the last slice
-    rule_every: IntArray  # [V, C, M + 1]: its head triggered there every k periods (0: never)
-    rule_thieves: IntArray  # [V, C, M + 1, M]: best first, NONE-padded
+    rule_sub: IntArray  # [V, C, M + 1]: the slot rules (catanc.control.slot_table)
+    rule_every: IntArray  # [V, C, M + 1]
+    rule_thieves: IntArray  # [V, C, M + 1, M]
     core_every: IntArray  # [V, C]: the longest trigger cycle of its rules, in periods
     # the cores' cursors
     latest: IntArray  # [C]: the version a core takes at its next period (NONE: keep its own)
@@ -84,6 +85,8 @@ class Walk(NamedTuple):
     unmatched: IntArray  # [S]
     steals: IntArray  # [S]
     flying: IntArray  # [S]: runs in flight
+    thief_late: IntArray  # [S]: 1 if late at the boundary being decided (only its thieves are marked)
+    actions: IntArray  # [ACTIONS]: what the boundary decided (catanc.control.compiled_policy)
     # runs in flight, unordered: [S, FLIGHTS]
     fl_seq: IntArray
     fl_index: IntArray

@@ -19,7 +19,9 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from catanc.control.policy import slot_rules
 from catanc.control.schedule import RuntimeSchedule
+from catanc.control.slot_table import ACTIONS, NONE, empty_rules, lay_out_rules
 from catanc.control.timers import trigger_rules
 from catanc.core.workload import ComputeSampler, NodeStream
 from catanc.sim import kernel as k
@@ -30,6 +32,7 @@ from catanc.spec.language import Spec
 Fields = dict[str, Any]
 """Kernel fields by name (:data:`kernel.FIELDS`)."""
 
+RULE_FIELDS = ("rule_sub", "rule_every", "rule_thieves")  # the slot rules' arrays (catanc.control.slot_table)
 FIRST_DRAWS = 256
 """Compute times drawn per node before the run; then, as it asks, what each may still take (:meth:`DrawTable.grow`)."""
 RING_DRAWS = 1 << 15
@@ -138,7 +141,10 @@ def topology(
 class ScheduleTable:
     """The schedules a run has used, as the kernel's arrays, with room for ``capacity`` versions.
 
-    The kernel shares the arrays: a version added here is there at once.
+    The kernel shares the arrays: a version added here is there at once.  The slot rules of every
+    version are laid out again under the newest one's subchains (their priorities and trigger
+    cycles): a core's switches keep the slots of the version they were scheduled in, and the
+    Python policy asks :func:`~catanc.control.policy.slot_rules` for them with the schedule in force.
     """
 
     def __init__(self, spec: Spec, first: RuntimeSchedule, cores: int, capacity: int) -> None:
@@ -155,7 +161,6 @@ class ScheduleTable:
             "sub_period": np.zeros((v, subs)),
             "sub_latency": np.zeros((v, subs)),
             "sub_runs": np.full((v, subs), -1, np.int64),
-            "sub_priority": np.zeros((v, subs), np.int64),
             "node_threads": np.ones((v, nodes), np.int64),
             "node_speedup": np.ones((v, nodes)),
             "clocked": np.full((v, subs), -1, np.int64),
@@ -163,12 +168,11 @@ class ScheduleTable:
             "core_id": np.zeros((v, cores), np.int64),
             "core_period": np.zeros((v, cores)),
             "core_switch": np.zeros((v, cores)),
-            "core_stealing": np.ones((v, cores), np.bool_),
             "core_nslots": np.zeros((v, cores), np.int64),
-            "slot_sub": np.zeros((v, cores, max(subs, 1)), np.int64),
             "slot_start": np.zeros((v, cores, max(subs, 1))),
             "slot_length": np.zeros((v, cores, max(subs, 1))),
         }
+        self.arrays.update(zip(RULE_FIELDS, empty_rules(v, cores, max(subs, 1)), strict=True))
         self.add(first)
 
     def add(self, schedule: RuntimeSchedule) -> int:
@@ -190,7 +194,6 @@ class ScheduleTable:
             a.sub_period[v, s] = run.period_ms
             a.sub_latency[v, s] = run.latency_ms
             a.sub_runs[v, s] = -1 if run.runs is None else run.runs
-            a.sub_priority[v, s] = run.priority
             for i, node in enumerate(run.nodes):
                 threads, speedup = run.threads_of(i)
                 a.node_threads[v, node_id[node]] = threads
@@ -202,12 +205,14 @@ class ScheduleTable:
             a.core_id[v, c] = core.core
             a.core_period[v, c] = core.period_ms
             a.core_switch[v, c] = core.switch_ms
-            a.core_stealing[v, c] = core.stealing
             a.core_nslots[v, c] = len(core.slots)
             for i, slot in enumerate(core.slots):
-                a.slot_sub[v, c, i] = sub_id[slot.subchain]
                 a.slot_start[v, c, i] = slot.start_ms
                 a.slot_length[v, c, i] = slot.length_ms
+        rules = tuple(self.arrays[name] for name in RULE_FIELDS)
+        for u, earlier in enumerate(self.versions):
+            for c, core in enumerate(earlier.shared):
+                lay_out_rules(rules, u, c, slot_rules(core, schedule.subchains), sub_id)
         return v
 
 
@@ -351,6 +356,8 @@ def run_fields(graph: Fields, subchains: int, policy: int, measured_window: int 
         "flight_live": np.zeros((subchains, FIRST_RING), np.bool_),
         "flight_low": np.ones(subchains, np.int64),
         "raised": np.full(cores, -1, np.int64),
+        "thief_late": np.zeros(max(subchains, 1), np.int64),
+        "actions": np.full(ACTIONS, NONE, np.int64),
         "timer_busy": np.zeros(n, np.bool_),
         "timer_pending": np.zeros(n, np.bool_),
         "exec_running": np.full(executors, -1, np.int64),
@@ -486,7 +493,6 @@ def no_schedules() -> Fields:
         "sub_period": floats2,
         "sub_latency": floats2,
         "sub_runs": ints2,
-        "sub_priority": ints2,
         "node_threads": ints2,
         "node_speedup": floats2,
         "clocked": ints2,
@@ -494,9 +500,8 @@ def no_schedules() -> Fields:
         "core_id": ints2,
         "core_period": floats2,
         "core_switch": floats2,
-        "core_stealing": bools2,
         "core_nslots": ints2,
-        "slot_sub": np.zeros((1, 1, 1), np.int64),
         "slot_start": np.zeros((1, 1, 1)),
         "slot_length": np.zeros((1, 1, 1)),
+        **dict(zip(RULE_FIELDS, empty_rules(1, 1, 1), strict=True)),
     }

@@ -6,7 +6,10 @@ exactly that, step for step, so fast that nav2d runs thousands of times
 faster than real time (issue 7).  The Python objects stay as the readable
 statement and as this kernel's oracle: tests hold the two to the same
 results on the example specs and on random apps (tests/sim/test_kernel.py).
-Keep them in step: a change to one is a change to both.
+Keep them in step: a change to one is a change to both.  The slot rule
+itself is not copied: :func:`switch` asks :mod:`catanc.control.compiled_policy`,
+as the enforcer's compiled walk does, and carries the actions out on job
+priorities.
 
 Every function here mirrors one Python method, named alike.  The same
 operations in the same order give the same floating-point results, and
@@ -37,6 +40,11 @@ import numpy as np
 import numpy.typing as npt
 from numba.experimental import structref
 
+from catanc.control import compiled_policy
+from catanc.control import slot_table as act
+from catanc.control.compiled_policy import boundary_ms as slot_boundary_ms
+from catanc.control.compiled_policy import decide, hand_over, thieves
+from catanc.control.slot_table import NONE
 from catanc.numba_cache import drop_stale_cache
 from catanc.sim import cpu, policies
 from catanc.sim.cpu import DONE_EPS_MS
@@ -69,7 +77,7 @@ def inlined(function: F) -> F:
 
 
 # numba reads the cache at a function's first call (see numba_cache); the constants compiled in come from these
-COMPILED_FROM = tuple(Path(str(module.__file__)) for module in (cpu, policies))
+COMPILED_FROM = (*compiled_policy.COMPILED_FROM, *(Path(str(module.__file__)) for module in (cpu, policies)))
 drop_stale_cache(Path(__file__), COMPILED_FROM)
 
 
@@ -115,9 +123,12 @@ class SimProxy(structref.StructRefProxy):  # type: ignore[misc]
     The schedules, by version ``[V, ...]`` (a switch keeps the version it was
     scheduled in): ``sub_ncores``, ``sub_cores``, ``sub_shared``,
     ``sub_period``, ``sub_latency``, ``sub_runs`` (-1: own clock),
-    ``sub_priority``, ``node_threads``, ``node_speedup``, ``clocked`` (in the
+    ``node_threads``, ``node_speedup``, ``clocked`` (in the
     schedule's order, then -1), ``n_shared``, ``core_id``, ``core_period``,
-    ``core_switch``, ``core_stealing``, ``core_nslots``, ``slot_sub``, ``slot_start``, ``slot_length``.
+    ``core_switch``, ``core_nslots``, ``slot_start``, ``slot_length``, and the slot rules
+    ``rule_sub``, ``rule_every``, ``rule_thieves`` (:mod:`catanc.control.slot_table`; a version's rules
+    are those of its slots under the subchains of the version in force, as the Python policy asks
+    :func:`~catanc.control.policy.slot_rules` at a switch).
 
     The draws (:class:`catanc.core.workload.NodeStream` values, drawn ahead):
     ``mode``/``factor`` ``[N, width]`` (rings: run ``j`` of a node at ``j % width``), ``used``, ``filled`` (runs
@@ -148,9 +159,9 @@ FIELDS = (
     "sub_nodes", "sensor_period", "sensor_order", "timer_period", "timer_order", "trig_ptr", "trig", "priority",
     "cores", "executor_of",
     # the schedules
-    "sub_ncores", "sub_cores", "sub_shared", "sub_period", "sub_latency", "sub_runs", "sub_priority",
-    "node_threads", "node_speedup", "clocked", "n_shared", "core_id", "core_period", "core_switch", "core_stealing",
-    "core_nslots", "slot_sub", "slot_start", "slot_length",
+    "sub_ncores", "sub_cores", "sub_shared", "sub_period", "sub_latency", "sub_runs",
+    "node_threads", "node_speedup", "clocked", "n_shared", "core_id", "core_period", "core_switch",
+    "core_nslots", "slot_start", "slot_length", "rule_sub", "rule_every", "rule_thieves",
     # the draws
     "mode", "factor", "used", "filled", "spike_at", "spike_next", "spike_ms", "has_growth", "growth",
     # the run
@@ -160,7 +171,8 @@ FIELDS = (
     "job_feed", "job_read_at", "pool_ncores", "pool_cores", "pool_fair", "pool_jobs", "pool_njobs", "pool_busy",
     "pool_dirty", "sub_pool", "core_busy", "finished", "sort_buf", "stack", "latest_id", "latest_at",
     "busy_seq", "wait", "wait_head", "wait_tail", "sub_seq", "sub_pending", "sub_late", "sub_steals", "sub_skipped",
-    "heads_in_flight", "flight_index", "flight_at", "flight_live", "flight_low", "raised", "timer_busy",
+    "heads_in_flight", "flight_index", "flight_at", "flight_live", "flight_low", "raised", "thief_late", "actions",
+    "timer_busy",
     "timer_pending", "exec_running", "exec_wait_node", "exec_wait_seq", "exec_wait_head", "exec_wait_tail",
     "done_n", "done_node", "done_at", "done_read", "feeds_n", "done_feeds", "stale_n", "stale_node",
     "stale_ms", "measured_ring", "measured_total", "measured_taken",
@@ -542,7 +554,8 @@ def dispatch(sim: Sim, event: Any) -> None:
         switch(sim, event[3], event[4], event[5], event[6], event[7])
     elif kind == LOWER:
         if event[4] == sim.generation:
-            raise_owner(sim, event[3], -1)
+            hand_over(sim.raised, event[3], NONE, sim.actions)
+            reprioritise(sim)
 
 
 # --------------------------------------------------------------------------- the data
@@ -751,10 +764,11 @@ def period_begin(sim: Sim, core_id: int, generation: int, index: int, start: flo
     if c < 0 or sim.core_nslots[version, c] == 0:
         return
     n = sim.core_nslots[version, c]
+    starts, lengths, switches, nslots = sim.slot_start, sim.slot_length, sim.core_switch, sim.core_nslots
     for s in range(n):
-        when = start + sim.slot_start[version, c, s] - sim.core_switch[version, c]
+        when = slot_boundary_ms(starts, lengths, switches, nslots, version, c, start, s)
         at(sim, when, SWITCH, version, c, s, generation, index, 0.0)
-    last_end = start + sim.slot_start[version, c, n - 1] + sim.slot_length[version, c, n - 1]
+    last_end = slot_boundary_ms(starts, lengths, switches, nslots, version, c, start, n)
     at(sim, last_end, LOWER, core_id, generation, 0, 0, 0, 0.0)
     next_start = start + sim.core_period[version, c]
     at(sim, next_start, BEGIN, core_id, generation, index + 1, 0, 0, next_start)
@@ -778,46 +792,37 @@ def oldest_in_flight(sim: Sim, sub: int) -> float:
 def switch(sim: Sim, old_version: int, c: int, s: int, generation: int, index: int) -> None:
     """:meth:`CatanPolicy._switcher`: the core's slots as they were scheduled, the subchains as they are now.
 
-    Only a late subchain of higher priority than the slot's owner takes the slot, so only those that
-    could be the best such thief are checked for lateness (the same owner as checking them all); on a
-    core without stealing none is (:func:`catanc.control.policy.slot_rules` gives it no thieves).
+    The decision is :func:`catanc.control.compiled_policy.decide`'s; this marks which of the slot's
+    thieves are late (their oldest run in flight past their planned latency) and carries the actions out.
     """
     if generation != sim.generation:
         return
     version = sim.version
     now = sim.now
-    slot_sub, priority = sim.slot_sub, sim.sub_priority
-    owner = slot_sub[old_version, c, s]
-    best = -1
-    candidates = sim.core_nslots[old_version, c] if sim.core_stealing[old_version, c] else 0
-    for i in range(candidates):
-        other = slot_sub[old_version, c, i]
-        rank = priority[version, other]
-        if rank <= priority[version, owner] or other == owner:
-            continue
-        if best >= 0 and (rank < priority[version, best] or (rank == priority[version, best] and other <= best)):
-            continue  # ties go to the greater name, as max() over (priority, name)
-        oldest = oldest_in_flight(sim, other)
-        if not math.isnan(oldest) and now - oldest > sim.sub_latency[version, other]:
-            best = other
-    chosen = owner if best < 0 else best
-    if chosen != owner:
-        sim.sub_steals[chosen] += 1
-    raise_owner(sim, sim.core_id[old_version, c], chosen)
-    runs = sim.sub_runs[version, owner]
-    if runs >= 0 and index % runs == 0:
-        trigger_head(sim, owner)
+    rule_thieves, late = sim.rule_thieves, sim.thief_late
+    for t in range(thieves(rule_thieves, old_version, c, s)):
+        thief = rule_thieves[old_version, c, s, t]
+        oldest = oldest_in_flight(sim, thief)
+        late[thief] = 1 if not math.isnan(oldest) and now - oldest > sim.sub_latency[version, thief] else 0
+    actions = sim.actions
+    core = sim.core_id[old_version, c]
+    decide(sim.rule_sub, sim.rule_every, rule_thieves, old_version, c, s, index, late, sim.raised, core, actions)
+    if actions[act.STEAL] != 0:
+        sim.sub_steals[actions[act.RAISE]] += 1
+    reprioritise(sim)
+    if actions[act.TRIGGER] != NONE:
+        trigger_head(sim, actions[act.TRIGGER])
 
 
 @compiled
-def raise_owner(sim: Sim, core: int, owner: int) -> None:
-    """:meth:`CatanPolicy._raise`: the previous owner's jobs to FIFO 1 (front), ``owner``'s to FIFO 2 (back)."""
-    previous = sim.raised[core]
-    if previous == owner:
+def reprioritise(sim: Sim) -> None:
+    """:meth:`CatanPolicy._raise`, a hand-over's actions carried out: the previous owner's jobs to FIFO 1 (the
+    front), the new owner's to FIFO 2 (the back)."""
+    actions = sim.actions
+    if actions[act.HANDOVER] == 0:
         return
-    sim.raised[core] = owner
     for k in range(2):
-        sub = previous if k == 0 else owner
+        sub = actions[act.LOWER] if k == 0 else actions[act.RAISE]
         level = RESTING_SHARED if k == 0 else RAISED
         if sub < 0:
             continue
