@@ -27,6 +27,9 @@ their hand-offs are :mod:`catanc.control.flights`'s; the schedule they run is
   change.
 - **Lost runs** (:func:`lost_after_ms`): a run not done after 20 planned latencies (and a
   second) is given up.
+- **A new plan** (:func:`replanned`): a new allocation, or other subchains on their own clocks,
+  restarts every core's period and every clock; other changes (slots, periods, rates) are taken
+  by each core at its next period.
 """
 
 from __future__ import annotations
@@ -36,7 +39,7 @@ from collections.abc import Callable, Mapping, Set
 from dataclasses import dataclass, field
 from typing import Literal, NamedTuple
 
-from catanc.control.schedule import CoreSchedule, SubchainRun, is_late
+from catanc.control.schedule import CoreSchedule, RuntimeSchedule, SubchainRun, is_late
 from catanc.spec.language import Runtime
 
 Stage = Literal["stage1", "stage2"]
@@ -229,3 +232,25 @@ class Cadence:
 
     def next_ms(self) -> float:
         return min(self.next_stage1_ms, self.next_stage2_ms)
+
+
+# --------------------------------------------------------------------------- a new plan
+
+
+class Replanned(NamedTuple):
+    """What a new plan's schedule does to the one running."""
+
+    moved: bool  # a new allocation: some subchain on other cores, or shared where it was dedicated (or back)
+    reinstall: bool  # every core's period and every clock restart now; else each core takes it at its next period
+
+
+def replanned(before: RuntimeSchedule, after: RuntimeSchedule) -> Replanned:
+    """Whether ``after`` replaces ``before`` by a reinstall (a new allocation, or another set of subchains on their
+    own clocks) or by an update (slots, periods and rates, taken by each core at its next period)."""
+    moved = _placement(before) != _placement(after)
+    clocked = {run.name for run in before.clocked} != {run.name for run in after.clocked}
+    return Replanned(moved, moved or clocked)
+
+
+def _placement(schedule: RuntimeSchedule) -> tuple[tuple[str, tuple[int, ...], bool], ...]:
+    return tuple((name, run.cores, run.shared) for name, run in sorted(schedule.subchains.items()))

@@ -41,7 +41,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
 from catanc.artifacts.runtime_table import RuntimeTable
-from catanc.control.policy import next_clock_ms
+from catanc.control.policy import next_clock_ms, replanned
 from catanc.control.schedule import RuntimeSchedule, SubchainRun
 from catanc.errors import CatancError, ExitCode, LoopError, PrivilegeError, SchedError
 from catanc.extras import require
@@ -576,9 +576,9 @@ class Enforcer:
             before = self.schedule
             self.schedule = answer.schedule
             self.nodes.schedule = answer.schedule
-            changed = answer.layout != _layout(before)
-            clocked = {run.name for run in before.clocked} != {run.name for run in answer.schedule.clocked}
-            if changed or clocked:  # a new allocation: every thread re-pinned, every core and clock restarted
+            replan = replanned(before, answer.schedule)
+            changed = replan.moved
+            if replan.reinstall:  # every thread re-pinned, every core and clock restarted
                 self.nodes.place_all()
                 self.own.pin_loop(self.schedule)
                 self._install(self.clock())
@@ -694,7 +694,3 @@ class Enforcer:
         self.attaching.append((node, pid, list(tids)))
         with contextlib.suppress(OSError):
             os.write(self._wake_w, b"a")
-
-
-def _layout(schedule: RuntimeSchedule) -> tuple[tuple[str, tuple[int, ...], bool], ...]:
-    return tuple((name, run.cores, run.shared) for name, run in sorted(schedule.subchains.items()))

@@ -23,7 +23,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from catanc.control.flights import Flight, Flights, NodeQueues
-from catanc.control.policy import Cadence, SlotRule, boundary_ms, decide, slot_rules
+from catanc.control.policy import Cadence, SlotRule, boundary_ms, decide, replanned, slot_rules
 from catanc.control.schedule import CoreSchedule, RuntimeSchedule, SubchainRun, is_late, runtime_schedule
 from catanc.control.timers import Triggers, trigger_rules
 from catanc.core.priorities import RUNNING_FIFO, SHARED_FIFO
@@ -321,14 +321,9 @@ class Reoptimiser:
         estimates = self.measurements.estimates(measured_only=True)
         plan = self.replanner.reallocate(estimates or None) if stage == "stage1" else self.replanner.resolve(estimates)
         after = runtime_schedule(plan, self.replanner.problem, self.spec.schedule)
-        moved = _layout(before) != _layout(after)
-        reinstall = moved or {r.name for r in before.clocked} != {r.name for r in after.clocked}
-        self.replans.append(Replan(now / 1000.0, stage, moved, plan.objective))
-        return after, reinstall, self.cadence.next_ms()
-
-
-def _layout(schedule: RuntimeSchedule) -> tuple[tuple[str, tuple[int, ...], bool], ...]:
-    return tuple((name, run.cores, run.shared) for name, run in sorted(schedule.subchains.items()))
+        replan = replanned(before, after)
+        self.replans.append(Replan(now / 1000.0, stage, replan.moved, plan.objective))
+        return after, replan.reinstall, self.cadence.next_ms()
 
 
 class TimerPolicy:

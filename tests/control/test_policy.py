@@ -3,6 +3,8 @@ which boundaries need the enforcer awake, and the re-solve cadence."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -15,10 +17,11 @@ from catanc.control.policy import (
     lost_after_ms,
     needs_wake,
     next_clock_ms,
+    replanned,
     slot_rules,
     switch_at,
 )
-from catanc.control.schedule import CoreSchedule, Slot, SubchainRun, slot_owner, triggers_at_slot
+from catanc.control.schedule import CoreSchedule, RuntimeSchedule, Slot, SubchainRun, slot_owner, triggers_at_slot
 from catanc.spec.language import Runtime
 
 
@@ -176,3 +179,20 @@ def test_slot_rules_decide_as_slot_owner_and_triggers_at_slot(
         assert (decision.trigger is not None) == triggers_at_slot(runs[slot.subchain], period_index)
         assert decision.stolen == (decision.owner != slot.subchain)
     assert switch_at(core, len(core.slots), period_index, runs, late) == Switch(None)
+
+
+def schedule_of(*runs: SubchainRun) -> RuntimeSchedule:
+    return RuntimeSchedule(2, {run.name: run for run in runs}, (CORE,))
+
+
+def test_a_new_allocation_or_other_clocks_reinstall_and_anything_else_updates() -> None:
+    before = schedule_of(run("a"), run("b", runs=3))
+    assert replanned(before, before) == (False, False)
+    faster = schedule_of(run("a", priority=5, latency_ms=3.0), run("b", runs=1))  # slots and rates: an update
+    assert replanned(before, faster) == (False, False)
+    moved = schedule_of(run("a"), replace(run("b", runs=3), cores=(1,)))
+    assert replanned(before, moved) == (True, True)
+    dedicated = schedule_of(run("a"), replace(run("b", runs=None), shared=False))
+    assert replanned(before, dedicated) == (True, True)
+    on_its_clock = schedule_of(run("a"), run("b", runs=None))  # same cores, now on its own clock
+    assert replanned(before, on_its_clock) == (False, True)
