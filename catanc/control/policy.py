@@ -14,7 +14,7 @@ their hand-offs are :mod:`catanc.control.flights`'s; the schedule they run is
   raised, unless a subchain of higher priority on the core is late (triggered, not done, past
   its planned latency), which then takes the slot (on a core with stealing, the default);
   slot-aligned heads are triggered at their slot every ``runs`` periods; at the end of the last
-  slice everything is lowered.
+  slice everything is lowered.  A change of owner lowers the previous one (:func:`hand_over`).
 - **Which boundaries need the enforcer awake** (:func:`needs_wake`): one that triggers a head,
   or where a subchain of the core has a run in flight; across an idle stretch nothing can
   change (threads still raised for a run that ended sleep), the owner it would raise is raised
@@ -174,6 +174,22 @@ def switch_at(
 ) -> Switch:
     """The decision at boundary ``position`` of period ``period_index`` (``late``: :func:`late_on` now)."""
     return decide(slot_rules(core, runs)[position], period_index, late.__contains__)
+
+
+class Handover(NamedTuple):
+    """A core's change of owner: the previous owner's threads go back to their resting level, the new one's up."""
+
+    changed: bool  # False: the owner stays (nothing is lowered)
+    lowered: str | None  # the previous owner when it changes (None: nothing was raised)
+
+
+def hand_over(raised: dict[int, str | None], core: int, owner: str | None) -> Handover:
+    """``owner`` runs raised on ``core`` from now (``raised``: each core's owner, updated; None: every one lowered)."""
+    previous = raised.get(core)
+    if previous == owner:
+        return Handover(False, None)
+    raised[core] = owner
+    return Handover(True, previous)
 
 
 def needs_wake(rule: SlotRule, period_index: int, *, active: bool) -> bool:

@@ -19,7 +19,16 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
-from catanc.control.policy import CoreCursor, SlotRule, Switch, boundary_ms, decide, needs_wake, slot_rules
+from catanc.control.policy import (
+    CoreCursor,
+    SlotRule,
+    Switch,
+    boundary_ms,
+    decide,
+    hand_over,
+    needs_wake,
+    slot_rules,
+)
 from catanc.control.schedule import CoreSchedule, RuntimeSchedule, SubchainRun
 from catanc.core.priorities import RUNNING_FIFO
 from catanc.runtime.costs import SAMPLES, Costs
@@ -165,8 +174,7 @@ class SharedCores:
     def raise_owner(self, core: int, owner: str | None, *, triggered: bool) -> None:
         """Lower what was raised on ``core`` if the owner changes; raise the owner's threads that may run now."""
         levels = self.levels
-        if self.raised.get(core) != owner:
-            self.raised[core] = owner
+        if hand_over(self.raised, core, owner).changed:
             self._raised_from.pop(core, None)
             if levels.raised.get(core):
                 gone = levels.lower_on(core)

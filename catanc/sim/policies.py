@@ -23,7 +23,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from catanc.control.flights import Flight, Flights, NodeQueues
-from catanc.control.policy import Cadence, SlotRule, boundary_ms, decide, replanned, slot_rules
+from catanc.control.policy import Cadence, SlotRule, boundary_ms, decide, hand_over, replanned, slot_rules
 from catanc.control.schedule import CoreSchedule, RuntimeSchedule, SubchainRun, is_late, runtime_schedule
 from catanc.control.timers import Triggers, trigger_rules
 from catanc.core.priorities import RUNNING_FIFO, SHARED_FIFO
@@ -205,11 +205,10 @@ class CatanPolicy:
 
     def _raise(self, core_id: int, owner: str | None) -> None:
         """The previous owner's jobs on ``core_id`` back to FIFO 1 (to the front), ``owner``'s to FIFO 2 (the back)."""
-        previous = self.raised.get(core_id)
-        if previous == owner:
+        handover = hand_over(self.raised, core_id, owner)
+        if not handover.changed:
             return
-        self.raised[core_id] = owner
-        for name, level in ((previous, RESTING_SHARED), (owner, RAISED)):
+        for name, level in ((handover.lowered, RESTING_SHARED), (owner, RAISED)):
             if name is None or name not in self.pools:
                 continue
             pool = self.pools[name]

@@ -13,7 +13,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from catanc.control import compiled_policy as cp
-from catanc.control.policy import CoreCursor, boundary_ms, decide, needs_wake, slot_rules
+from catanc.control.policy import CoreCursor, boundary_ms, decide, hand_over, needs_wake, slot_rules
 from catanc.control.schedule import CoreSchedule, Slot, SubchainRun
 from catanc.control.slot_table import ACTIONS, HANDOVER, LOWER, NONE, RAISE, STEAL, TRIGGER, empty_rules, lay_out_rules
 
@@ -60,7 +60,7 @@ def test_the_compiled_decision_is_the_policys_boundary_by_boundary(
     lay_out_rules(arrays, 1, 2, rules, index)  # version 1 of core 2: the others stay empty
     late_flags = np.zeros(len(NAMES), dtype=np.int64)
     raised_compiled = np.full(4, NONE, dtype=np.int64)
-    raised_python: str | None = None
+    raised_python: dict[int, str | None] = {}
     actions = np.full(ACTIONS, NONE, dtype=np.int64)
     cursor = CoreCursor(core, 0.0)
     for _ in range(3 * len(rules)):
@@ -76,11 +76,10 @@ def test_the_compiled_decision_is_the_policys_boundary_by_boundary(
         assert name(actions[RAISE]) == expected.owner
         assert name(actions[TRIGGER]) == expected.trigger
         assert bool(actions[STEAL]) == expected.stolen
-        handed_over = raised_python != expected.owner
-        assert bool(actions[HANDOVER]) == handed_over
-        assert name(actions[LOWER]) == (raised_python if handed_over else None)
-        raised_python = expected.owner
-        assert name(raised_compiled[3]) == raised_python
+        handover = hand_over(raised_python, 3, expected.owner)
+        assert bool(actions[HANDOVER]) == handover.changed
+        assert name(actions[LOWER]) == handover.lowered
+        assert name(raised_compiled[3]) == raised_python[3]
         assert cp.triggers(arrays[1], 1, 2, cursor.position, cursor.index) == needs_wake(
             rule, cursor.index, active=False
         )

@@ -13,6 +13,7 @@ from catanc.control.policy import (
     CoreCursor,
     Switch,
     boundary_ms,
+    hand_over,
     late_on,
     lost_after_ms,
     needs_wake,
@@ -196,3 +197,14 @@ def test_a_new_allocation_or_other_clocks_reinstall_and_anything_else_updates() 
     assert replanned(before, dedicated) == (True, True)
     on_its_clock = schedule_of(run("a"), run("b", runs=None))  # same cores, now on its own clock
     assert replanned(before, on_its_clock) == (False, True)
+
+
+def test_a_new_owner_lowers_the_previous_one_and_the_same_owner_changes_nothing() -> None:
+    raised: dict[int, str | None] = {}
+    assert hand_over(raised, 0, "a") == (True, None)  # nothing was raised on core 0
+    assert hand_over(raised, 0, "a") == (False, None)
+    assert hand_over(raised, 1, "b") == (True, None)  # cores are apart
+    assert hand_over(raised, 0, "b") == (True, "a")
+    assert hand_over(raised, 0, None) == (True, "b")  # the end of the last slice
+    assert hand_over(raised, 0, None) == (False, None)
+    assert raised == {0: None, 1: "b"}
