@@ -37,8 +37,12 @@ COMPILED_FROM = (Path(__file__), Path(slot_table.__file__))
 
 def compiled(function: F) -> F:
     """numba's no-Python mode, cached on disk beside the module, with numpy's error model (no path needs
-    Python's exception machinery: the walk's object code runs without numba)."""
-    return cast(F, numba.njit(cache=True, nogil=True, error_model="numpy")(function))
+    Python's exception machinery: the walk's object code runs without numba), inlined into its callers.
+
+    As calls, the shared rule cost the walk ~200 ns a wake-up (4.2%) and the kernel 2.0% of its
+    instructions on nav2d (2026-12-02); inlined, the walk is within noise of its own copy of the rule
+    and the kernel 1.0% above it (the engines mark every thief's lateness before the decision)."""
+    return cast(F, numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")(function))
 
 
 drop_stale_cache(Path(__file__), COMPILED_FROM)
