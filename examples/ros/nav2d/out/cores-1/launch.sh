@@ -4,7 +4,8 @@
 # Do not edit: regenerate with `catanc compile nav2d.yaml --cores 1 --out out/cores-1`.
 #
 # Deploys nav2d as planned for 1 core: the enforcer (catanc run runtime.json),
-# then these processes, each pinned to its CPUs:
+# then these processes, each pinned to its CPUs (one hosting a ROS node with --ros-args
+# --params-file and this folder's params.yaml, wherever the folder is):
 #   /Mapper: CPUs 0, --static: SCHED_OTHER (GL, GM)
 #   /Navigator: CPUs 0, --static: SCHED_OTHER (GP, NC)
 #   /Operator: CPUs 0, --static: SCHED_OTHER (LM, LP)
@@ -207,10 +208,10 @@ fi
 if (( static )) || [[ -S ${socket-} ]]; then
   exec 2>/dev/null
   set -m
-  start /Mapper 0 0 python3 nav_mapper.py
-  start /Navigator 0 0 python3 nav_navigator.py
-  start /Operator 0 0 python3 nav_operator.py
-  start /scan_shim 0 0 python3 scan_shim.py
+  start /Mapper 0 0 python3 nav_mapper.py --ros-args --params-file "$here"/params.yaml
+  start /Navigator 0 0 python3 nav_navigator.py --ros-args --params-file "$here"/params.yaml
+  start /Operator 0 0 python3 nav_operator.py --ros-args --params-file "$here"/params.yaml
+  start /scan_shim 0 0 python3 scan_shim.py --ros-args --params-file "$here"/params.yaml
   set +m
   exec 2>&"$stderr"
 fi

@@ -4,27 +4,136 @@
 """ROS 2 launch file: nav2d as planned for 2 cores, with the parameters in ``params.yaml``.
 
 By default it starts the enforcer (``catanc run runtime.json``; the catanc
-command is ``$CATANC`` if set) and each node pinned to its CPUs under
+command is ``$CATANC`` if set) and each process pinned to its CPUs under
 SCHED_OTHER, once the enforcer's socket is up, with ``CATANC_SOCKET`` set:
 the enforcer triggers the nodes and raises the running ones to SCHED_FIFO.
-``static:=true`` deploys without it: a node with a subchain on a shared core
+When the enforcer exits, the whole launch shuts down.
+``static:=true`` deploys without it: a process with a node on a shared core
 runs under SCHED_OTHER at its planned rate (equal SCHED_FIFO levels would not
-time-slice), the others at their SCHED_FIFO priority.  Without real-time
-privileges, use ``launch.sh --static --no-rt`` instead.
+time-slice), the others at their SCHED_FIFO priority.  ``no_rt:=true``: no
+real-time priorities (``catanc run --no-rt``; with ``static:=true`` every
+process under SCHED_OTHER); the CPUs still apply.  Every process hosting a
+ROS node reads this folder's ``params.yaml``.
 """
 
+import os
+import shutil
+import tempfile
 from pathlib import Path
 
-from launch import LaunchDescription
+from launch import LaunchContext, LaunchDescription
+from launch.actions import DeclareLaunchArgument, ExecuteProcess, OpaqueFunction, RegisterEventHandler, Shutdown
+from launch.event_handlers import OnProcessExit, OnShutdown
+from launch_ros.actions import Node
 
-PARAMS = str(Path(__file__).with_name("params.yaml"))
+HERE = Path(__file__).resolve().parent
+PARAMS = str(HERE / "params.yaml")
+RUNTIME = str(HERE / "runtime.json")
+CATANC = os.environ.get("CATANC", "catanc")
+# Under the enforcer a process starts once its socket is up (its client connects at once).
+AFTER_ENFORCER = 'sh -c \'until [ -S "$CATANC_SOCKET" ]; do sleep 0.05; done; exec "$@"\' catanc-wait'
 
-# Started by launch.sh only (no ROS package/executable in the spec):
-#   /Mapper (GL, GM)
-#   /Navigator (GP, NC)
-#   /Operator (LM, LP)
-#   /scan_shim (scan)
+# Each process: a ROS package's executable (a Node) or a command (run as it is, with the parameters when it
+# hosts a ROS node); its CPUs and its SCHED_FIFO priority without the enforcer (0: SCHED_OTHER).
+PROCESSES = [
+    {
+        "key": "/Mapper",
+        "command": ["python3", "nav_mapper.py"],
+        "ros": True,
+        "cpus": "1",
+        "static_priority": 0,
+    },
+    {
+        "key": "/Navigator",
+        "command": ["python3", "nav_navigator.py"],
+        "ros": True,
+        "cpus": "1",
+        "static_priority": 0,
+    },
+    {
+        "key": "/Operator",
+        "command": ["python3", "nav_operator.py"],
+        "ros": True,
+        "cpus": "0",
+        "static_priority": 2,
+    },
+    {
+        "key": "/scan_shim",
+        "command": ["python3", "scan_shim.py"],
+        "ros": True,
+        "cpus": "0",
+        "static_priority": 2,
+    },
+]
 
 
 def generate_launch_description() -> LaunchDescription:
-    return LaunchDescription([])
+    return LaunchDescription(
+        [
+            DeclareLaunchArgument(
+                "static", default_value="false", description="true: deploy without the enforcer (catanc run)"
+            ),
+            DeclareLaunchArgument(
+                "no_rt", default_value="false", description="true: no real-time priorities; the CPUs still apply"
+            ),
+            OpaqueFunction(function=deploy),
+        ]
+    )
+
+
+def flag(context: LaunchContext, name: str) -> bool:
+    value = context.launch_configurations[name].strip().lower()
+    if value not in ("true", "false"):
+        raise ValueError(f"{name}:={value}: expected true or false")
+    return value == "true"
+
+
+def deploy(context: LaunchContext) -> list:
+    """The enforcer and the processes, as the launch arguments ask."""
+    static, rt = flag(context, "static"), not flag(context, "no_rt")
+    if not PROCESSES:
+        return []
+    if static:
+        return [start(process, schedule(process, rt), None) for process in PROCESSES]
+    folder = tempfile.mkdtemp(prefix="catanc-launch.")
+    socket = str(Path(folder) / "nav2d.sock")
+    enforcer = ExecuteProcess(
+        cmd=[CATANC, "run", RUNTIME, "--socket", socket, "--start", "spec", "--quiet", *([] if rt else ["--no-rt"])],
+        output="screen",
+    )
+    return [
+        enforcer,
+        RegisterEventHandler(
+            OnProcessExit(target_action=enforcer, on_exit=[Shutdown(reason="the enforcer (catanc run) exited")])
+        ),
+        RegisterEventHandler(
+            OnShutdown(on_shutdown=[OpaqueFunction(function=lambda _: shutil.rmtree(folder, ignore_errors=True))])
+        ),
+        *[
+            start(process, "taskset -c " + process["cpus"] + " chrt -o 0 " + AFTER_ENFORCER, socket)
+            for process in PROCESSES
+        ],
+    ]
+
+
+def schedule(process: dict, rt: bool) -> str:
+    """The prefix that pins a process and sets its policy without the enforcer."""
+    policy = f"-f {process['static_priority']}" if rt and process["static_priority"] else "-o 0"
+    return f"taskset -c {process['cpus']} chrt {policy}"
+
+
+def start(process: dict, prefix: str, socket: "str | None") -> "Node | ExecuteProcess":
+    env = {"additional_env": {"CATANC_SOCKET": socket}} if socket is not None else {}
+    if "package" in process:
+        return Node(
+            package=process["package"],
+            executable=process["executable"],
+            name=process["name"],
+            namespace=process["namespace"],
+            parameters=[PARAMS],
+            prefix=prefix,
+            output="screen",
+            **env,
+        )
+    ros = ["--ros-args", "--params-file", PARAMS] if process["ros"] else []
+    return ExecuteProcess(cmd=[*process["command"], *ros], prefix=prefix, name=process["key"], output="screen", **env)
