@@ -125,11 +125,12 @@ def schedule(process: dict, rt: bool) -> str:
 def start(process: dict, prefix: str, socket: "str | None") -> "Node | ExecuteProcess":
     env = {"additional_env": {"CATANC_SOCKET": socket}} if socket is not None else {}
     if "package" in process:
+        # A process of several ROS nodes gets no name=: rcl would rename every node of it to that one name.
+        names = {key: process[key] for key in ("name", "namespace") if key in process}
         return Node(
             package=process["package"],
             executable=process["executable"],
-            name=process["name"],
-            namespace=process["namespace"],
+            **names,
             parameters=[PARAMS],
             prefix=prefix,
             output="screen",
