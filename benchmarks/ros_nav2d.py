@@ -6,7 +6,7 @@
 
 Each case runs the example as its README says, from a scratch copy of its folder, with the robot
 (``robot_sim.py``: odometry, and the base that records each command; at SCHED_FIFO 3 as root, as
-catan-model.md section 6 runs unscheduled nodes, in every mode), all pinned to the case's CPUs
+docs/explanation/model.md section 6 runs unscheduled nodes, in every mode), all pinned to the case's CPUs
 (``taskset``; plan core ``i`` is CPU ``i``):
 
 - **plain**: ``bash plain.sh CPUS``: every node on its own timer at the spec's baseline rates,

@@ -6,7 +6,7 @@ same ``ros_node`` runs in it, as nav2d's Mapper hosts GL and GM) or, for a
 DAG node without either, that node alone.  :mod:`catanc.spec.deploy_checks` checks the
 section when the spec loads; :func:`processes` turns a plan into the
 processes the launchers start, each with the CPUs and the SCHED_FIFO
-priority catan-model.md section 6 gives its nodes, and the ROS parameters
+priority docs/explanation/model.md section 6 gives its nodes, and the ROS parameters
 ``params.yaml`` sets.
 
 Launch priorities are the enforcer's resting levels: a shared subchain's

@@ -15,7 +15,7 @@ as written:
 - ``rate_as_run_hz``, only where an executor's thread takes some of ``rate_hz``
   (docs/explanation/executor-planning.md), is the planner's prediction of what is left:
   what ``catanc report`` holds the measured rate to;
-- each chain's metrics are section 2 of catan-model.md over the rounded
+- each chain's metrics are section 2 of docs/explanation/model.md over the rounded
   subchain timings and the rounded ``clocks`` (unscheduled nodes' periods);
 - ``objective`` is :func:`catanc.core.metrics.objective` over those same numbers.
 

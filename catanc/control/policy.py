@@ -4,7 +4,7 @@ Pure (no I/O, no clock): the enforcer (:mod:`catanc.runtime.enforcer`) and the s
 Python engine (:mod:`catanc.sim.policies`) ask the same functions, with the time as an
 argument, so the simulation follows the enforcer's rules by construction.  Runs in flight and
 their hand-offs are :mod:`catanc.control.flights`'s; the schedule they run is
-:mod:`catanc.control.schedule`'s.  Here (catan-model.md sections 5 and 6):
+:mod:`catanc.control.schedule`'s.  Here (docs/explanation/model.md sections 5 and 6):
 
 - **Walking a shared core's period** (:class:`CoreCursor`): its boundaries are each slot's
   switch (``switch_ms`` before the slice) and the end of the last slice; a new schedule takes

@@ -3,7 +3,7 @@
 Pure: :func:`runtime_schedule` reads a :class:`~catanc.planning.planner.Plan` and
 the problem it was planned for (for ``c(S)``), and the loop decisions the
 enforcer's threads make each period are small functions here, so the
-tests can simulate them without threads or a kernel (catan-model.md
+tests can simulate them without threads or a kernel (docs/explanation/model.md
 sections 5 and 6):
 
 - a dedicated subchain's head is triggered every ``period_ms`` on its own
@@ -11,7 +11,7 @@ sections 5 and 6):
 - every other shared subchain is triggered at the start of its slot every
   ``k`` periods (the plan's ``every``: ``k = n = 1/f`` unless a rate cap or a
   fixed rate makes it longer, like VR's timewarp at vsync), so its run falls
-  into its slices and no trigger waits for a slot (catan-model.md section 4);
+  into its slices and no trigger waits for a slot (docs/explanation/model.md section 4);
 - in each period a shared core raises each subchain's threads for its slice
   ``f * c(S)``, in order, after a switch; the rest of ``T`` is slack;
 - priority stealing: a slot goes to the highest-priority subchain on the

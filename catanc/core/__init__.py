@@ -1,1 +1,1 @@
-"""The planning problem a spec states, and the analytic model over it (catan-model.md sections 1, 2, 4)."""
+"""The planning problem a spec states, and the analytic model over it (docs/explanation/model.md sections 1, 2, 4)."""

@@ -1,4 +1,4 @@
-"""What one executor thread serving several subchains does to their rates (catan-model.md section 6).
+"""What one executor thread serving several subchains does to their rates (docs/explanation/model.md section 6).
 
 A single-threaded executor runs one callback at a time.  Where its nodes head subchains of their
 own on a shared core group, a member ``j``'s run holds the thread until its compute ``c_j`` is
@@ -9,7 +9,7 @@ resting level, in every moment the group's other subchains leave of what the app
 never get: the kernel's RT limit leaves it to others, and the runtime's own CPU is in it).  Once ``i``'s
 waiting run is late (its subchain's latency ``l_i`` after its trigger, which comes ``p_i / 2``
 into the run on average: ``d_i = p_i / 2 + l_i``), ``i`` steals the slots of the subchains it
-outranks (catan-model.md section 5) and the thread, the only one ``i`` has, runs in them too: a
+outranks (docs/explanation/model.md section 5) and the thread, the only one ``i`` has, runs in them too: a
 share ``s1_i`` that leaves out only the subchains outranking ``i``.  So the run holds the thread
 
     S_ij = c_j / s0_i                          if c_j <= s0_i d_i

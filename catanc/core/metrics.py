@@ -1,4 +1,4 @@
-"""The analytic model (catan-model.md sections 2 and 4): pure arithmetic.
+"""The analytic model (docs/explanation/model.md sections 2 and 4): pure arithmetic.
 
 Given each stage's period ``p`` and processing latency ``l`` (ms), a chain's
 
@@ -76,7 +76,7 @@ def dedicated_timing(
 
     ``compute_by_threads[q - 1][j]`` is node j's compute time with at most q
     threads, for q = 1..cores.  With ``floor(cores / q)`` runs in flight and
-    each core busy at most ``1 - slack`` of the time (catan-model.md section 4:
+    each core busy at most ``1 - slack`` of the time (docs/explanation/model.md section 4:
     no plan runs a SCHED_FIFO core 100% busy),
 
         p(q) = max(max_j c^q_j, sum_j c^q_j / floor(cores / q)) / (1 - slack)
@@ -84,7 +84,7 @@ def dedicated_timing(
 
     and the lowest response wins (ties: the smaller q).  ``hops_ms``, the
     subchain's inside hops, counts in ``sum_j c^q_j`` as in ``c(S)``
-    (catan-model.md section 5): a run holds its cores through them.  ``serial`` lists
+    (docs/explanation/model.md section 5): a run holds its cores through them.  ``serial`` lists
     positions of nodes that share one executor thread: runs in flight cannot
     overlap them, so each such set is one pipeline stage whose compute adds
     up (``p(q) >= sum_{j in set} c^q_j``).

@@ -1,4 +1,4 @@
-"""The SCHED_FIFO priorities of catan-model.md section 6, one definition for the launchers and the enforcer."""
+"""The SCHED_FIFO priorities of docs/explanation/model.md section 6, one definition for launchers and enforcer."""
 
 from __future__ import annotations
 

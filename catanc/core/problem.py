@@ -1,7 +1,7 @@
 """The planning problem a spec states: subchains, chains, terms, bounds, executors.
 
 A :class:`Problem` is what the solver stages and the analytic model read:
-chains are already collapsed into stages (catan-model.md section 2).
+chains are already collapsed into stages (docs/explanation/model.md section 2).
 :func:`catanc.core.build.build_problem` makes one from a spec.
 """
 
@@ -18,7 +18,7 @@ from catanc.spec.speedup import best_speedup
 
 @dataclass(frozen=True)
 class Subchain:
-    """Nodes run at one rate; only the first is triggered (catan-model.md 1)."""
+    """Nodes run at one rate; only the first is triggered (docs/explanation/model.md 1)."""
 
     name: str
     nodes: tuple[str, ...]
@@ -28,7 +28,8 @@ class Subchain:
     min_period_ms: float = 0.0  # from max_rate_hz / rate_hz
     max_period_ms: float = math.inf  # from min_rate_hz / rate_hz
     serial: tuple[tuple[int, ...], ...] = ()  # positions of nodes that share one executor thread (2+ each)
-    hops_ms: float = 0.0  # one hop per edge inside it, summed: the spec's measured ``hops_ms`` (catan-model.md 5)
+    # one hop per edge inside it, summed: the spec's measured ``hops_ms`` (docs/explanation/model.md section 5)
+    hops_ms: float = 0.0
 
     @cached_property
     def compute_ms(self) -> float:
@@ -158,7 +159,7 @@ class Problem:
     period_terms: tuple[PeriodTerm, ...]
     response_bounds: tuple[ResponseBound, ...]
     warnings: tuple[Diagnostic, ...] = field(default=())
-    slack: float = 0.0  # the schedule's idle share of every core, dedicated ones too (catan-model.md 4)
+    slack: float = 0.0  # the schedule's idle share of every core, dedicated ones too (docs/explanation/model.md 4)
     executors: tuple[Executor, ...] = field(default=())
 
     @cached_property

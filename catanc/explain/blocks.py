@@ -271,7 +271,7 @@ def _subchain_tables(explanation: Explanation) -> list[TableBlock]:
 
 
 def fifo_levels(shared: bool) -> str:
-    """The SCHED_FIFO levels of a subchain's threads as the deployment applies them (catan-model.md section 6)."""
+    """The SCHED_FIFO levels of a subchain's threads as deployed (docs/explanation/model.md section 6)."""
     return f"{resting_fifo(shared)}->{RUNNING_FIFO}"
 
 

@@ -1,4 +1,5 @@
-"""Whether a plan's shared cores can be enforced with the spec's assumed switch cost (catan-model.md section 5).
+"""Whether a plan's shared cores can be enforced with the spec's assumed switch cost
+(docs/explanation/model.md section 5).
 
 A shared core's schedule budgets ``switch_ms`` per slot: the enforcer's
 priority changes and the head's wake-up.  Without a machine profile that

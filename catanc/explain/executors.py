@@ -1,6 +1,6 @@
 """What an executor's one thread does to the rates under a plan, where its nodes span several subchains.
 
-Nodes of one single-threaded executor never run at once (catan-model.md section 6): a run that
+Nodes of one single-threaded executor never run at once (docs/explanation/model.md section 6): a run that
 finds the thread busy waits for the run on it to end, and once late it steals the slots of the
 subchains its own outranks, for the thread to run in.  The slot model plans each subchain as if
 its threads were its own, so neither the wait, nor the triggers lost meanwhile, nor the stolen

@@ -15,7 +15,7 @@ input arrives, and Linux shares the CPU (SCHED_OTHER).  The model:
   passes on what triggers it.  A scheduled node with no rate and no input
   that has one gets no period: the baseline is incomplete and :class:`BaselineGap` says which
   nodes lack one.
-- Unscheduled nodes are pseudo-stages as in catan-model.md section 2 (their
+- Unscheduled nodes are pseudo-stages as in docs/explanation/model.md section 2 (their
   own clock ``p``, ``l = p``; without a rate they drop out of chains).  A batch
   node heading a chain with an observed output rate uses that period there
   (``Chain.head_period_ms``), as the planner's model does.
@@ -33,7 +33,7 @@ input arrives, and Linux shares the CPU (SCHED_OTHER).  The model:
   named node's own period.
 
 The same triggers under static SCHED_FIFO (``fifo-static``, the paper's
-second baseline, catan-model.md section 7) run each subchain at a level of
+second baseline, docs/explanation/model.md section 7) run each subchain at a level of
 its own by importance (:func:`static_priorities`), or at the spec's
 ``baseline.priorities``; never at ``schedule.priorities``, which rank
 catanc's own stealing.

@@ -1,7 +1,7 @@
 """The orders on a shared core: its slots' inside a period, the one that makes data flow through it,
 and the stealing priority of its subchains (:func:`priorities`).
 
-catan-model.md section 4: unless the spec gives ``schedule.order``, where a
+docs/explanation/model.md section 4: unless the spec gives ``schedule.order``, where a
 weighted chain passes from subchain A to subchain B on the same core, A's
 slot should end right before B's starts (cyclically: a producer last in the
 period feeds a consumer first in the next).  The order minimises the

@@ -4,7 +4,7 @@ A :class:`Replanner` plans once (both stages, runners-up included) and then
 keeps its problem and every Stage II model it built:
 
 - :meth:`Replanner.resolve` re-solves Stage II on the current allocation with
-  new compute times (catan-model.md section 5: every 5 s).  The model is not
+  new compute times (docs/explanation/model.md section 5: every 5 s).  The model is not
   rebuilt: only its numbers change, and the previous plan's whole runs are
   the branch and bound's first incumbent.
 - :meth:`Replanner.reallocate` runs Stage I and the runners-up again (every
@@ -35,7 +35,7 @@ from catanc.spec.language import Spec
 RUNTIME_GAP = 1e-2
 """Re-plans stop at an integer plan proven within 1% of Stage II's optimum. The compute times they
 plan with are p95s of 50 noisy samples, far coarser than that. With aligned triggers (a capped
-subchain's ``p = k T``, catan-model.md section 4) the relaxation leaves ``k`` continuous, and on
+subchain's ``p = k T``, docs/explanation/model.md section 4) the relaxation leaves ``k`` continuous, and on
 nav2d its bound sits up to ~0.7% below the integer plan (GP's 1 Hz cap: ``p`` in ``[1000, 1000 +
 T)``): proving 0.01% took ~35 relaxations and ~20 exact evaluations (~40 ms) a re-plan, 1% takes
 ~2 of each (~1.1 ms; main's 0.01% before aligned triggers: ~0.7 ms)."""
@@ -134,7 +134,7 @@ class Replanner:
 
     def reconfigure(self, switch_ms: float, slack: float, compute_ms: Mapping[str, float] | None = None) -> Plan:
         """Plan both stages from now on with another ``switch_ms`` and ``slack`` (the runtime's measured costs,
-        catan-model.md section 5), optionally with new times; the problem's compute times are kept.
+        docs/explanation/model.md section 5), optionally with new times; the problem's compute times are kept.
 
         The Stage II models hold the old costs, so they are built again as the search meets their layouts (each
         ~1 ms), and the search starts from the current plan's layout and runs (evaluated under the new costs,

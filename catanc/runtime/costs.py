@@ -1,10 +1,10 @@
-"""The enforcer's own costs, measured as it runs (catan-model.md section 5).
+"""The enforcer's own costs, measured as it runs (docs/explanation/model.md section 5).
 
 - **Switch**: from a boundary's due time until its owner is raised and its head triggered
   (the enforcer waking late, then its own CPU), per shared core.
 - **Hop**: from a trigger to the head's start, and from a node's end to the next node's start
   (read from the nodes' rings); the latter per edge too, ``producer -> consumer``, which
-  ``catanc profile --write`` writes into the spec's ``hops_ms`` (catan-model.md section 5).
+  ``catanc profile --write`` writes into the spec's ``hops_ms`` (docs/explanation/model.md section 5).
 - **Overhead**: the enforcer's CPU share of the core its loop is pinned to, and its CPU per
   wake-up, from its thread's CPU clock between two readings.
 

@@ -1,6 +1,6 @@
 """``catanc run``: apply a plan on a live Linux system and keep it right as compute times drift.
 
-One event loop does everything time-critical (catan-model.md sections 5 and 6), in one thread
+One event loop does everything time-critical (docs/explanation/model.md sections 5 and 6), in one thread
 at SCHED_FIFO 4 pinned to one CPU, sleeping in ``select`` until the next thing to do:
 
 - a shared core's **boundary** (:class:`~catanc.control.policy.CoreCursor`): the owner of each

@@ -1,4 +1,4 @@
-"""Measuring compute times at runtime: what the re-optimiser plans with (catan-model.md section 5).
+"""Measuring compute times at runtime: what the re-optimiser plans with (docs/explanation/model.md section 5).
 
 Per scheduled node the enforcer keeps the last ``runtime.window`` compute
 times (ms) in a :class:`ComputeWindow` and plans with an *estimate*:

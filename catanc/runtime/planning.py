@@ -196,7 +196,7 @@ def serve(conn: Connection) -> None:
         spec = Spec.model_validate(spec_data)
         began = time.perf_counter()
         replanner = Replanner(spec, cores)
-        if bootstrap_ms is not None:  # catan-model section 5: every node 5 ms, both stages, then measure
+        if bootstrap_ms is not None:  # the model, section 5: every node 5 ms, both stages, then measure
             nodes = [node for sub in replanner.problem.subchains for node in sub.nodes]
             replanner.reallocate(dict.fromkeys(nodes, bootstrap_ms))
     except Exception as exc:  # the parent re-raises it

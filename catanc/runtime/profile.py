@@ -37,7 +37,7 @@ holds the client's own work around the callback, and keeps the node's figure whe
 makes it plausible (:func:`~catanc.runtime.measure.reconcile`); the summary says by how much the
 count exceeded the node's figure and on how many runs it replaced it.
 
-And per edge inside a subchain, its **hop** (``hops_ms``, catan-model.md section 5): the p95
+And per edge inside a subchain, its **hop** (``hops_ms``, docs/explanation/model.md section 5): the p95
 of the delays from the producer's end to the consumer's start that the enforcer measured (its
 last ``hop_by_edge`` figures: the latest 1024 hops of each edge), where it measured at least
 :data:`MIN_SAMPLES`.  The planner adds it to the subchain's ``c(S)``.  ``--check`` flags a hop

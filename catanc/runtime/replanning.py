@@ -1,4 +1,4 @@
-"""When the enforcer re-plans, and what it asks the re-optimiser (catan-model.md section 5).
+"""When the enforcer re-plans, and what it asks the re-optimiser (docs/explanation/model.md section 5).
 
 The solvers run in a child process (:class:`~catanc.runtime.planning.PlannerProcess`); the
 enforcer's loop never waits for them.  :class:`Replanning` decides what to ask and when: Stage I

@@ -1,7 +1,7 @@
 """The app's data as the simulation runs: what each node last produced, and where it came from.
 
 Every edge is *latest-value*: a run reads, when it starts, the newest output
-of each predecessor (catan-model.md section 1).  A batch node consumes every
+of each predecessor (docs/explanation/model.md section 1).  A batch node consumes every
 buffered input, which for the chains it is on is the same as reading the
 newest (one run's output reflects all of them); its compute time is one draw
 of its profile per run, as the planner budgets it.

@@ -1,7 +1,7 @@
 """What a simulated (or measured) run shows: chain response times, node rates and staleness, core use.
 
 A chain's response time is measured the way the model bounds it
-(catan-model.md section 2: an event waits for the head to sample it, then
+(docs/explanation/model.md section 2: an event waits for the head to sample it, then
 flows through): for each output of the chain's last node that carries a
 *newer* origin than the one before it, the time from the previous origin to
 this output.  An event just after the previous head run is first reflected

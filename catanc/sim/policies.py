@@ -1,6 +1,6 @@
 """Who triggers what, and at which priority: catanc's schedule and the hand-tuned baselines.
 
-- :class:`CatanPolicy` does what ``catan run`` does (catan-model.md sections
+- :class:`CatanPolicy` does what ``catan run`` does (docs/explanation/model.md sections
   5 and 6, with :mod:`catanc.control.policy`'s decisions, the enforcer's too):
   a clock per dedicated (or clock-triggered) subchain, a periodic slot
   schedule per shared core that raises one subchain at a time, later nodes
@@ -39,7 +39,7 @@ Sampler = Callable[[str, float], float]
 """(node, seconds into the run) -> one run's compute time in ms on one thread."""
 
 RAISED, RESTING_SHARED, DEDICATED = RUNNING_FIFO, SHARED_FIFO, RUNNING_FIFO
-"""The enforcer's SCHED_FIFO levels (catan-model.md section 6) as job priorities: the slot owner's, a shared
+"""The enforcer's SCHED_FIFO levels (docs/explanation/model.md section 6) as job priorities: the slot owner's, a shared
 subchain's between its slices, a dedicated subchain's."""
 
 

@@ -1,4 +1,4 @@
-"""Nodes that share one executor thread run one after the other (catan-model.md section 6).
+"""Nodes that share one executor thread run one after the other (docs/explanation/model.md section 6).
 
 A single-threaded executor (one ROS process spinning one thread) runs one
 callback at a time: a node whose turn comes while another node of its

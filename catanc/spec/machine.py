@@ -2,7 +2,7 @@
 
 ``catanc calibrate`` measures them and writes the profile; ``catanc compile
 --machine FILE`` and ``explain --machine FILE`` plan with them, so a
-committed plan is enforceable on its target (catan-model.md section 5).
+committed plan is enforceable on its target (docs/explanation/model.md section 5).
 The file is small YAML:
 
 .. code-block:: yaml

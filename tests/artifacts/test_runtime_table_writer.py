@@ -33,7 +33,7 @@ def planned(name: str, cores: int) -> tuple[Spec, Problem, Plan]:
     return spec, build_problem(spec), plan(spec, cores)
 
 
-# -- an independent reading of the table: section 2 of catan-model.md over the JSON's numbers
+# -- an independent reading of the table: section 2 of docs/explanation/model.md over the JSON's numbers
 
 
 def stage_timings(payload: Mapping[str, Any], chain: Mapping[str, Any]) -> list[tuple[float, float]]:

@@ -69,7 +69,7 @@ def test_slot_triggers_give_the_planned_rates(path: Path, cores: int) -> None:
 
 def test_only_batch_subchains_run_on_their_own_clock() -> None:
     # Every shared non-batch subchain is triggered at its slot every k periods, a rate cap's too
-    # (catan-model.md section 4): GP at 1 Hz on nav2d's one core, timewarp at vsync on VR's.
+    # (docs/explanation/model.md section 4): GP at 1 Hz on nav2d's one core, timewarp at vsync on VR's.
     spec = load_spec(ROOT / "specs" / "nav2d.yaml")
     result = plan(spec, 1)
     schedule = runtime_schedule(result, build_problem(spec), spec.schedule)

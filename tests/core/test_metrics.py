@@ -1,4 +1,4 @@
-"""The analytic model against examples worked by hand (catan-model.md sections 2 and 4).
+"""The analytic model against examples worked by hand (docs/explanation/model.md sections 2 and 4).
 
 Every expected number below is derived in the comment above it, not taken
 from the code under test.

@@ -77,7 +77,7 @@ def test_explain_shows_every_subchain_with_the_plans_numbers(name: str, cores: i
         row = flat(rows[sub.name])
         assert f" {1000 / sub.period_ms:.2f} {sub.period_ms:.3f} " in row
         assert row.endswith(f" {sub.latency_ms:.3f} ")
-        # catan-model.md section 6: shared threads rest at SCHED_FIFO 1 and run their slice at 2; dedicated at 2.
+        # docs/explanation/model.md section 6: shared threads rest at SCHED_FIFO 1, run their slice at 2; dedicated 2.
         assert flat(places[sub.name]).endswith(" shared 1->2 " if sub.shared else " dedicated 2->2 ")
     for core in expected.shared_cores:
         assert f"core {core.core}: shared by {len(core.order)} subchain" in out
@@ -103,7 +103,7 @@ def test_json_has_the_runtime_tables_shape(name: str) -> None:
 
 def test_vr_timewarps_fixed_rate_binds() -> None:
     # The spec fixes Timewarp at vsync (120 Hz): whatever else the plan does, that rate binds, and
-    # the schedule period is locked to it (T = 8.333 ms / k, catan-model.md section 4).
+    # the schedule period is locked to it (T = 8.333 ms / k, docs/explanation/model.md section 4).
     explanation = explain_plan(load_spec(SPECS / "vr_illixr.yaml"), *_problem_and_plan("vr_illixr", 1))
     kinds = {(b.kind, b.subject) for b in explanation.bindings}
     assert ("fixed rate", "timewarp") in kinds

@@ -197,7 +197,7 @@ def test_cores_must_be_positive() -> None:
 
 
 def test_vr_fifo_static_runs_the_papers_order_not_the_stealing_priorities() -> None:
-    """catan-model.md section 7: Timewarp, then Render, then Camera -> VIO (IMU and Int are unscheduled
+    """docs/explanation/model.md section 7: Timewarp, then Render, then Camera -> VIO (IMU and Int are unscheduled
     clocks, above every thread); every subchain its own level.  The spec's schedule.priorities
     (timewarp 1, vio 0, render 0) rank stealing and put Render and VIO on one level."""
     spec = load_spec(SPECS / "vr_illixr.yaml")

@@ -98,7 +98,7 @@ def executor_apps(draw: st.DrawFn, member_counts: st.SearchStrategy[int] = st.in
 
 
 def least_spacing(plan: Plan, problem: Problem, names: tuple[str, ...]) -> dict[str, int]:
-    """Each member's least ``k``: ``max(n, ceil(p_min / T))`` (catan-model.md section 4)."""
+    """Each member's least ``k``: ``max(n, ceil(p_min / T))`` (docs/explanation/model.md section 4)."""
     length = plan.shared_cores[0].period_ms
     return {
         name: max(plan.runs[name], math.ceil(problem.subchain(name).min_period_ms / length - 1e-9)) for name in names

@@ -1,4 +1,4 @@
-"""Nodes that share one executor thread (catan-model.md section 6): spec checks, Stage I, Eq. 1.
+"""Nodes that share one executor thread (docs/explanation/model.md section 6): spec checks, Stage I, Eq. 1.
 
 Stage I's oracle here is written from the spec alone: every set partition of
 the subchains into shared groups and dedicated singletons, kept when each

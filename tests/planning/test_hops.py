@@ -1,4 +1,5 @@
-"""Hops in the plan (catan-model.md section 5): each edge inside a subchain adds its measured hop to ``c(S)``.
+"""Hops in the plan (docs/explanation/model.md section 5):
+each edge inside a subchain adds its measured hop to ``c(S)``.
 
 The expected numbers are worked by hand from the model's formulas, never read off the planner.
 """

@@ -1,4 +1,4 @@
-"""The order of slots in a shared core's period follows the data flow (catan-model.md section 4), worked by hand."""
+"""The order of slots in a shared core's period follows the data flow (docs/explanation/model.md section 4), by hand."""
 
 from __future__ import annotations
 

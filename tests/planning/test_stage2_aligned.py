@@ -1,4 +1,5 @@
-"""Aligned triggers (catan-model.md section 4): ``p = k T`` on shared cores, worked by hand and against enumeration.
+"""Aligned triggers
+(docs/explanation/model.md section 4): ``p = k T`` on shared cores, worked by hand and against enumeration.
 
 A shared non-batch subchain's head is triggered at its slot every ``k >= n``
 periods.  With the runs fixed, the objective is a sawtooth in ``T``: the best

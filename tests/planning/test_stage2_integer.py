@@ -8,7 +8,7 @@ lengthens ``p``).  With ``(n, k)`` fixed every term grows with ``T``, so the
 best schedule length is the least that fits the slices and keeps every
 ``k_i T >= p_min_i``: ``T = max(T_fit, max_i p_min_i / k_i)`` with
 ``T_fit = (sum_i c_i / n_i + m * switch) / (1 - slack)``; then latency
-``n_i T``, period ``k_i T`` (catan-model.md section 4), and the analytic
+``n_i T``, period ``k_i T`` (docs/explanation/model.md section 4), and the analytic
 model scores the result.
 """
 

@@ -211,7 +211,7 @@ def test_the_clock_fires_every_period_from_the_start_sensors_first(pipe: Spec) -
 def test_fifo_levels_are_the_papers_order_never_the_stealing_priorities() -> None:
     specs = Path(__file__).parents[2] / "specs"
     vr = load_spec(specs / "vr_illixr.yaml")  # schedule.priorities (stealing): timewarp 1, vio 0, render 0
-    # catan-model.md section 7: Timewarp, then Render, then Camera and VIO (one subchain).
+    # docs/explanation/model.md section 7: Timewarp, then Render, then Camera and VIO (one subchain).
     assert fifo_levels(build_problem(vr), vr) == {"Timewarp": 3, "Render": 2, "Camera": 1, "VIO": 1}
     nav = load_spec(specs / "nav2d.yaml")  # weights: local 1.0 > GL 0.5 > the rest
     levels = fifo_levels(build_problem(nav), nav)

@@ -4,7 +4,7 @@ Oracles: processor sharing and preemptive priorities on a few jobs (finish
 times by hand); chain windows (by hand); a dedicated subchain whose every
 output takes exactly the model's ``R = c + p``; and, over random apps with
 constant compute times, the model's worst-case response time ``R``
-(catan-model.md section 2), which no simulated output may exceed.
+(docs/explanation/model.md section 2), which no simulated output may exceed.
 """
 
 from __future__ import annotations

@@ -79,7 +79,7 @@ REQUIRED_CATEGORIES = [
     "workload_spikes_nonpositive",
     "workload_unscheduled",
     "workload_unknown_key",
-    # measured hops (catan-model.md section 5)
+    # measured hops (docs/explanation/model.md section 5)
     "hops_negative",
     "hops_not_finite",
     "hops_unknown_edge",

@@ -14,7 +14,7 @@ from catanc.core.load import parse_spec
 from catanc.errors import ExitCode
 from catanc.spec.language import JITTER_DISTS, RATE_UNITS, json_schema
 
-# One dedicated node of 5 ms on one core with the default 5% slack (catan-model.md section 4):
+# One dedicated node of 5 ms on one core with the default 5% slack (docs/explanation/model.md section 4):
 # its period is 5 / 0.95 = 5.2632 ms, so its rate parameter is 190 in hz, 0.0052632 in s and
 # 5.2632 in ms (worked by hand).
 SPEC = """catan: 1

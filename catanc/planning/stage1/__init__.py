@@ -1,4 +1,4 @@
-"""Stage I: which subchains get cores of their own, and which share one (catan-model.md section 3).
+"""Stage I: which subchains get cores of their own, and which share one (docs/explanation/model.md section 3).
 
 :func:`allocate` is the entry point. ``method="milp"`` solves the MILP of
 :mod:`catanc.planning.stage1.milp`; ``method="exhaustive"`` scores every allocation

@@ -1,4 +1,4 @@
-"""Stage I's model (catan-model.md section 3): crude periods for every way a subchain can run.
+"""Stage I's model (docs/explanation/model.md section 3): crude periods for every way a subchain can run.
 
 Each subchain either has ``k >= 1`` cores of its own (*dedicated*) or shares
 one core with ``m - 1`` others (*shared*, ``m >= 2``).  Stage I estimates:
@@ -59,7 +59,7 @@ class Allocation:
         return found
 
     def core_indices(self) -> dict[str, tuple[int, ...]]:
-        """Cores per subchain, by the documented rule (catan-model.md section 3).
+        """Cores per subchain, by the documented rule (docs/explanation/model.md section 3).
 
         Dedicated subchains first, in spec order, each taking the lowest free
         indices; then each shared group, in order of its first member, one core.
@@ -107,7 +107,7 @@ def options_for(problem: Problem, cores: int) -> list[Option]:
 def option_timing(sub: Subchain, option: Option, slack: float) -> Timing:
     """Stage I's estimate of a subchain's period and processing latency under ``option``.
 
-    A dedicated estimate keeps the schedule's ``slack`` idle, as Stage II does (catan-model.md 3, 4).
+    A dedicated estimate keeps the schedule's ``slack`` idle, as Stage II does (docs/explanation/model.md 3, 4).
     """
     if option.shared:
         fair = sub.compute_ms * option.size

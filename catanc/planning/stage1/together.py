@@ -1,4 +1,4 @@
-"""Subchains that must share one core: Stage I's executor constraint (catan-model.md section 6).
+"""Subchains that must share one core: Stage I's executor constraint (docs/explanation/model.md section 6).
 
 Nodes of one single-threaded executor run in one thread, so they get one
 core set and never overlap.  Where an executor's nodes span several

@@ -1,4 +1,4 @@
-"""Stage II: rates and per-core time fractions (catan-model.md section 4).
+"""Stage II: rates and per-core time fractions (docs/explanation/model.md section 4).
 
 :mod:`catanc.planning.stage2.relaxed` is the relaxed geometric program over all shared
 cores (cvxpy, DPP), with a twin that minimises the bound scale;

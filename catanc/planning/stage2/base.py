@@ -109,7 +109,7 @@ EVERY_TOLERANCE = 1e-9
 
 
 def aligned_every(runs: int, length: float, min_period_ms: float) -> int:
-    """``k``: the fewest schedule periods between a shared subchain's triggers (catan-model.md section 4).
+    """``k``: the fewest schedule periods between a shared subchain's triggers (docs/explanation/model.md section 4).
 
     Its head is triggered at the start of its slot every ``k`` periods, ``k >= n`` (a run takes
     ``n`` periods) and ``k T >= p_min`` (its rate cap or fixed rate): ``p = k T``.

@@ -1,4 +1,4 @@
-"""Stage II with whole runs: the exact optimum over integer ``n_i = 1/f_i`` (catan-model.md section 4).
+"""Stage II with whole runs: the exact optimum over integer ``n_i = 1/f_i`` (docs/explanation/model.md section 4).
 
 A non-batch subchain on a shared core completes one run every ``n_i``
 schedule periods, ``n_i`` a whole number.  The relaxed GP

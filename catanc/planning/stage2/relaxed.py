@@ -1,4 +1,4 @@
-"""Stage II's relaxation: one geometric program over every shared core (catan-model.md section 4).
+"""Stage II's relaxation: one geometric program over every shared core (docs/explanation/model.md section 4).
 
 For a shared core running subchains ``S_1..S_n`` with a schedule of length
 ``T``, each subchain runs a fraction ``f_i`` of one run per period, so it

@@ -1,7 +1,7 @@
 """Stage II with every ``n_i = 1/f_i`` fixed, in closed form (no batch subchain on a shared core).
 
 A shared non-batch subchain's head is triggered at its slot every ``k_i``
-periods (catan-model.md section 4): latency ``n_i T``, period ``k_i T`` with
+periods (docs/explanation/model.md section 4): latency ``n_i T``, period ``k_i T`` with
 ``k_i = max(n_i, ceil(p_min / T))`` (:func:`~catanc.planning.stage2.base.aligned_every`:
 a longer ``k`` only lengthens periods).  With every ``n`` fixed, each term
 and bound grows with each core's ``T`` except where some ``k_i`` drops, at

@@ -28,7 +28,7 @@ every run, as :class:`RunRecord` JSON lines, to FILE when the worker exits
 these timestamps.
 
 ``--executor A,B`` says that nodes A and B of this worker share one
-single-threaded executor (the spec's ``executors``, catan-model.md section
+single-threaded executor (the spec's ``executors``, docs/explanation/model.md section
 6): their runs take turns, one at a time in the order their triggers
 arrived, as a ROS executor's callbacks do; a run waiting for its turn has
 not started (its record starts when its turn comes).  Each node keeps its
