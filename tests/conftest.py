@@ -36,6 +36,7 @@ from typing import TYPE_CHECKING
 import pytest
 from hypothesis import HealthCheck, settings
 
+from tests.support.fake_enforcer import FakeEnforcer
 from tests.support.linux import missing_tools, nobody_ids, require_fifo
 
 if TYPE_CHECKING:
@@ -170,6 +171,16 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
 def module_of(item: pytest.Item) -> str:
     """The item's file relative to tests/, as :data:`SLOW_MODULES` names it ("" outside it)."""
     return item.path.relative_to(TESTS).as_posix() if item.path.is_relative_to(TESTS) else ""
+
+
+@pytest.fixture
+def enforcer(tmp_path: Path) -> Iterator[FakeEnforcer]:
+    """A fake enforcer on a socket in the test's folder, for the client tests (closed after the test)."""
+    fake = FakeEnforcer(tmp_path / "catanc.sock")
+    try:
+        yield fake
+    finally:
+        fake.close()
 
 
 @pytest.fixture

@@ -85,15 +85,6 @@ def burn_ms(compute_ms: float) -> float:
     return (time.thread_time() - start) * 1000.0
 
 
-@pytest.fixture
-def enforcer(tmp_path: Path) -> Iterator[FakeEnforcer]:
-    fake = FakeEnforcer(tmp_path / "catanc.sock")
-    try:
-        yield fake
-    finally:
-        fake.close()
-
-
 # -- the client against a scripted enforcer ----------------------------------------------------
 
 

@@ -38,15 +38,6 @@ def example(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture
-def enforcer(tmp_path: Path) -> Iterator[FakeEnforcer]:
-    fake = FakeEnforcer(tmp_path / "catanc.sock")
-    try:
-        yield fake
-    finally:
-        fake.close()
-
-
-@pytest.fixture
 def start(example: Path, enforcer: FakeEnforcer) -> Iterator[Start]:
     """Start the example with ``CATANC_SOCKET`` naming the fake enforcer."""
     started: list[subprocess.Popen[str]] = []

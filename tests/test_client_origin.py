@@ -10,8 +10,6 @@ import select
 import socket
 import threading
 import time
-from collections.abc import Iterator
-from pathlib import Path
 
 import pytest
 
@@ -19,15 +17,6 @@ from catanc.client import ClientError, Node
 from catanc.runtime.protocol import Route, Stop
 from tests.support.fake_enforcer import TIMEOUT_S, FakeEnforcer
 from tests.test_client import Background
-
-
-@pytest.fixture
-def enforcer(tmp_path: Path) -> Iterator[FakeEnforcer]:
-    fake = FakeEnforcer(tmp_path / "catanc.sock")
-    try:
-        yield fake
-    finally:
-        fake.close()
 
 
 def _realtime_minus_monotonic_ns() -> int:
