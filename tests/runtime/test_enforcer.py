@@ -248,11 +248,7 @@ class Harness(EnforcerRun):
     def close(self) -> None:
         kill_groups([*self.workers, *([self.enforcer] if self.enforcer else [])])  # nodes first
         registered = [e["pid"] for e in of_kind(self.events(), "register")]  # --demo's workers have their sessions
-        for pid in {*self.helpers, *registered}:  # and so has the watchdog
-            if "catanc" in cmdline(pid) or "watchdog" in cmdline(pid):
-                with contextlib.suppress(ProcessLookupError):
-                    os.kill(pid, signal.SIGKILL)
-        shutil.rmtree(self.short, ignore_errors=True)
+        self.end_helpers({*self.helpers, *registered})  # and so has the watchdog
 
 
 @contextlib.contextmanager

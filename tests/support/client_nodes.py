@@ -25,7 +25,7 @@ from typing import Any, NamedTuple
 import pytest
 
 import catanc.client
-from tests.support.enforcer_runs import ENFORCER_MAIN, EnforcerRun, cmdline, kill_groups, of_kind
+from tests.support.enforcer_runs import ENFORCER_MAIN, EnforcerRun, kill_groups, of_kind
 from tests.support.linux import WAIT_S, poll
 
 REPO = Path(__file__).resolve().parents[2]
@@ -172,11 +172,7 @@ class ClientRun(EnforcerRun):
         for proc in self.nodes:
             with contextlib.suppress(subprocess.TimeoutExpired, ValueError):
                 proc.communicate(timeout=WAIT_S)
-        for pid in self.helpers:  # the watchdog and the planner
-            if "catanc" in cmdline(pid) or "watchdog" in cmdline(pid):
-                with contextlib.suppress(ProcessLookupError):
-                    os.kill(pid, signal.SIGKILL)
-        shutil.rmtree(self.short, ignore_errors=True)
+        self.end_helpers(self.helpers)  # the watchdog and the planner
 
 
 def children(pid: int) -> list[int]:

@@ -9,9 +9,10 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import signal
 import subprocess
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -96,6 +97,15 @@ class EnforcerRun:
 
     def stderr(self) -> str:
         return (self.folder / "enforcer.err").read_text(errors="replace")
+
+    def end_helpers(self, pids: Iterable[int]) -> None:
+        """SIGKILL what is left of the enforcer's helpers among ``pids`` (the watchdog and the planner have
+        sessions of their own, out of a process group kill's reach), then drop the socket's folder."""
+        for pid in pids:
+            if "catanc" in cmdline(pid) or "watchdog" in cmdline(pid):
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGKILL)
+        shutil.rmtree(self.short, ignore_errors=True)
 
     def events(self) -> list[Event]:
         return read_log(self.log) if self.log.exists() else []

@@ -11,8 +11,6 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-import shutil
-import signal
 import subprocess
 import sys
 import tempfile
@@ -24,7 +22,7 @@ from typing import Any
 
 from catanc.runtime.protocol import SOCKET_ENV
 from tests.runtime.test_enforcer import children_of
-from tests.support.enforcer_runs import ENFORCER_MAIN, EnforcerRun, cmdline, kill_groups, of_kind
+from tests.support.enforcer_runs import ENFORCER_MAIN, EnforcerRun, kill_groups, of_kind
 from tests.support.linux import poll
 
 APP = Path(__file__).resolve().parents[1] / "ros" / "ros_app.py"
@@ -136,11 +134,7 @@ class RosRun(EnforcerRun):
     def close(self) -> None:
         kill_groups([node.proc for node in self.nodes])
         kill_groups([self.enforcer] if self.enforcer else [])
-        for pid in self.helpers:  # the watchdog has a session of its own
-            if "catanc" in cmdline(pid) or "watchdog" in cmdline(pid):
-                with contextlib.suppress(ProcessLookupError):
-                    os.kill(pid, signal.SIGKILL)
-        shutil.rmtree(self.short, ignore_errors=True)
+        self.end_helpers(self.helpers)
 
 
 @contextlib.contextmanager
