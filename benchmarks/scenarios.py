@@ -3,7 +3,8 @@
     python -m benchmarks.scenarios               # the simulator (deterministic): docs/results/sim.json and sim-*.png
     python -m benchmarks.scenarios --real        # the real kernel instead (root, ~30 min): real.json, real-*.png
     python -m benchmarks.scenarios --only vr     # one scenario (face, nav2d, yolo, yolo-fast, vr, vr-illixr)
-    python -m benchmarks.scenarios --tables      # the saved numbers as docs/results.md's tables
+    python -m benchmarks.scenarios --tables      # docs/results.md's tables rewritten from the saved numbers
+    python -m benchmarks.scenarios --tables --check   # ... or exit 1 if they are out of date
 
 Each scenario runs catanc's policies and the paper's baselines through
 :func:`catanc.sim.simulate.simulate` or :func:`catanc.realbench.bench.bench_policies`
@@ -18,6 +19,10 @@ Variants of an example spec (another hand-tuned rate, a faster growth, a
 static plan's rates, ILLIXR's vsync display and dataset) are the spec's own
 YAML with one thing changed, written to a temporary folder for the real
 run's workers.
+
+docs/results.md's tables are not typed by hand: each stands between ``<!-- tables SOURCE KEY -->``
+and ``<!-- end tables -->`` (``sim`` or ``real``; a scenario, or ``load_average``), and
+``--tables`` rewrites them from the JSON, leaving the prose around them as it is.
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ import copy
 import json
 import math
 import os
+import re
 import sys
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -39,6 +45,7 @@ from matplotlib.figure import Figure
 
 from catanc.core.build import build_problem
 from catanc.core.load import load_spec
+from catanc.errors import ExitCode, OutputError
 from catanc.files import write_files
 from catanc.planning.planner import plan_problem
 from catanc.sim.metrics import ChainResult, PolicyResult
@@ -465,71 +472,162 @@ def in_order(body: Mapping[str, Any], order: Sequence[str]) -> list[tuple[str, A
     ]
 
 
-def tables(numbers: Mapping[str, Any]) -> Iterator[str]:
-    """Markdown tables of one source's numbers (docs/results.md quotes them): mean ± 95% half-width."""
-    if "load_average" in numbers:
-        yield "| scenario | load average (1, 5, 15 min) at the start | at the end |\n|---|---|---|"
-        for name, load in numbers["load_average"].items():
-            yield f"| {name} | {', '.join(map(str, load['start']))} | {', '.join(map(str, load['end']))} |"
-        yield ""
-    if "face" in numbers:
-        yield "| cores | camera Hz (CFS) | achieved Hz | mean ms | p95 ms |\n|---|---|---|---|---|"
-        for cores, body in numbers["face"].items():
-            for row in body["baseline"]:
-                rates = f"{row['camera_hz']:g} | {_hz(row['achieved_hz'])}"
-                yield f"| {cores} | {rates} | {_ms(row['mean_ms'])} | {_ms(row['p95_ms'])} |"
-            chosen = body["catan"]
-            yield (f"| {cores} | **catanc: {_hz(chosen['camera_hz'])}** | | **{_ms(chosen['mean_ms'])}** | "
-                   f"**{_ms(chosen['p95_ms'])}** (model R {_ms(chosen['model_ms'])}) |")  # fmt: skip
-        yield ""
-    if "nav2d" in numbers:
-        yield ("| cores | policy | local chain Hz | local mean ms | local p95 ms | local max ms | GL Hz "
-               "| GL staleness p95 ms | odom->GL->NC->base mean ms | GM Hz |")  # fmt: skip
-        yield "|---|---|---|---|---|---|---|---|---|---|"
-        for cores, body in numbers["nav2d"].items():
-            for label, row in in_order(body, list(NAV_POLICIES)):
-                local, pose = row["local"], row["pose_at_base"]
-                yield (f"| {cores} | {label} | {_hz(row['local_hz'])} | {_ms(local['mean_ms'])} "
-                       f"| {_ms(local['p95_ms'])} | {_ms(local['max_ms'])} | {_hz(row['GL_hz'])} "
-                       f"| {_ms(row['GL_staleness_p95_ms'])} "
-                       f"| {_ms(pose['mean_ms'])} | {_hz(row['GM_hz'])} |")  # fmt: skip
-        yield ""
-    for variant in ("yolo", "yolo-fast"):
-        if variant not in numbers:
+def _load_average(numbers: Mapping[str, Any]) -> Iterator[str]:
+    yield "| scenario | load average (1, 5, 15 min) at the start | at the end |\n|---|---|---|"
+    for name, load in numbers["load_average"].items():
+        yield f"| {name} | {', '.join(map(str, load['start']))} | {', '.join(map(str, load['end']))} |"
+
+
+def _face(numbers: Mapping[str, Any]) -> Iterator[str]:
+    yield "| cores | camera Hz (CFS) | achieved Hz | mean ms | p95 ms |\n|---|---|---|---|---|"
+    for cores, body in numbers["face"].items():
+        for row in body["baseline"]:
+            rates = f"{row['camera_hz']:g} | {_hz(row['achieved_hz'])}"
+            yield f"| {cores} | {rates} | {_ms(row['mean_ms'])} | {_ms(row['p95_ms'])} |"
+        chosen = body["catan"]
+        yield (f"| {cores} | **catanc: {_hz(chosen['camera_hz'])}** | | **{_ms(chosen['mean_ms'])}** | "
+               f"**{_ms(chosen['p95_ms'])}** (model R {_ms(chosen['model_ms'])}) |")  # fmt: skip
+
+
+def _nav2d(numbers: Mapping[str, Any]) -> Iterator[str]:
+    yield ("| cores | policy | local chain Hz | local mean ms | local p95 ms | local max ms | GL Hz "
+           "| GL staleness p95 ms | odom->GL->NC->base mean ms | GM Hz |")  # fmt: skip
+    yield "|---|---|---|---|---|---|---|---|---|---|"
+    for cores, body in numbers["nav2d"].items():
+        for label, row in in_order(body, list(NAV_POLICIES)):
+            local, pose = row["local"], row["pose_at_base"]
+            yield (f"| {cores} | {label} | {_hz(row['local_hz'])} | {_ms(local['mean_ms'])} "
+                   f"| {_ms(local['p95_ms'])} | {_ms(local['max_ms'])} | {_hz(row['GL_hz'])} "
+                   f"| {_ms(row['GL_staleness_p95_ms'])} "
+                   f"| {_ms(pose['mean_ms'])} | {_hz(row['GM_hz'])} |")  # fmt: skip
+
+
+def _yolo(numbers: Mapping[str, Any], variant: str) -> Iterator[str]:
+    over = numbers[variant]["growth_over_s"]
+    yield f"Growth over {over:g} s:\n"
+    yield ("| cores | policy | YOLO Hz | YOLO period, first / last 10 s bucket (s) | local p95 ms "
+           "| odom->GL->NC->base median, first / last bucket (ms) | GL Hz | GM Hz | re-plans |")  # fmt: skip
+    yield "|---|---|---|---|---|---|---|---|---|"
+    for cores, body in ((k, v) for k, v in numbers[variant].items() if k != "growth_over_s"):
+        for policy, row in in_order(body, [*YOLO_POLICIES, *ONE_CORE_RATES.values()]):
+            period, pose = row["yolo_period_s"], row["pose_at_base_median_ms"]
+            yield (f"| {cores} | {policy} | {_hz(row['yolo_hz'])} "
+                   f"| {_with_ci(period[0], '.2f')} / {_with_ci(period[-1], '.2f')} "
+                   f"| {_ms(row['local']['p95_ms'])} | {_ms(pose[0])} / {_ms(pose[-1])} | {_hz(row['GL_hz'])} "
+                   f"| {_hz(row['GM_hz'])} | {_plain(row['replans'], '.0f')} |")  # fmt: skip
+
+
+def _vr(numbers: Mapping[str, Any], variant: str) -> Iterator[str]:
+    yield f"VR, {variant}:\n"
+    yield "| cores | policy | A mean ms | B mean ms | C mean ms | A, B, C p95 ms | Render Hz | VIO Hz |"
+    yield "|---|---|---|---|---|---|---|---|"
+    for cores, body in numbers[variant].items():
+        for policy, row in in_order(body, list(VR_POLICIES)):
+            means = " | ".join(_ms(row[n]["mean_ms"]) for n in "ABC")
+            p95s = " / ".join(_plain(row[n]["p95_ms"], ".1f") for n in "ABC")
+            yield f"| {cores} | {policy} | {means} | {p95s} | {_hz(row['Render_hz'])} | {_hz(row['VIO_hz'])} |"
+    yield ""
+    yield "Mean response against fifo-static's, seed by seed (paired):\n"
+    yield "| cores | policy | A | B | C |\n|---|---|---|---|---|"
+    for cores, body in numbers[variant].items():
+        for policy, row in in_order(body, list(VR_POLICIES)):
+            if policy != "fifo-static":
+                ratios = " | ".join(_pct(row["vs_fifo_static"][n]) for n in "ABC")
+                yield f"| {cores} | {policy} | {ratios} |"
+
+
+TABLES: dict[str, Callable[[Mapping[str, Any]], Iterator[str]]] = {
+    "load_average": _load_average,
+    "face": _face,
+    "nav2d": _nav2d,
+    "yolo": lambda numbers: _yolo(numbers, "yolo"),
+    "yolo-fast": lambda numbers: _yolo(numbers, "yolo-fast"),
+    "vr": lambda numbers: _vr(numbers, "vr"),
+    "vr-illixr": lambda numbers: _vr(numbers, "vr-illixr"),
+}
+"""Each key of a source's JSON (a scenario, or the real runs' load averages) -> its markdown tables."""
+
+
+def tables(numbers: Mapping[str, Any], key: str) -> str:
+    """The markdown of one key of a source's numbers: its tables, mean ± 95% half-width, no trailing newline."""
+    return "\n".join(TABLES[key](numbers))
+
+
+# --------------------------------------------------------------------------- docs/results.md's tables in place
+
+RESULTS_MD = Path(__file__).resolve().parent.parent / "docs" / "results.md"
+BEGIN_TABLES = re.compile(r"<!-- tables (?P<source>\S+) (?P<key>\S+) -->")
+END_TABLES = "<!-- end tables -->"
+
+
+class TablesError(Exception):
+    """docs/results.md's markers do not fit the saved numbers (the message names the file and line)."""
+
+
+def rewrite_tables(text: str, sources: Mapping[str, Mapping[str, Any]], file: str) -> str:
+    """``text`` (docs/results.md) with what stands between each ``<!-- tables SOURCE KEY -->`` and the next
+    ``<!-- end tables -->`` replaced by :func:`tables` of ``sources[SOURCE]`` (the JSON), a blank line each side;
+    the rest kept byte for byte.  :class:`TablesError` names the line of a marker that names no saved
+    numbers or is never closed."""
+    lines = text.split("\n")
+    out: list[str] = []
+    index = 0
+    while index < len(lines):
+        line = lines[index]
+        out.append(line)
+        index += 1
+        begin = BEGIN_TABLES.fullmatch(line.strip())
+        if begin is None:
+            if line.strip() == END_TABLES:
+                raise TablesError(f"{file}:{index}: {END_TABLES} without a <!-- tables SOURCE KEY --> before it")
             continue
-        over = numbers[variant]["growth_over_s"]
-        yield f"Growth over {over:g} s:\n"
-        yield ("| cores | policy | YOLO Hz | YOLO period, first / last 10 s bucket (s) | local p95 ms "
-               "| odom->GL->NC->base median, first / last bucket (ms) | GL Hz | GM Hz | re-plans |")  # fmt: skip
-        yield "|---|---|---|---|---|---|---|---|---|"
-        for cores, body in ((k, v) for k, v in numbers[variant].items() if k != "growth_over_s"):
-            for policy, row in in_order(body, [*YOLO_POLICIES, *ONE_CORE_RATES.values()]):
-                period, pose = row["yolo_period_s"], row["pose_at_base_median_ms"]
-                yield (f"| {cores} | {policy} | {_hz(row['yolo_hz'])} "
-                       f"| {_with_ci(period[0], '.2f')} / {_with_ci(period[-1], '.2f')} "
-                       f"| {_ms(row['local']['p95_ms'])} | {_ms(pose[0])} / {_ms(pose[-1])} | {_hz(row['GL_hz'])} "
-                       f"| {_hz(row['GM_hz'])} | {_plain(row['replans'], '.0f')} |")  # fmt: skip
-        yield ""
-    for variant in ("vr", "vr-illixr"):
-        if variant not in numbers:
-            continue
-        yield f"VR, {variant}:\n"
-        yield "| cores | policy | A mean ms | B mean ms | C mean ms | A, B, C p95 ms | Render Hz | VIO Hz |"
-        yield "|---|---|---|---|---|---|---|---|"
-        for cores, body in numbers[variant].items():
-            for policy, row in in_order(body, list(VR_POLICIES)):
-                means = " | ".join(_ms(row[n]["mean_ms"]) for n in "ABC")
-                p95s = " / ".join(_plain(row[n]["p95_ms"], ".1f") for n in "ABC")
-                yield f"| {cores} | {policy} | {means} | {p95s} | {_hz(row['Render_hz'])} | {_hz(row['VIO_hz'])} |"
-        yield ""
-        yield "Mean response against fifo-static's, seed by seed (paired):\n"
-        yield "| cores | policy | A | B | C |\n|---|---|---|---|---|"
-        for cores, body in numbers[variant].items():
-            for policy, row in in_order(body, list(VR_POLICIES)):
-                if policy != "fifo-static":
-                    ratios = " | ".join(_pct(row["vs_fifo_static"][n]) for n in "ABC")
-                    yield f"| {cores} | {policy} | {ratios} |"
-        yield ""
+        source, key = begin["source"], begin["key"]
+        if source not in sources:
+            known = ", ".join(sorted(sources)) or "none"
+            raise TablesError(f"{file}:{index}: {line.strip()}: no saved numbers of source {source!r} ({known})")
+        if key not in TABLES or key not in sources[source]:
+            known = ", ".join(sorted(k for k in sources[source] if k in TABLES))
+            raise TablesError(f"{file}:{index}: {line.strip()}: {source}.json holds no {key!r} ({known})")
+        end = next((i for i in range(index, len(lines)) if lines[i].strip() == END_TABLES), None)
+        if end is None:
+            raise TablesError(f"{file}:{index}: {line.strip()}: no {END_TABLES} after it")
+        out += ["", tables(sources[source], key), "", lines[end]]
+        index = end + 1
+    return "\n".join(out)
+
+
+def saved_numbers(folder: Path) -> dict[str, dict[str, Any]]:
+    """Each source's saved numbers (``sim.json``, ``real.json``) found in ``folder``, by source name."""
+    found = {}
+    for source in (SIM, REAL):
+        path = folder / f"{source.name}.json"
+        if path.exists():
+            found[source.name] = json.loads(path.read_text())
+    return found
+
+
+def tables_command(doc: Path, numbers_folder: Path, check: bool) -> int:
+    """``--tables``: rewrite ``doc``'s tables from the saved numbers (``--check``: only say whether they differ);
+    the exit status."""
+    try:
+        text = doc.read_text()
+        rewritten = rewrite_tables(text, saved_numbers(numbers_folder), str(doc))
+    except (OSError, TablesError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return int(ExitCode.BAD_INPUT)
+    if rewritten == text:
+        print(f"{doc}: tables up to date", file=sys.stderr)
+        return 0
+    if check:
+        print(f"{doc}: tables out of date: python -m benchmarks.scenarios --tables", file=sys.stderr)
+        return 1
+    try:
+        write_files(doc.parent, {doc.name: rewritten.encode()}, kind="results page")
+    except OutputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return int(ExitCode.OUTPUT)
+    print(f"{doc}: tables rewritten", file=sys.stderr)
+    return 0
 
 
 def main() -> None:
@@ -538,16 +636,13 @@ def main() -> None:
     parser.add_argument("--only", action="append", choices=sorted(SCENARIOS), help="Scenarios to run (repeat).")
     parser.add_argument("--out", type=Path, default=OUT)
     parser.add_argument(
-        "--tables", action="store_true", help="Print the saved numbers as markdown tables; run nothing."
+        "--tables", action="store_true", help="Rewrite docs/results.md's tables from the saved numbers; run nothing."
     )
+    parser.add_argument("--check", action="store_true", help="With --tables: exit 1 if they are out of date.")
+    parser.add_argument("--doc", type=Path, default=RESULTS_MD, help="The page whose tables --tables rewrites.")
     args = parser.parse_args()
     if args.tables:
-        for source in (SIM, REAL):
-            path = args.out / f"{source.name}.json"
-            if path.exists():
-                print(f"## {source.name}\n")
-                print("\n".join(tables(json.loads(path.read_text()))))
-        return
+        sys.exit(tables_command(args.doc, args.out, args.check))
     source = REAL if args.real else SIM
     chosen = [name for name in args.only or SCENARIOS if name in source.durations_s]
     numbers_path = args.out / f"{source.name}.json"
