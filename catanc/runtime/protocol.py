@@ -1,7 +1,8 @@
 """The trigger protocol between ``catanc run`` (the enforcer) and app nodes, version ``catanc/2``.
 
-This docstring is the protocol's reference: a client in any language that follows it is a
-catanc node.  :mod:`catanc.client` is the Python client (standard library only) and
+This docstring is the protocol's reference (docs/reference/protocol.md says the same, held to
+this code by a test): a client in any language that follows it is a catanc node.
+:mod:`catanc.client` is the Python client (standard library only) and
 ``catanc/include/catanc/client.hpp`` the C++ one (``catanc client --cflags``).
 
 Sockets
@@ -85,11 +86,11 @@ A client, step by step
    appends a ring entry with SEQ 0 per run.  Its predecessor's route then names it with
    NEXT_ADDR ``-``: the predecessor sends it no trigger (its message wakes it; a trigger
    before the message would start a run on the previous message's data).
-6. A run's *origin* is when the data it carries was sensed (a ROS ``header.stamp``): the node
+5. A run's *origin* is when the data it carries was sensed (a ROS ``header.stamp``): the node
    converts it from ``CLOCK_REALTIME`` to ``CLOCK_MONOTONIC`` (subtract
    ``realtime_now - monotonic_now``) and writes it into the entry (0: none).  The enforcer logs
    each run's age, its end minus its origin (a head's run without one: its start).
-5. Leaving on its own, send ``catanc/2 bye NODE TID`` (also if no welcome was read yet: the
+6. Leaving on its own, send ``catanc/2 bye NODE TID`` (also if no welcome was read yet: the
    enforcer may have sent one; a bye of a thread it does not know is ignored).  While waiting, check every second or so
    that the path still names a socket that takes datagrams: if not, the enforcer is gone.
 
