@@ -41,7 +41,7 @@ from catanc.planning.types import Plan
 ROOT = Path(__file__).resolve().parent.parent
 PAPER_STAGE2_MS = {"nav2d": 25.0, "vr_illixr": 5.5}  # C++/Mosek, paper section 6 (24-26 ms, 5-6 ms)
 TARGET_RESOLVE_MS = {"nav2d": 1.0, "vr_illixr": 0.5}
-PROTOTYPE_RESOLVE_MS = {"nav2d": 0.40, "vr_illixr": 0.19}  # one relaxed re-solve (shared/docs/solver-notes.md)
+PROTOTYPE_RESOLVE_MS = {"nav2d": 0.40, "vr_illixr": 0.19}  # one relaxed re-solve of a throwaway prototype
 DRIFT = 0.03
 
 

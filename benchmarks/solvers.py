@@ -30,7 +30,7 @@ from tests.support.layered_apps import layered_spec
 ROOT = Path(__file__).resolve().parent.parent
 PAPER_STAGE1_NAV2D_MS = 60.0  # C++/Mosek, nav on 2 cores (paper section 6)
 TARGET_STAGE1_NAV2D_MS = 6.0
-PROTOTYPE_STAGE1_NAV2D_MS = 16.0  # a throwaway prototype through pulp (shared/docs/solver-notes.md)
+PROTOTYPE_STAGE1_NAV2D_MS = 16.0  # a throwaway prototype of the model, through pulp
 
 
 def median_ms(run: Callable[[], object], repeats: int) -> float:

@@ -1,6 +1,6 @@
 """catanc: compile semantic specs of sense-react task graphs into CPU schedules.
 
-The pipeline (``../shared/docs/style.md``): load a spec (:func:`load_spec`),
+The pipeline (docs/development.md, "Layout"): load a spec (:func:`load_spec`),
 build its planning problem (:func:`catanc.core.problem.build_problem`), plan it
 (:func:`plan`: Stage I, then Stage II), emit.
 

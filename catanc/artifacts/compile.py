@@ -52,7 +52,7 @@ class Target:
 
 
 def default_folder(app: str, cores: int, root: Path = DEFAULT_OUT) -> Path:
-    """``out/<app>/cores-<K>`` (interfaces.md)."""
+    """``out/<app>/cores-<K>`` (docs/guide/deploying.md)."""
     return root / app / f"cores-{cores}"
 
 

@@ -228,7 +228,7 @@ def _params(
     when they run as one subchain (or one clock); a process hosting nodes of
     several puts them per node, as ``catan.nodes.<node>.subchain`` and so on.
     ``catan.node`` names the DAG node of a ROS node hosting one: the ROS client's
-    default name for its runs (interfaces.md, "ROS 2 nodes").
+    default name for its runs (docs/guide/ros2.md).
     """
     flat: dict[str, ParamValue] = {}
     for node in nodes:

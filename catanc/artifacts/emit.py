@@ -1,7 +1,7 @@
 """The emit stage: a plan as the files a team deploys and commits.
 
 :func:`emit` is pure: ``{relative path: text}`` for the five files of
-interfaces.md's output folder, and ``cie_thread_configurator.yaml`` where the
+the output folder (docs/guide/deploying.md), and ``cie_thread_configurator.yaml`` where the
 spec maps nodes to ROS 2 callback groups.  Writing, dry-running and comparing them is
 :mod:`catanc.artifacts.output`'s job.  Every file is deterministic: sorted names,
 the table's fixed float precision, ``\\n`` line endings, a final newline,
@@ -35,7 +35,7 @@ if TYPE_CHECKING:
     from catanc.spec.machine import MachineUse
 
 FILES = ("PLAN.md", "launch.py", "launch.sh", "params.yaml", "runtime.json")
-"""The output folder holds exactly these (interfaces.md), and THREAD_CONFIGURATOR where the spec asks for it."""
+"""The output folder holds exactly these (docs/guide/deploying.md), and THREAD_CONFIGURATOR where the spec asks."""
 THREAD_CONFIGURATOR = "cie_thread_configurator.yaml"
 """callback_isolated_executor's thread settings, written when the spec names callback groups."""
 GENERATED = frozenset({*FILES, THREAD_CONFIGURATOR})

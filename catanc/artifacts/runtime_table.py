@@ -1,4 +1,4 @@
-"""The runtime table, ``runtime.json`` (interfaces.md): its one writer and its one reader.
+"""The runtime table, ``runtime.json`` (docs/reference/runtime-json.md): its one writer and its one reader.
 
 A table is in format :data:`RUNTIME_FORMAT`; its shape is the typed
 dictionaries below.  It imports neither jinja2 nor the explanation: the
@@ -125,7 +125,7 @@ PARAMS_FILE = "params.yaml"
 
 
 def ros_arguments(params_path: str) -> list[str]:
-    """What every launcher appends to the command of a process hosting a ROS node (interfaces.md, "Processes").
+    """What every launcher appends to a ROS node's process command (docs/reference/runtime-json.md, ``params_file``).
 
     ``params_path`` is absolute: the process may run in any folder.
     """
@@ -243,7 +243,7 @@ def runtime_json(
     machine: MachineUse | None = None,
     cpus: tuple[int, ...] | None = None,
 ) -> str:
-    """The runtime table: interfaces.md's fields, the processes, where it came from, the machine profile used.
+    """The runtime table (docs/reference/runtime-json.md): the plan, processes, origin, the machine profile used.
 
     ``cpus`` (``compile --cpus``): the CPUs plan core 0, 1, ... run on, listed under ``cpus``; the plan's
     ``cores`` stay plan cores, the processes' ``cpus`` are these CPUs.  Without it there is no ``cpus``
@@ -314,7 +314,7 @@ class RuntimeTable:
     app: str
     cores: int
     spec: Spec
-    plan: PlanPayload | None  # interfaces.md's ``plan`` (None: a table made in memory, with no plan written)
+    plan: PlanPayload | None  # the table's ``plan`` (None: a table made in memory, with no plan written)
     processes: tuple[ProcessEntry, ...]
     cpus: tuple[int, ...] | None = None  # ``compile --cpus``: the CPUs plan cores run on, ascending
 

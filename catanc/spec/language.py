@@ -1,4 +1,4 @@
-"""The spec language: what an app developer writes (``../shared/docs/interfaces.md``).
+"""The spec language: what an app developer writes (docs/reference/spec.md).
 
 These pydantic models are the schema of record: ``catanc schema`` exports them
 as JSON Schema.  They check the *shape* of a spec (types, ranges, unknown

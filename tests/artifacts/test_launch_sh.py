@@ -148,7 +148,7 @@ def standin_command(folder: Path, key: str, mode: str = "run", extra: str = "") 
 
 def launched_argv(process: Process, folder: Path) -> list[str]:
     """The command line a process runs with: its command, and for a ROS node the folder's parameters, by absolute
-    path (interfaces.md, "Processes")."""
+    path (``params_file``, docs/reference/runtime-json.md)."""
     ros_args = ["--ros-args", "--params-file", str(folder / "params.yaml")] if process.ros_node is not None else []
     return [*process.argv, *ros_args]
 

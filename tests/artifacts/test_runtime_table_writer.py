@@ -138,7 +138,7 @@ REQUIRED = {
 
 
 def check_shape(payload: Mapping[str, Any], spec: Spec, cores: int) -> None:
-    """interfaces.md's runtime table ``plan``, field by field."""
+    """runtime.json's ``plan`` (docs/reference/runtime-json.md), field by field."""
     assert REQUIRED["plan"] <= set(payload)
     assert isinstance(payload["objective"], float)
     assert payload["constraint_scale"] >= 1.0

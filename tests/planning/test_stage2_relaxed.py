@@ -41,7 +41,7 @@ def relaxed(text: str) -> tuple[Problem, Schedule, RelaxedStage2]:
 
 
 def test_problem_is_dpp() -> None:
-    # A non-DPP problem recompiles on every solve with only a warning (solver-notes.md).
+    # A non-DPP problem recompiles on every solve with only a warning.
     _, _, model = relaxed(TWO)
     assert model.problem_gp.is_dgp(dpp=True)
 

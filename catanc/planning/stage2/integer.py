@@ -9,8 +9,8 @@ finite because the minimum slice caps ``n_i <= c_i / min_slice``; the search
 explores the child holding the relaxed value's nearest integer first and
 prunes by the incumbent, which starts as the rounded root relaxation.
 
-(The prototype rounded floor/ceil and searched neighbourhoods; that missed
-the integer optimum by up to 0.95%: shared/docs/solver-notes.md.)
+(A throwaway prototype of the model rounded floor/ceil and searched
+neighbourhoods; that missed the integer optimum by up to 0.95%.)
 """
 
 from __future__ import annotations
