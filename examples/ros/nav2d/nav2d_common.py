@@ -27,7 +27,7 @@ SPEC = Path(__file__).resolve().with_name("nav2d.yaml")
 RECORD_ENV = "NAV2D_RECORD_DIR"
 SEED_ENV = "NAV2D_SEED"
 NEWEST = 1
-"""Subscription depth: each run reads its inputs' newest message (catan-model.md section 1), never a backlog."""
+"""Subscription depth: a run reads its inputs' newest message (docs/explanation/model.md section 1), no backlog."""
 
 
 class Work:
