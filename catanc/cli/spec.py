@@ -77,8 +77,17 @@ def chains(
 
 
 @reporting
-def schema() -> None:
-    """Print the JSON Schema of the spec language (for editors)."""
-    from catanc.spec.language import json_schema_text
+def schema(
+    markdown: Annotated[
+        bool, typer.Option("--markdown", help="Every field as a Markdown page (docs/reference/spec-fields.md).")
+    ] = False,
+) -> None:
+    """Print the JSON Schema of the spec language (for editors), or its fields as Markdown."""
+    from catanc.spec.language import json_schema, json_schema_text
 
+    if markdown:
+        from catanc.spec.schema_page import schema_page
+
+        sys.stdout.write(schema_page(json_schema()))
+        return
     sys.stdout.write(json_schema_text())
