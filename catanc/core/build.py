@@ -259,6 +259,8 @@ class _Builder:
         """Subchains with rate bounds from every node constraint on their nodes."""
         spec = self.spec
         bounds: dict[str, tuple[float, float, FieldPath | None]] = dict.fromkeys(spec.subchains, (0.0, math.inf, None))
+        free: dict[str, tuple[float, float]] = dict.fromkeys(spec.subchains, (0.0, math.inf))  # Hz, lists aside
+        offered: dict[str, tuple[FieldPath, tuple[float, ...], str]] = {}  # subchain -> its 2+ offered rates, node
         for index, constraint in enumerate(spec.constraints):
             if not isinstance(constraint, RateConstraint):
                 continue
@@ -272,6 +274,13 @@ class _Builder:
             if node not in self.membership:
                 continue  # already reported: the node is in no (valid) subchain
             sub = self.membership[node]
+            if len(constraint.offered_hz) > 1 and sub in offered:
+                self.error(
+                    ("constraints", index, "rate_hz"),
+                    f"subchain {sub!r} already takes offered rates from {self.where(offered[sub][0])}: "
+                    "give one list, the rates its driver offers",
+                )
+                continue
             low, high, origin = bounds[sub]
             new_low, new_high = constraint.bounds_hz
             low2, high2 = max(low, new_low), min(high, new_high)
@@ -283,6 +292,21 @@ class _Builder:
                 )
                 continue
             bounds[sub] = (low2, high2, ("constraints", index))
+            if len(constraint.offered_hz) < 2:
+                low, high = free[sub]
+                free[sub] = (max(low, constraint.min_rate_hz or 0.0), min(high, constraint.max_rate_hz or math.inf))
+            else:
+                offered[sub] = (("constraints", index, "rate_hz"), constraint.offered_hz, node)
+        for sub, (path, rates, _) in offered.items():
+            self.check_offered(sub, path, rates)
+        combinations = math.prod(len(rates) for _, rates, _ in offered.values())
+        if combinations > OFFERED_COMBINATIONS_AT_MOST:
+            path = max(path for path, _, _ in offered.values())
+            self.error(
+                path,
+                f"{combinations} combinations of offered rates across subchains {', '.join(map(repr, offered))}: "
+                f"Stage II plans each one, at most {OFFERED_COMBINATIONS_AT_MOST}: list only the rates worth trying",
+            )
         subchains = []
         for name, nodes in spec.subchains.items():
             if not all(n in spec.nodes for n in nodes):
@@ -299,9 +323,30 @@ class _Builder:
                     batch=head.is_batch,
                     min_period_ms=1000.0 / high if high < math.inf else 0.0,
                     max_period_ms=1000.0 / low if low > 0 else math.inf,
+                    offered_hz=offered[name][1] if name in offered else (),
+                    offered_by=offered[name][2] if name in offered else "",
+                    free_period_range_ms=_periods_of(*free[name]),
                 )
             )
         return tuple(subchains)
+
+    def check_offered(self, sub: str, path: FieldPath, rates: tuple[float, ...]) -> None:
+        """Every offered rate of subchain ``sub`` (listed at ``path``) within the bounds its other constraints set."""
+        others = [
+            (index, constraint.bounds_hz)
+            for index, constraint in enumerate(self.spec.constraints)
+            if isinstance(constraint, RateConstraint)
+            and len(constraint.offered_hz) < 2  # a second list is an error of its own
+            and self.membership.get(constraint.node) == sub
+        ]
+        for position, rate in enumerate(rates):
+            index, (low, high) = next(((i, b) for i, b in others if not b[0] <= rate <= b[1]), (-1, (0.0, 0.0)))
+            if index >= 0:
+                self.error(
+                    (*path, position),
+                    f"offered rate {rate:g} Hz breaks {self.where(('constraints', index))} (subchain {sub!r} at "
+                    f"{_rate_range(low, high)}): remove it from the list, or widen that bound",
+                )
 
     def check_executors(self, subchains: tuple[Subchain, ...]) -> tuple[Executor, ...]:
         """Each executor's nodes: known, scheduled, in one executor only, and able to keep up with their floors."""
@@ -486,3 +531,23 @@ def _describe_selector(selector: ChainSelector) -> str:
     if selector.to is not None:
         parts.append(f"to: {selector.to}")
     return "{" + "; ".join(parts) + "}"
+
+
+OFFERED_COMBINATIONS_AT_MOST = 256
+"""The most combinations of offered rates a spec may ask Stage II to plan (each one a fixed-rate plan)."""
+
+
+def _periods_of(low_hz: float, high_hz: float) -> tuple[float, float]:
+    """The period range ``(min, max)`` (ms) of a rate range (Hz)."""
+    return (1000.0 / high_hz if high_hz < math.inf else 0.0, 1000.0 / low_hz if low_hz > 0 else math.inf)
+
+
+def _rate_range(low_hz: float, high_hz: float) -> str:
+    """``>= 20 Hz``, ``<= 10 Hz``, ``[10, 20] Hz`` or ``exactly 10 Hz``."""
+    if low_hz == high_hz:
+        return f"exactly {low_hz:g} Hz"
+    if high_hz == math.inf:
+        return f">= {low_hz:g} Hz"
+    if low_hz <= 0:
+        return f"<= {high_hz:g} Hz"
+    return f"[{low_hz:g}, {high_hz:g}] Hz"

@@ -30,6 +30,22 @@ class Subchain:
     serial: tuple[tuple[int, ...], ...] = ()  # positions of nodes that share one executor thread (2+ each)
     # one hop per edge inside it, summed: the spec's measured ``hops_ms`` (docs/explanation/model.md section 5)
     hops_ms: float = 0.0
+    # The rates its driver offers (2+, ascending; docs/reference/spec.md): the plan picks one. While
+    # not chosen, ``min/max_period_ms`` span them; once chosen (:meth:`Problem.choosing`), both are that one.
+    offered_hz: tuple[float, ...] = ()
+    offered_by: str = ""  # the node whose constraint lists them
+    # The period bounds without the offered list (what a free rate may take: explain's comparison).
+    free_period_range_ms: tuple[float, float] = (0.0, math.inf)
+
+    @property
+    def offered_periods_ms(self) -> tuple[float, ...]:
+        """The offered rates' periods, ascending (the fastest rate first)."""
+        return tuple(1000.0 / rate for rate in reversed(self.offered_hz))
+
+    @property
+    def offers_choice(self) -> bool:
+        """Whether its rate is still to be picked from the offered ones."""
+        return len(self.offered_periods_ms) > 1 and self.min_period_ms < self.max_period_ms
 
     @cached_property
     def compute_ms(self) -> float:
@@ -225,6 +241,36 @@ class Problem:
     @cached_property
     def _subchain_by_node(self) -> dict[str, Subchain]:
         return {node: sub for sub in self.subchains for node in sub.nodes}
+
+    def offered(self) -> tuple[Subchain, ...]:
+        """Subchains whose rate is still to be picked from the rates their driver offers."""
+        return tuple(sub for sub in self.subchains if sub.offers_choice)
+
+    def choosing(self, periods_ms: Mapping[str, float]) -> Problem:
+        """The same problem with these subchains' offered periods picked: each then a fixed rate."""
+        return self._with_bounds({name: (period, period) for name, period in periods_ms.items()})
+
+    def freed(self) -> Problem:
+        """The same problem with every offered list dropped: those rates free within their other bounds."""
+        freed = {sub.name: sub.free_period_range_ms for sub in self.subchains if sub.offered_hz}
+        return self._with_bounds(freed, keep_offered=False)
+
+    def _with_bounds(self, bounds: Mapping[str, tuple[float, float]], *, keep_offered: bool = True) -> Problem:
+        subchains = tuple(
+            replace(
+                sub,
+                min_period_ms=bounds[sub.name][0],
+                max_period_ms=bounds[sub.name][1],
+                offered_hz=sub.offered_hz if keep_offered else (),
+            )
+            if sub.name in bounds
+            else sub
+            for sub in self.subchains
+        )
+        updated = replace(self, subchains=subchains)
+        if "chain_forms" in self.__dict__:  # the same chains: keep their forms
+            updated.__dict__["chain_forms"] = self.__dict__["chain_forms"]
+        return updated
 
     def with_compute(self, compute_ms: Mapping[str, float]) -> Problem:
         """The same problem with new planning compute times (ms, one thread) for some scheduled nodes.

@@ -135,6 +135,7 @@ def explain_plan(spec: Spec, problem: Problem, plan: Plan, machine: MachineUse |
 
     ``machine``: the profile ``spec``'s schedule costs were raised with, if any.
     """
+    problem = problem.choosing(plan.offered_periods_ms)  # the offered rates picked are fixed rates
     by_name = {sub.name: sub for sub in problem.subchains}
     timings = plan_timings(plan)
     responses = [evaluate_chain(problem, chain, timings).response_ms for chain in problem.chains]

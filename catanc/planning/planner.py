@@ -101,6 +101,22 @@ def plan(
     )
 
 
+def offered_rate_misses(problem: Problem, result: Stage2Result) -> list[str]:
+    """A warning per subchain whose driver offers rates where none is met: the one picked, as planned."""
+    notes = []
+    for sub in problem.subchains:
+        picked = result.offered.get(sub.name)
+        if picked is None or result.timings[sub.name].period_ms <= picked * (1 + 1e-6):
+            continue
+        offered = ", ".join(f"{rate:g}" for rate in sub.offered_hz)
+        notes.append(
+            f"subchain {sub.name}: none of the rates its driver offers ({offered} Hz) can be met: planned at "
+            f"{1000.0 / result.timings[sub.name].period_ms:.4g} Hz, slower than the {1000.0 / picked:.4g} Hz "
+            "picked: the subchain cannot keep up with its driver (give it more cores, or offer a slower rate)"
+        )
+    return notes
+
+
 def plan_problem(
     problem: Problem,
     schedule: Schedule,
@@ -175,6 +191,8 @@ def plan_problem(
             best, chosen = result, allocation
     if best is None:
         raise InfeasibleError(f"{problem.app}: no schedule exists for the shared cores, whatever the bounds")
+    if best.offered:  # from here on, the offered rates picked are fixed rates
+        problem = problem.choosing(best.offered)
     if backend == "cvxpy" and best.layout.shared:
         # The winner's numbers come from the model of record, at the runs the search chose.
         scale = 1.0 if best.scale <= 1.0 + SCALE_PRECISION else best.scale * (1 + SCALE_PRECISION)
@@ -183,7 +201,7 @@ def plan_problem(
             problem, best.layout, schedule, new_model(problem, best.layout, schedule, "cvxpy"), fixed=fixed
         )
         if record is not None:
-            best = replace(record, gap=best.gap, relaxations=best.relaxations)
+            best = replace(record, gap=best.gap, relaxations=best.relaxations, offered=best.offered)
     comparison = TwoStageComparison(
         allocations=len(candidates),
         planned=planned,
@@ -321,6 +339,7 @@ def assemble(
             f"{result.gap:.3%} of the best for its allocation"
         )
     warnings += fixed_rate_conflicts(problem, result)
+    warnings += offered_rate_misses(problem, result)
     if result.scale > 1.0 + SCALE_PRECISION:
         warnings.append(
             f"the bounds cannot all be met: every chain bound and rate floor is scaled by {result.scale:.4g} "
@@ -374,4 +393,5 @@ def assemble(
         runs=dict(result.runs),
         every=dict(result.every),
         objective_as_run=result.as_run,
+        offered_periods_ms=dict(result.offered),
     )

@@ -84,3 +84,4 @@ class Plan:
     runs: dict[str, int]  # n = 1/f per non-batch shared subchain (exact)
     every: dict[str, int] = field(default_factory=dict)  # k >= n per non-batch shared subchain: p = k T
     objective_as_run: float | None = None  # with the triggers executors' threads lose: what plans are ranked by
+    offered_periods_ms: dict[str, float] = field(default_factory=dict)  # the offered period picked per subchain

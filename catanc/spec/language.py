@@ -459,28 +459,84 @@ ObjectiveTerm = Annotated[
 ]
 
 
+def _rate_kind(value: Any) -> str | None:
+    if isinstance(value, bool):
+        return None
+    if isinstance(value, (int, float)):
+        return "<hz>"
+    if isinstance(value, list):
+        return "<offered>"
+    return None
+
+
+OfferedRates = Annotated[
+    Annotated[PositiveHz, Tag("<hz>")] | Annotated[list[PositiveHz], Tag("<offered>")],
+    Discriminator(
+        _rate_kind,
+        custom_error_type="rate_kind",
+        custom_error_message="expected a rate in Hz (e.g. 30) or the rates the driver offers (e.g. [15, 30])",
+    ),
+]
+
+
 class RateConstraint(_Model):
     """Bounds on a scheduled node's rate (hence on its subchain's)."""
 
     node: Name
     max_rate_hz: PositiveHz | None = None
     min_rate_hz: PositiveHz | None = None
-    rate_hz: PositiveHz | None = Field(default=None, description="Fixed rate.")
+    rate_hz: OfferedRates | None = Field(
+        default=None,
+        description=(
+            "Fixed rate, or the rates the node's driver offers, ascending (e.g. a camera's [15, 30]): "
+            "the plan runs its subchain at exactly one of them."
+        ),
+    )
 
     @model_validator(mode="after")
     def _bounds_consistent(self) -> RateConstraint:
         if self.max_rate_hz is None and self.min_rate_hz is None and self.rate_hz is None:
             raise ValueError("a node constraint needs max_rate_hz, min_rate_hz or rate_hz")
+        if isinstance(self.rate_hz, list):
+            self._check_offered(self.rate_hz)
         low, high = self.bounds_hz
         if low > high:
             raise ValueError(f"contradictory rate bounds: needs a rate >= {low:g} Hz and <= {high:g} Hz")
         return self
 
+    def _check_offered(self, offered: list[float]) -> None:
+        if not offered:
+            message = "the offered-rate list is empty: list the rates the driver offers (e.g. [15, 30]) or drop it"
+            raise field_error("RateConstraint", ("rate_hz",), message, offered)
+        for index in range(1, len(offered)):
+            if offered[index] <= offered[index - 1]:
+                ascending = ", ".join(f"{rate:g}" for rate in sorted(set(offered)))
+                message = (
+                    f"offered rates must be ascending, each once: {offered[index]:g} Hz follows "
+                    f"{offered[index - 1]:g} Hz (write [{ascending}])"
+                )
+                raise field_error("RateConstraint", ("rate_hz", index), message, offered[index])
+        low = self.min_rate_hz if self.min_rate_hz is not None else 0.0
+        high = self.max_rate_hz if self.max_rate_hz is not None else math.inf
+        for index, rate in enumerate(offered):
+            if not low <= rate <= high:
+                side = f"above max_rate_hz {high:g}" if rate > high else f"below min_rate_hz {low:g}"
+                message = f"offered rate {rate:g} Hz is {side} Hz: remove it from the list, or widen that bound"
+                raise field_error("RateConstraint", ("rate_hz", index), message, rate)
+
+    @property
+    def offered_hz(self) -> tuple[float, ...]:
+        """The rates a list ``rate_hz`` offers, ascending (one rate for a fixed rate; none without)."""
+        if self.rate_hz is None:
+            return ()
+        return tuple(self.rate_hz) if isinstance(self.rate_hz, list) else (self.rate_hz,)
+
     @property
     def bounds_hz(self) -> tuple[float, float]:
-        """The allowed rate interval ``[low, high]`` (Hz) this constraint states."""
-        low = max(x for x in (self.min_rate_hz, self.rate_hz, 0.0) if x is not None)
-        high = min(x for x in (self.max_rate_hz, self.rate_hz, math.inf) if x is not None)
+        """The allowed rate interval ``[low, high]`` (Hz) this constraint states (offered rates: their span)."""
+        offered = self.offered_hz
+        low = max(x for x in (self.min_rate_hz, offered[0] if offered else None, 0.0) if x is not None)
+        high = min(x for x in (self.max_rate_hz, offered[-1] if offered else None, math.inf) if x is not None)
         return low, high
 
 

@@ -68,6 +68,12 @@ REQUIRED_CATEGORIES = [
     "negative_weight",
     "contradictory_rate_one_constraint",
     "contradictory_rate_across_constraints",
+    # rates a driver offers
+    "offered_rates_empty",
+    "offered_rates_unsorted",
+    "offered_rates_non_positive",
+    "offered_rates_above_cap",
+    "offered_rates_outside_other_bound",
     "speedup",
     "mode_shares",
     "scheduled_without_compute",

@@ -30,8 +30,11 @@ solver, so the planner can skip allocations that cannot win.
 
 from __future__ import annotations
 
+import dataclasses
+import itertools
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 from catanc.core.metrics import Timing, bound_scale, capped_dedicated, objective
 from catanc.core.problem import Problem
@@ -60,6 +63,7 @@ class Stage2Result:
     relaxations: int  # GP solves it took
     gap: float = 0.0  # proven relative distance to this layout's optimum (0 unless the search was capped)
     every: dict[str, int] = field(default_factory=dict)  # k per non-batch shared subchain: p = k T
+    offered: dict[str, float] = field(default_factory=dict)  # the offered period picked per subchain offering some
 
 
 def dedicated_timings(problem: Problem, layout: Layout) -> tuple[dict[str, Timing], dict[str, int]]:
@@ -248,7 +252,11 @@ def solve_layout(
     (None if they miss the bounds so scaled); the planner's model of record
     re-solves the winner so.  ``spacing``: a re-solve's last trigger spacing,
     where the executor trade starts its search (the same answer, sooner).
+    Subchains whose driver offers rates get each of them in turn (:func:`_best_offered`).
     """
+    if problem.offered():
+        options = {"start": start, "gap": gap, "node_limit": node_limit, "fixed": fixed, "spacing": spacing}
+        return _best_offered(problem, layout, schedule, model, beat=beat, effort=effort, **options)
     timings, threads = dedicated_timings(problem, layout)
     fractions: dict[str, float] = {}
     runs: dict[str, int] = {}
@@ -316,6 +324,42 @@ def solve_layout(
     if beat is not None and not better(result, beat):
         return None
     return result
+
+
+def _best_offered(
+    problem: Problem,
+    layout: Layout,
+    schedule: Schedule,
+    model: Stage2Model | None,
+    *,
+    beat: tuple[float, float] | None,
+    effort: Effort | None,
+    **options: Any,
+) -> Stage2Result | None:
+    """The best plan over every combination of offered rates, each planned as fixed rates.
+
+    Exact by enumeration: the offered rates are few (a camera's modes), and each combination is the
+    fixed-rate problem the search solves exactly.  Ties go to the first combination, the faster
+    rates first.  A shared layout gets a model per combination: its rate bounds are built in.
+    """
+    offered = problem.offered()  # their combinations are few: the spec's check caps them
+    best: Stage2Result | None = None
+    infeasible = 0
+    for periods in itertools.product(*(sub.offered_periods_ms for sub in offered)):
+        chosen = {sub.name: period for sub, period in zip(offered, periods, strict=True)}
+        fixed_problem = problem.choosing(chosen)
+        fixed_model = None if model is None else type(model)(fixed_problem, layout, schedule)  # type: ignore[call-arg]
+        target = beat if best is None else (best.scale, best.as_run)
+        try:
+            found = solve_layout(fixed_problem, layout, schedule, fixed_model, beat=target, effort=effort, **options)
+        except InfeasibleError:
+            infeasible += 1
+            continue
+        if found is not None:
+            best = dataclasses.replace(found, offered=chosen)
+    if infeasible == math.prod(len(sub.offered_hz) for sub in offered):
+        raise InfeasibleError(f"{problem.app}: no schedule exists for the shared cores, whatever the bounds")
+    return best
 
 
 def fixed_rate_conflicts(problem: Problem, result: Stage2Result) -> list[str]:
