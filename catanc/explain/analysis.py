@@ -46,7 +46,7 @@ from catanc.spec.language import Schedule, Spec
 from catanc.text import hz
 
 if TYPE_CHECKING:
-    from catanc.planning.types import CorePlan, Plan, SubchainPlan
+    from catanc.planning.types import CorePlan, OfferedChoice, Plan, SubchainPlan
     from catanc.spec.machine import MachineUse
 
 BINDING_TOLERANCE = 1e-6
@@ -125,6 +125,7 @@ class Explanation:
     executors: tuple[str, ...] = ()  # one sentence per executor: its nodes never overlap, and where they run
     machine: str | None = None  # which machine profile the plan's costs came from (compile/explain --machine)
     unscheduled: tuple[str, ...] = ()  # nodes on their own clock (SCHED_FIFO 3)
+    offered: tuple[str, ...] = ()  # one sentence per node whose driver offers rates: the one picked, a free one
 
 
 # --------------------------------------------------------------------------- analysis
@@ -174,6 +175,7 @@ def explain_plan(spec: Spec, problem: Problem, plan: Plan, machine: MachineUse |
         baseline=evaluate_baseline(spec, problem, plan.cores),
         allocation=allocation_note(plan),
         executors=tuple(executor_note(executor, spec, problem, plan) for executor in problem.executors),
+        offered=tuple(offered_note(choice, plan) for choice in plan.offered),
         machine=machine.sentence() if machine is not None else None,
         unscheduled=tuple(name for name, node in spec.nodes.items() if not node.scheduled),
     )
@@ -441,3 +443,21 @@ def _warnings(plan: Plan, problem: Problem, schedule: Schedule, headrooms: Seque
             f"{1000.0 / chosen.period_ms:.4g} Hz"
         )
     return notes
+
+
+def offered_note(choice: OfferedChoice, plan: Plan) -> str:
+    """Which offered rate the plan picked, and what a free rate would have given."""
+    offered = ", ".join(f"{rate:g}" for rate in choice.offered_hz)
+    picked = f"picked {choice.picked_hz:g} Hz"
+    if choice.planned_hz < choice.picked_hz * (1 - 1e-6):
+        scaled = f"the bounds scaled by {plan.constraint_scale:.4g}"
+        picked += f" (none fits: planned at {choice.planned_hz:.4g} Hz, {scaled})"
+    free = f"a free rate would plan {choice.free_hz:.4g} Hz, objective {choice.free_objective:.3f} ms"
+    if choice.free_scale > 1.0:
+        free += f" with the bounds scaled by {choice.free_scale:.4g}"
+    elif plan.constraint_scale <= 1.0 and plan.objective > 0:
+        free += f" ({(plan.objective - choice.free_objective) / plan.objective:.1%} lower)"
+    return (
+        f"{choice.node}'s driver offers {offered} Hz: the plan {picked} for subchain {choice.subchain}, "
+        f"objective {plan.objective:.3f} ms; {free}."
+    )

@@ -404,6 +404,7 @@ def report_blocks(explanation: Explanation) -> list[Block]:
     blocks += [_dedicated_line(view, explanation) for view in explanation.dedicated]
     blocks += [Paragraph(f"core {core}: idle (no subchain runs here)") for core in explanation.idle_cores]
     blocks += [Heading("2. Subchains"), *_subchain_tables(explanation)]
+    blocks += [Paragraph(note) for note in explanation.offered]
     count = len(explanation.chains)
     chains = f"3. Chains ({count}, the most weighted first)" if count > 1 else f"3. Chains ({count})"
     blocks += [Heading(chains), _chain_table(explanation)]

@@ -42,7 +42,7 @@ from catanc.planning.stage2.solve import (
     solve_layout,
 )
 from catanc.planning.stage2.turns import LayoutTurns
-from catanc.planning.types import ChainPlan, CorePlan, Plan, SubchainPlan, TwoStageComparison
+from catanc.planning.types import ChainPlan, CorePlan, OfferedChoice, Plan, SubchainPlan, TwoStageComparison
 from catanc.spec.language import Schedule, Spec
 
 ALL_ALLOCATIONS_UP_TO = 2500
@@ -130,12 +130,14 @@ def plan_problem(
     models: dict[Layout, Stage2Model] | None = None,
     gap: float = 0.0,
     start: tuple[Layout, dict[str, int]] | None = None,
+    compare_offered: bool = True,
 ) -> Plan:
     """:func:`plan` for a built problem; ``models`` caches Stage II models by layout (re-planning).
 
     Re-planning may also accept each allocation's integer plan within ``gap`` of its optimum (see
     :func:`~catanc.planning.stage2.solve.solve_layout`; 0: exact) and start the search of ``start``'s layout
-    from its runs (the current plan's).
+    from its runs (the current plan's).  Where drivers offer rates, ``compare_offered`` also plans their
+    rates free, for explain (:attr:`Plan.offered`; re-planning at run time has no use for it).
     """
     if backend not in BACKENDS:
         raise UsageError(f"unknown Stage II backend {backend!r}; choose one of {', '.join(BACKENDS)}")
@@ -209,7 +211,7 @@ def plan_problem(
         two_stage_objective=None if two_stage is None else two_stage.as_run,
         two_stage_scale=None if two_stage is None else two_stage.scale,
     )
-    return assemble(
+    found = assemble(
         problem=problem,
         schedule=schedule,
         cores=cores,
@@ -218,6 +220,38 @@ def plan_problem(
         first=first,
         comparison=comparison,
         importance=importance,
+    )
+    if not (compare_offered and best.offered):
+        return found
+    free = plan_problem(
+        problem.freed(),
+        schedule,
+        cores,
+        stage1_method=stage1_method,
+        solver=solver,
+        time_limit_s=time_limit_s,
+        runners_up=runners_up,
+        backend=backend,
+        compare_offered=False,
+    )
+    return replace(found, offered=offered_choices(problem, found, free))
+
+
+def offered_choices(problem: Problem, found: Plan, free: Plan) -> tuple[OfferedChoice, ...]:
+    """Per subchain whose driver offers rates: the one ``found`` picked, and the rate a ``free`` plan took."""
+    return tuple(
+        OfferedChoice(
+            subchain=sub.name,
+            node=sub.offered_by,
+            offered_hz=sub.offered_hz,
+            picked_hz=next(rate for rate in sub.offered_hz if 1000.0 / rate == found.offered_periods_ms[sub.name]),
+            planned_hz=1000.0 / found.subchains[sub.name].period_ms,
+            free_hz=1000.0 / free.subchains[sub.name].period_ms,
+            free_objective=free.objective,
+            free_scale=free.constraint_scale,
+        )
+        for sub in problem.subchains
+        if sub.name in found.offered_periods_ms
     )
 
 

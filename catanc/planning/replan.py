@@ -162,6 +162,7 @@ class Replanner:
             solver=self._solver,
             time_limit_s=self._time_limit_s,
             backend="conic",
+            compare_offered=False,
             models=self._models,
             gap=0.0 if first else self.gap,
             start=None if first else (self.layout, self.plan.runs),

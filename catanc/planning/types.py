@@ -56,6 +56,20 @@ class ChainPlan:
 
 
 @dataclass(frozen=True)
+class OfferedChoice:
+    """A subchain whose driver offers rates: the one planned, and what a free rate would have given."""
+
+    subchain: str
+    node: str  # whose constraint lists the offered rates
+    offered_hz: tuple[float, ...]  # ascending
+    picked_hz: float  # the offered rate the plan picked
+    planned_hz: float  # the plan's rate: the one picked, unless none fits and the bounds were scaled
+    free_hz: float  # the rate planned if the driver took any (within its other bounds)
+    free_objective: float  # that plan's objective (ms)
+    free_scale: float  # and the scale its bounds needed
+
+
+@dataclass(frozen=True)
 class TwoStageComparison:
     """How the plan compares with the paper's plain two-stage result (Stage I's allocation)."""
 
@@ -85,3 +99,4 @@ class Plan:
     every: dict[str, int] = field(default_factory=dict)  # k >= n per non-batch shared subchain: p = k T
     objective_as_run: float | None = None  # with the triggers executors' threads lose: what plans are ranked by
     offered_periods_ms: dict[str, float] = field(default_factory=dict)  # the offered period picked per subchain
+    offered: tuple[OfferedChoice, ...] = ()  # those subchains: their rates, and what a free rate would give

@@ -558,3 +558,38 @@ def test_explain_says_where_a_spec_turns_stealing_off() -> None:
     assert "Stealing order: timewarp > " in on
     assert "Stealing order" not in off
     assert "No stealing (schedule.stealing: false)" in off
+
+
+# --------------------------------------------------------------------------- rates a driver offers
+
+# The face tracking pipeline (c = 84 ms) on 2 dedicated cores: its free period is 58 / 0.95 = 61.053 ms
+# (16.38 Hz, R = 145.053 ms); of the camera's 15 and 30 fps only 15 fits: R = 84 + 66.667 = 150.667 ms.
+OFFERED_CAMERA = """\
+catan: 1
+app: offered
+nodes: {camera: {compute_ms: 25}, detection: {compute_ms: 58}, planning: {compute_ms: 1}, motor: {scheduled: false}}
+edges: [[camera, detection], [detection, planning], [planning, motor]]
+subchains: {tracking: [camera, detection, planning]}
+objective: [{chain: [camera, detection, planning, motor], weight: 1}]
+constraints: [{node: camera, rate_hz: [15, 30]}]
+"""
+
+
+def test_explain_says_which_offered_rate_was_picked_and_what_a_free_rate_gives() -> None:
+    explanation = explained(OFFERED_CAMERA, 2)
+    (note,) = explanation.offered
+    assert note == (
+        "camera's driver offers 15, 30 Hz: the plan picked 15 Hz for subchain tracking, objective 150.667 ms; "
+        "a free rate would plan 16.38 Hz, objective 145.053 ms (3.7% lower)."
+    )
+    assert note in render_markdown(explanation)
+    # The picked rate is a fixed rate to the rest of the report: it binds as one.
+    binding = [(b.kind, b.subject) for b in explanation.bindings if b.subject == "tracking"]
+    assert binding == [("fixed rate", "tracking")]
+
+
+def test_explain_says_when_no_offered_rate_fits() -> None:
+    explanation = explained(OFFERED_CAMERA, 1)  # 84 / 0.95 = 88.421 ms a frame: slower than 15 Hz
+    (note,) = explanation.offered
+    assert "picked 15 Hz (none fits: planned at 11.31 Hz, the bounds scaled by 1.326)" in note
+    assert any("none of the rates its driver offers (15, 30 Hz) can be met" in w for w in explanation.warnings)

@@ -54,6 +54,9 @@ def test_a_shared_subchain_runs_at_an_offered_rate_on_the_slot_grid() -> None:
     assert found.objective == pytest.approx(15.0, rel=1e-9)
     (core,) = found.shared_cores
     assert found.subchains["A"].period_ms == pytest.approx(found.every["A"] * core.period_ms, rel=1e-9)
+    (choice,) = found.offered
+    assert (choice.node, choice.offered_hz, choice.picked_hz) == ("a", (40.0, 100.0), 100.0)
+    assert choice.free_objective == pytest.approx(10.0, rel=1e-9)
 
 
 def test_a_one_element_list_is_a_fixed_rate() -> None:
