@@ -120,6 +120,7 @@ class _Builder:
         self.check_subchains()
         self.check_settings()
         subchains = self.subchain_bounds()
+        self.check_rate_params(subchains)
         executors = self.check_executors(subchains)
         subchains = _with_serial(subchains, executors)
         response_terms, period_terms = self.objective_terms()
@@ -347,6 +348,25 @@ class _Builder:
                     f"offered rate {rate:g} Hz breaks {self.where(('constraints', index))} (subchain {sub!r} at "
                     f"{_rate_range(low, high)}): remove it from the list, or widen that bound",
                 )
+
+    def check_rate_params(self, subchains: tuple[Subchain, ...]) -> None:
+        """Warn, once per subchain, where the plan sets a rate parameter that nothing caps.
+
+        A driver offers few rates (a camera's modes, a lidar's scan rates): a plan free to pick any
+        rate picks one it does not offer, which the driver then snaps to (or refuses).
+        """
+        for sub in subchains:
+            if sub.min_period_ms > 0:  # a cap, a fixed rate or offered rates
+                continue
+            node = next((n for n in sub.nodes if n in self.spec.deploy and self.spec.deploy[n].rate_param), None)
+            if node is None:
+                continue
+            self.warn(
+                ("deploy", node, "rate_param"),
+                f"the plan may set {node}'s {self.spec.deploy[node].rate_param} to any rate, as nothing caps "
+                f"subchain {sub.name}'s: if its driver takes only some rates, list them "
+                f"({{node: {node}, rate_hz: [15, 30]}}); else cap it ({{node: {node}, max_rate_hz: ...}})",
+            )
 
     def check_executors(self, subchains: tuple[Subchain, ...]) -> tuple[Executor, ...]:
         """Each executor's nodes: known, scheduled, in one executor only, and able to keep up with their floors."""

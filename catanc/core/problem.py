@@ -174,7 +174,8 @@ class Problem:
     response_terms: tuple[ResponseTerm, ...]
     period_terms: tuple[PeriodTerm, ...]
     response_bounds: tuple[ResponseBound, ...]
-    warnings: tuple[Diagnostic, ...] = field(default=())
+    # Where the spec text says what (its line), not what is planned: a spec re-read without its file is equal.
+    warnings: tuple[Diagnostic, ...] = field(default=(), compare=False)
     slack: float = 0.0  # the schedule's idle share of every core, dedicated ones too (docs/explanation/model.md 4)
     executors: tuple[Executor, ...] = field(default=())
 

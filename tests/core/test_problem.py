@@ -147,3 +147,42 @@ def test_specs_built_in_python_report_fields_without_location() -> None:
         build_problem(spec)
     messages = [str(d) for d in info.value.diagnostics]
     assert "subchains.s[0]: unknown node 'b'" in messages
+
+
+# --------------------------------------------------------------------------- rate parameters nothing caps
+
+DRIVEN = """\
+catan: 1
+app: driven
+nodes: {cam: {compute_ms: 5}, det: {compute_ms: 20}, motor: {scheduled: false}}
+edges: [[cam, det], [det, motor]]
+subchains: {main: [cam, det]}
+objective: [{chain: [cam, det, motor], weight: 1}]
+deploy:
+  cam: {ros_node: /cam, rate_param: framerate}
+  det: {ros_node: /det, rate_param: frequency}
+"""
+
+
+def rate_param_warnings(constraints: str) -> list[tuple[str, str]]:
+    spec = parse_spec(DRIVEN + constraints)
+    return [(w.field, w.message) for w in build_problem(spec).warnings if w.field.endswith(".rate_param")]
+
+
+def test_a_rate_parameter_nothing_caps_is_warned_about_once_per_subchain() -> None:
+    ((field, message),) = rate_param_warnings("")
+    assert field == "deploy.cam.rate_param"  # the subchain's first node with one
+    assert "{node: cam, rate_hz: [15, 30]}" in message
+    assert "{node: cam, max_rate_hz: ...}" in message
+
+
+@pytest.mark.parametrize(
+    "constraint",
+    ["{node: det, max_rate_hz: 40}", "{node: cam, rate_hz: 30}", "{node: cam, rate_hz: [15, 30]}"],
+)
+def test_a_cap_a_fixed_rate_or_offered_rates_silence_it(constraint: str) -> None:
+    assert rate_param_warnings(f"constraints: [{constraint}]\n") == []
+
+
+def test_a_rate_floor_alone_does_not() -> None:
+    assert len(rate_param_warnings("constraints: [{node: det, min_rate_hz: 5}]\n")) == 1
