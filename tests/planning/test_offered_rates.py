@@ -1,6 +1,6 @@
 """Rates a driver offers (``{node: camera, rate_hz: [15, 30]}``): the plan runs the subchain at one of them.
 
-Checked by hand, and on small random apps against an
+Checked by hand (face tracking's one dedicated subchain), and on small random apps against an
 enumeration written here, independent of Stage II's search: every offered rate, every whole
 ``n`` and every trigger interval ``k >= n``, each with the least ``T`` that fits the slices and
 meets the offered period ``k T >= P`` (a longer ``T`` only lengthens every latency and period).
@@ -17,7 +17,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from catanc.core.build import build_problem
-from catanc.core.load import parse_spec
+from catanc.core.load import load_spec, parse_spec
 from catanc.core.metrics import Timing, bound_scale, objective
 from catanc.core.problem import Problem
 from catanc.planning.planner import plan
@@ -29,6 +29,37 @@ from catanc.spec.language import Schedule
 
 ROOT = Path(__file__).resolve().parents[2]
 RELATIVE = 1e-6
+
+
+# --------------------------------------------------------------------------- face tracking, by hand
+
+# c = 25 + 58 + 1 = 84 ms. On 2 dedicated cores Eq. 1 pipelines to max(58, 84 / 2) = 58 ms, with the 5%
+# slack 61.053 ms: 15 Hz (66.667 ms) fits, R = 84 + 66.667 = 150.667 ms; 30 Hz (33.333 ms) does not.
+# On 1 core the subchain needs 84 / 0.95 = 88.421 ms: neither fits, and 15 Hz needs the least
+# scale, 88.421 / 66.667 = 1.3263 (30 Hz: 2.6526); R = 84 + 88.421 = 172.421 ms.
+FACE_TWO_CORES = 84.0 + 1000.0 / 15
+FACE_ONE_CORE = 84.0 + 84.0 / 0.95
+
+
+def test_face_tracking_picks_15_hz_on_two_cores() -> None:
+    found = plan(load_spec(ROOT / "specs" / "face_tracking.yaml"), 2)
+    assert found.subchains["tracking"].period_ms == pytest.approx(1000.0 / 15, rel=1e-12)
+    assert found.offered_periods_ms == {"tracking": pytest.approx(1000.0 / 15, rel=1e-12)}
+    assert found.objective == pytest.approx(FACE_TWO_CORES, rel=1e-9)
+    assert found.constraint_scale == 1.0
+    (choice,) = found.offered
+    assert (choice.node, choice.offered_hz, choice.picked_hz) == ("camera", (15.0, 30.0), 15.0)
+    # A free rate: the subchain's own period, 58 / 0.95 ms.
+    assert choice.free_hz == pytest.approx(0.95 * 1000.0 / 58, rel=1e-9)
+    assert choice.free_objective == pytest.approx(84.0 + 58.0 / 0.95, rel=1e-9)
+
+
+def test_face_tracking_on_one_core_scales_the_slowest_offered_rate_and_says_so() -> None:
+    found = plan(load_spec(ROOT / "specs" / "face_tracking.yaml"), 1)
+    assert found.offered_periods_ms == {"tracking": pytest.approx(1000.0 / 15, rel=1e-12)}
+    assert found.constraint_scale == pytest.approx((84.0 / 0.95) / (1000.0 / 15), rel=1e-6)
+    assert found.objective == pytest.approx(FACE_ONE_CORE, rel=1e-9)
+    assert any("none of the rates its driver offers (15, 30 Hz)" in warning for warning in found.warnings)
 
 
 # --------------------------------------------------------------------------- semantics on a shared core

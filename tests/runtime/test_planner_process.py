@@ -43,9 +43,7 @@ def test_a_threaded_parent_starts_a_fresh_interpreter_that_plans() -> None:
 def test_each_plan_names_its_chains_where_they_are_measured_and_their_bounds() -> None:
     # What `catanc report` measures chains from origins with: the log's plans carry them.
     text = (SPECS / "face_tracking.yaml").read_text()
-    text = text.replace(
-        "objective:\n", "constraints:\n  - {chain: [camera, detection], max_response_ms: 500}\nobjective:\n"
-    )
+    text = text.replace("constraints:\n", "constraints:\n  - {chain: [camera, detection], max_response_ms: 500}\n")
     spec = parse_spec(text)
     planner = PlannerProcess(spec.model_dump(mode="json", by_alias=True), 1, bootstrap_ms=None)
     try:
