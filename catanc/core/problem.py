@@ -249,6 +249,8 @@ class Problem:
 
     def choosing(self, periods_ms: Mapping[str, float]) -> Problem:
         """The same problem with these subchains' offered periods picked: each then a fixed rate."""
+        if not periods_ms:
+            return self
         return self._with_bounds({name: (period, period) for name, period in periods_ms.items()})
 
     def freed(self) -> Problem:

@@ -102,11 +102,14 @@ def plan(
 
 
 def offered_rate_misses(problem: Problem, result: Stage2Result) -> list[str]:
-    """A warning per subchain whose driver offers rates where none is met: the one picked, as planned."""
+    """A warning per subchain whose driver offers rates where none is met: the one picked, as planned.
+
+    On a shared core the rate picked is a fixed rate there, which :func:`fixed_rate_conflicts` names.
+    """
     notes = []
     for sub in problem.subchains:
         picked = result.offered.get(sub.name)
-        if picked is None or result.timings[sub.name].period_ms <= picked * (1 + 1e-6):
+        if picked is None or sub.name in result.runs or result.timings[sub.name].period_ms <= picked * (1 + 1e-6):
             continue
         offered = ", ".join(f"{rate:g}" for rate in sub.offered_hz)
         notes.append(
@@ -362,6 +365,7 @@ def assemble(
     ``orders`` keeps each core's slot order where it holds the same subchains (a re-solve keeps
     the order its plan was made with: :func:`slot_order` enumerates orders).
     """
+    problem = problem.choosing(result.offered)  # the offered rates picked are fixed rates (re-plans too)
     kept = dict(orders or {})
     warnings = []
     if not first.optimal:  # Stage I's own bound scale is an estimate: the plan's below is what counts

@@ -21,6 +21,7 @@ from catanc.core.load import load_spec, parse_spec
 from catanc.core.metrics import Timing, bound_scale, objective
 from catanc.core.problem import Problem
 from catanc.planning.planner import plan
+from catanc.planning.replan import Replanner
 from catanc.planning.stage2.base import Layout, SharedCore
 from catanc.planning.stage2.conic import ConicStage2
 from catanc.planning.stage2.integer import most_runs
@@ -88,6 +89,19 @@ def test_a_shared_subchain_runs_at_an_offered_rate_on_the_slot_grid() -> None:
     (choice,) = found.offered
     assert (choice.node, choice.offered_hz, choice.picked_hz) == ("a", (40.0, 100.0), 100.0)
     assert choice.free_objective == pytest.approx(10.0, rel=1e-9)
+
+
+def test_re_planning_with_new_compute_times_keeps_to_the_offered_rates() -> None:
+    spec = parse_spec(SHARED)
+    replanner = Replanner(spec, 1)
+    layout = Layout((), (SharedCore(0, ("A", "B")),))
+    for compute in ({"a": 2.0, "b": 20.0}, {"a": 9.0, "b": 30.0}, {"a": 2.0, "b": 3.0}):
+        found = replanner.resolve(compute)
+        problem = build_problem(spec).with_compute(compute)
+        _, best, _ = oracle(problem, layout, spec.schedule)
+        assert found.objective == pytest.approx(best, rel=RELATIVE)
+        assert found.subchains["A"].period_ms in (10.0, 25.0)
+        assert found.offered_periods_ms == {"A": found.subchains["A"].period_ms}
 
 
 def test_a_one_element_list_is_a_fixed_rate() -> None:
