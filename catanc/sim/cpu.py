@@ -37,6 +37,8 @@ class Job:
     since: int  # arrival order: first come first served within a priority
     on_done: Callable[[Job], None]
     speed: float = 0.0  # share of full speed now (0: waiting for a core)
+    on_start: Callable[[Job], None] | None = None  # told when the job first runs (a real thread reads then)
+    started: bool = False
 
 
 @dataclass(eq=False)

@@ -12,7 +12,7 @@ import heapq
 import itertools
 from collections.abc import Callable, Iterable
 
-from catanc.sim.cpu import Job, Pool
+from catanc.sim.cpu import DONE_EPS_MS, Job, Pool
 
 
 class Engine:
@@ -90,6 +90,11 @@ class Engine:
         dt = when_ms - self.now
         finished: list[Job] = []
         for pool in self.pools:  # dt may be 0: a job left with no work finishes now
+            for job in pool.jobs:  # a job that runs for the first time (or ends having had no work) starts now
+                if job.speed > 0.0 and not job.started and (dt > 0.0 or job.remaining_ms <= DONE_EPS_MS):
+                    job.started = True
+                    if job.on_start is not None:
+                        job.on_start(job)
             done = pool.advance(max(dt, 0.0))
             if done:
                 finished.extend(done)

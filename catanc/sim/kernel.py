@@ -285,6 +285,7 @@ def submit(sim: Sim, pool: int, node: int, remaining: float, threads: int, prior
     sim.job_priority[node] = priority
     sim.job_since[node] = arrival(sim)
     sim.job_speed[node] = 0.0
+    sim.job_read_at[node] = math.nan  # not read yet: it reads when it first runs (advance_to)
     sim.pool_jobs[pool, sim.pool_njobs[pool]] = node
     sim.pool_njobs[pool] += 1
     sim.pool_dirty[pool] = True
@@ -359,6 +360,8 @@ def advance_to(sim: Sim, when_ms: float) -> int:
             node = jobs[pool, i]
             speed = speeds[node]
             if speed > 0.0:
+                if math.isnan(sim.job_read_at[node]) and (dt > 0.0 or remaining[node] <= DONE_EPS_MS):
+                    read_inputs(sim, node, sim.now)  # it runs for the first time (or ends with no work): it reads
                 remaining[node] -= dt * speed
                 busy[pool] += dt * speed * threads[node]
                 if remaining[node] <= DONE_EPS_MS:
@@ -904,12 +907,10 @@ def catan_trigger(sim: Sim, node: int, seq: int) -> None:
 
 @compiled
 def catan_start(sim: Sim, node: int, seq: int) -> None:
-    """:meth:`CatanPolicy._start`: the run reads its inputs, draws its time and becomes a job."""
+    """:meth:`CatanPolicy._start`: the run draws its time and becomes a job (it reads when it first runs)."""
     sub = sim.sub_of[node]
     version = sim.version
-    now = sim.now
-    read_inputs(sim, node, now)
-    compute = sample(sim, node, now / 1000.0)
+    compute = sample(sim, node, sim.now / 1000.0)
     if not sim.sub_shared[version, sub]:
         priority = DEDICATED
     else:
@@ -971,9 +972,7 @@ def timer_trigger(sim: Sim, node: int) -> None:
 @compiled
 def timer_start(sim: Sim, node: int) -> None:
     """:meth:`TimerPolicy._start`."""
-    now = sim.now
-    read_inputs(sim, node, now)
-    compute = sample(sim, node, now / 1000.0)
+    compute = sample(sim, node, sim.now / 1000.0)
     submit(sim, 0, node, compute, 1, sim.priority[node])
 
 

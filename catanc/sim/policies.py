@@ -43,6 +43,22 @@ RAISED, RESTING_SHARED, DEDICATED = RUNNING_FIFO, SHARED_FIFO, RUNNING_FIFO
 subchain's between its slices, a dedicated subchain's."""
 
 
+class Reading:
+    """What one run of ``node`` reads: its inputs' newest outputs when it first runs.
+
+    A real node reads when its thread wakes and runs, not when it is triggered: a run triggered
+    behind a higher-priority one (fifo-static's Render behind Timewarp at vsync) reads data that
+    arrived while it waited (``catanc bench``'s workers record their start when they run).
+    """
+
+    def __init__(self, engine: Engine, flow: Dataflow, node: str) -> None:
+        self.engine, self.flow, self.node = engine, flow, node
+        self.origins: Origins = {}
+
+    def read(self, _job: Job) -> None:
+        self.origins = self.flow.read_inputs(self.node, self.engine.now)
+
+
 def start_sensors(engine: Engine, flow: Dataflow, spec: Spec) -> None:
     """Unscheduled nodes with a rate tick every period from time 0."""
     for name, node in spec.nodes.items():
@@ -238,25 +254,25 @@ class CatanPolicy:
         self.gate.enter(node, lambda: self._start(node, seq))
 
     def _start(self, node: str, seq: int) -> None:
-        """``node``'s run ``seq`` starts now (its executor, if any, is free): it reads, draws, becomes a job."""
+        """``node``'s run ``seq`` starts now (its executor, if any, is free): it draws and becomes a job; it reads its
+        inputs when it first runs (:class:`Reading`)."""
         run = self.schedule.subchain_of(node)
         if run is None:  # pragma: no cover - every scheduled node is in a subchain
             return
         flight = self.states[run.name].in_flight.get(seq)
         index = flight.index if flight is not None else run.nodes.index(node)
         threads, speedup = run.threads_of(index)
-        now = self.engine.now
-        origins = self.flow.read_inputs(node, now)
-        compute = self.sample(node, now / 1000.0)
+        compute = self.sample(node, self.engine.now / 1000.0)
         if not run.shared:
             priority = DEDICATED
         else:
             priority = RAISED if self.raised.get(run.cores[0]) == run.name else RESTING_SHARED
+        reading = Reading(self.engine, self.flow, node)
 
         def done(_job: Job) -> None:
-            self._done(node, seq, origins, compute)
+            self._done(node, seq, reading.origins, compute)
 
-        job = Job(node, compute / speedup, threads, priority, 0, done)
+        job = Job(node, compute / speedup, threads, priority, 0, done, on_start=reading.read)
         self.engine.submit(self.pools[run.name], job)
 
     def _done(self, node: str, seq: int, origins: Origins, compute_ms: float) -> None:
@@ -371,13 +387,13 @@ class TimerPolicy:
             self.gate.enter(node, functools.partial(self._start, node))
 
     def _start(self, node: str) -> None:
-        now = self.engine.now
-        origins = self.flow.read_inputs(node, now)
-        compute = self.sample(node, now / 1000.0)
+        compute = self.sample(node, self.engine.now / 1000.0)
+        reading = Reading(self.engine, self.flow, node)
 
         def done(_job: Job) -> None:
-            self.flow.produce(node, origins, self.engine.now)  # its output triggers its successors
+            self.flow.produce(node, reading.origins, self.engine.now)  # its output triggers its successors
             self.gate.leave(node)
             self._begin(self.triggers.free(node))
 
-        self.engine.submit(self.pool, Job(node, compute, 1, self.priorities.get(node, 0), 0, done))
+        job = Job(node, compute, 1, self.priorities.get(node, 0), 0, done, on_start=reading.read)
+        self.engine.submit(self.pool, job)

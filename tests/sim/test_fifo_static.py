@@ -48,20 +48,23 @@ def responses(document: dict[str, Any], engine: str) -> dict[str, tuple[float, f
 @pytest.mark.parametrize("engine", ["python", "compiled"])
 def test_a_10_ms_low_priority_run_no_longer_blocks_the_important_one(engine: str) -> None:
     # fast preempts slow at once: each output 1 ms after its trigger, measured from the trigger
-    # before it: 10 + 1.  slow, triggered every 40 ms (a multiple of 10), loses 1 ms at its start
-    # and 1 ms at 10 ms: done at 12, measured from 40 ms before: 52, every time.
+    # before it: 10 + 1.  slow, triggered every 40 ms (a multiple of 10), first runs at 1 ms, after
+    # fast, and its run starts (the chain's origin) then; it loses 1 ms more at 10 ms: done at 12,
+    # measured from the origin before it, 40 ms earlier at 1: 51, every time.
     got = responses(TWO_TIMERS, engine)
     assert got["fast"] == pytest.approx((11.0, 11.0))
-    assert got["slow"] == pytest.approx((52.0, 52.0))
+    assert got["slow"] == pytest.approx((51.0, 51.0))
 
 
 @pytest.mark.parametrize("engine", ["python", "compiled"])
 def test_the_specs_baseline_priorities_set_the_levels(engine: str) -> None:
-    # slow above fast: slow runs 0-10, fast (due at 0) 10-11, so fast's output after each of slow's
-    # triggers (40, 80, ..., 1960 ms: 49 in 2 s) is 10 + 11 = 21 ms after the trigger before it; its
-    # other 150 outputs (the first, at 0 ms, has none before it) 11.
+    # slow above fast: slow runs 40k..40k+10 ms.  fast, due at 40k, first runs (its origin) at 40k+10,
+    # done at 40k+11; its timer at 40k+10 waits for that run, so the next starts at 40k+11, done at
+    # 40k+12; then on time at 40k+20 and 40k+30.  Each output measured from the origin before it:
+    # 40k+11 - (40k-10) = 21, then 12 - 10 = 2, 21 - 11 = 10 and 31 - 20 = 11: 44 a cycle of 40 ms.
+    # In 2 s: 50 cycles, the first without its 21 (its first output has no origin before it).
     # slow is never preempted: done 10 ms after its trigger, 40 + 10.
     document = {**TWO_TIMERS, "baseline": {**TWO_TIMERS["baseline"], "priorities": {"slow": 1}}}
     got = responses(document, engine)
-    assert got["fast"] == pytest.approx(((49 * 21 + 150 * 11) / 199, 21.0))
+    assert got["fast"] == pytest.approx(((2 + 10 + 11 + 49 * 44) / 199, 21.0))
     assert got["slow"] == pytest.approx((50.0, 50.0))
