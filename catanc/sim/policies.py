@@ -43,6 +43,39 @@ RAISED, RESTING_SHARED, DEDICATED = RUNNING_FIFO, SHARED_FIFO, RUNNING_FIFO
 subchain's between its slices, a dedicated subchain's."""
 
 
+@dataclass(frozen=True)
+class Delays:
+    """The real runtime's delays, which the simulator leaves out unless given (both 0: today's model).
+
+    - ``wake_ms``: from a trigger (a timer, a slot switch, a node's completion relayed to the next
+      node) to the triggered thread running: the worker's wake-up and its read of the trigger
+      (``catanc report``'s "hop delay"; for ``catanc bench``'s driver, its timer's lateness too);
+    - ``switch_late_ms``: how late the enforcer makes each slot switch (``catanc report``'s
+      "switch latency"): the owner's raise and its head's trigger both come that much later.
+    """
+
+    wake_ms: float = 0.0
+    switch_late_ms: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.wake_ms < 0 or self.switch_late_ms < 0:
+            raise ValueError(f"delays are never negative: {self}")
+
+    @property
+    def none(self) -> bool:
+        return self.wake_ms == 0.0 and self.switch_late_ms == 0.0
+
+
+NO_DELAYS = Delays()
+
+
+def after_wake(engine: Engine, delays: Delays, start: Callable[[], None]) -> Callable[[], None]:
+    """``start``, run ``delays.wake_ms`` later than it is called (at once without a delay)."""
+    if delays.wake_ms == 0.0:
+        return start
+    return lambda: engine.at(engine.now + delays.wake_ms, start)
+
+
 class Reading:
     """What one run of ``node`` reads: its inputs' newest outputs when it first runs.
 
@@ -59,12 +92,12 @@ class Reading:
         self.origins = self.flow.read_inputs(self.node, self.engine.now)
 
 
-def start_sensors(engine: Engine, flow: Dataflow, spec: Spec) -> None:
-    """Unscheduled nodes with a rate tick every period from time 0."""
+def start_sensors(engine: Engine, flow: Dataflow, spec: Spec, phase_ms: float = 0.0) -> None:
+    """Unscheduled nodes with a rate tick every period from ``phase_ms`` (0: with the schedule's first period)."""
     for name, node in spec.nodes.items():
         if not node.scheduled and node.rate_hz is not None:
             period = 1000.0 / node.rate_hz
-            _tick_every(engine, flow, name, period, 0.0)
+            _tick_every(engine, flow, name, period, phase_ms)
 
 
 def _tick_every(engine: Engine, flow: Dataflow, node: str, period_ms: float, due_ms: float) -> None:
@@ -100,8 +133,10 @@ class CatanPolicy:
         schedule: RuntimeSchedule,
         sample: Sampler,
         replanner: Replanner | None = None,
+        delays: Delays = NO_DELAYS,
     ) -> None:
         self.engine, self.flow, self.spec, self.sample = engine, flow, spec, sample
+        self.delays = delays
         self.schedule = schedule
         self.replanner = replanner
         self.reoptimiser = Reoptimiser(spec, replanner) if replanner is not None else None
@@ -188,7 +223,8 @@ class CatanPolicy:
             if core is None or not core.slots:
                 return
             for position in range(len(core.slots) + 1):  # each slot's switch, then the end of the last slice
-                self.engine.at(boundary_ms(core, start_ms, position), self._switcher(core, position, generation, index))
+                when = boundary_ms(core, start_ms, position) + self.delays.switch_late_ms
+                self.engine.at(when, self._switcher(core, position, generation, index))
             self._period(core_id, generation, start_ms + core.period_ms, index + 1)
 
         self.engine.at(start_ms, begin)
@@ -251,7 +287,7 @@ class CatanPolicy:
         if run is None:  # pragma: no cover - every scheduled node is in a subchain
             return
         self.nodes.started(node, seq)
-        self.gate.enter(node, lambda: self._start(node, seq))
+        self.gate.enter(node, after_wake(self.engine, self.delays, lambda: self._start(node, seq)))
 
     def _start(self, node: str, seq: int) -> None:
         """``node``'s run ``seq`` starts now (its executor, if any, is free): it draws and becomes a job; it reads its
@@ -354,9 +390,11 @@ class TimerPolicy:
         sample: Sampler,
         discipline: Discipline,
         priorities: dict[str, int],
+        delays: Delays = NO_DELAYS,
     ) -> None:
         self.engine, self.flow, self.spec, self.sample = engine, flow, spec, sample
         self.priorities = priorities
+        self.delays = delays
         self.pool = Pool("all", tuple(range(cores)), discipline)
         engine.pools = [self.pool]
         self.rules = trigger_rules(spec, "simulate")
@@ -384,7 +422,7 @@ class TimerPolicy:
 
     def _begin(self, nodes: list[str]) -> None:
         for node in nodes:  # a busy node's trigger waited (a depth-1 queue), the rest start now
-            self.gate.enter(node, functools.partial(self._start, node))
+            self.gate.enter(node, after_wake(self.engine, self.delays, functools.partial(self._start, node)))
 
     def _start(self, node: str) -> None:
         compute = self.sample(node, self.engine.now / 1000.0)

@@ -44,7 +44,7 @@ from catanc.sim.dataflow import Dataflow
 from catanc.sim.engine import Engine
 from catanc.sim.memory import keep_freed_memory
 from catanc.sim.metrics import PolicyResult, chain_result, node_result
-from catanc.sim.policies import CatanPolicy, Reoptimiser, Sampler, TimerPolicy, start_sensors
+from catanc.sim.policies import NO_DELAYS, CatanPolicy, Delays, Reoptimiser, Sampler, TimerPolicy, start_sensors
 from catanc.sim.records import Records
 from catanc.spec.language import Spec
 
@@ -201,25 +201,33 @@ def prepare(setup: Setup, policy: str, sampler_for: SamplerFactory) -> Prepared:
 
 
 def simulate(
-    setup: Setup, policy: str, sampler_for: SamplerFactory = workload_sampler, *, engine: EngineChoice = "auto"
+    setup: Setup,
+    policy: str,
+    sampler_for: SamplerFactory = workload_sampler,
+    *,
+    engine: EngineChoice = "auto",
+    delays: Delays = NO_DELAYS,
 ) -> PolicyResult:
     """Run ``policy`` on ``setup`` for its duration; the same arguments give the same result.
 
-    ``engine``: ``compiled`` (:mod:`catanc.sim.kernel`, the spec's workload only), ``python``
-    (the readable engine, any sampler), or ``auto``: compiled for the spec's workload.  A compiled
-    run makes the process keep the memory it frees (:mod:`catanc.sim.memory`).
+    ``engine``: ``compiled`` (:mod:`catanc.sim.kernel`, the spec's workload only, no ``delays``),
+    ``python`` (the readable engine, any sampler), or ``auto``: compiled for the spec's workload
+    without delays.  A compiled run makes the process keep the memory it frees (:mod:`catanc.sim.memory`).
+    ``delays``: the real runtime's wake-up and switch delays (:class:`~catanc.sim.policies.Delays`).
     """
     setup = replace(setup, spec=policy_spec(setup.spec, policy))
     prepared = prepare(setup, policy, sampler_for)
-    compiled = engine == "compiled" or (engine == "auto" and sampler_for is workload_sampler)
+    compiled = engine == "compiled" or (engine == "auto" and sampler_for is workload_sampler and delays.none)
     if compiled and sampler_for is not workload_sampler:
         raise UsageError("the compiled simulation draws from the spec's workload model only")
-    records = _run_compiled(setup, prepared) if compiled else _run_python(setup, prepared, sampler_for)
+    if compiled and not delays.none:
+        raise UsageError("the compiled simulation has no runtime delays: use the python engine")
+    records = _run_compiled(setup, prepared) if compiled else _run_python(setup, prepared, sampler_for, delays)
     plan = prepared.replanner.plan if prepared.replanner is not None else prepared.plan
     return policy_result(setup, policy, prepared.chains, records, plan)
 
 
-def _run_python(setup: Setup, prepared: Prepared, sampler_for: SamplerFactory) -> Records:
+def _run_python(setup: Setup, prepared: Prepared, sampler_for: SamplerFactory, delays: Delays) -> Records:
     spec = setup.spec
     engine = Engine()
     flow = Dataflow(spec, [nodes for nodes, _ in prepared.chains])
@@ -235,10 +243,17 @@ def _run_python(setup: Setup, prepared: Prepared, sampler_for: SamplerFactory) -
             sample=sample,
             discipline=prepared.discipline,
             priorities=prepared.priorities,
+            delays=delays,
         )
     else:
         runner = CatanPolicy(
-            engine, flow, spec=spec, schedule=prepared.schedule, sample=sample, replanner=prepared.replanner
+            engine,
+            flow,
+            spec=spec,
+            schedule=prepared.schedule,
+            sample=sample,
+            replanner=prepared.replanner,
+            delays=delays,
         )
     start_sensors(engine, flow, spec)
     runner.start()

@@ -1,8 +1,13 @@
 """What the simulator models of the real runtime (issue 49 item 3), worked by hand on one core.
 
-A run reads its inputs when it first runs, as a real thread does when it wakes (``catanc bench``'s
-workers record their start then), not when it is triggered: fifo-static's VR Render, triggered at
-vsync behind Timewarp, reads the IMU sample that came while it waited.  Both engines alike.
+- A run reads its inputs when it first runs, as a real thread does when it wakes (``catanc bench``'s
+  workers record their start then), not when it is triggered: fifo-static's VR Render, triggered
+  at vsync behind Timewarp, reads the IMU sample that came while it waited.
+- :class:`~catanc.sim.policies.Delays`: the runtime's wake-up (a trigger to its thread running) and
+  the enforcer's late slot switches, each a constant the caller measures (``catanc report``).
+
+Both engines read at the first run (the compiled one is held to the Python one); delays are the
+Python engine's only.
 """
 
 from __future__ import annotations
@@ -10,7 +15,11 @@ from __future__ import annotations
 from typing import Any
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
+from catanc.errors import UsageError
+from catanc.sim.policies import Delays
 from catanc.sim.simulate import Setup, simulate
 from catanc.spec.language import Spec
 from tests.support.strategies import spec_of
@@ -67,3 +76,59 @@ def test_a_run_waiting_behind_a_higher_level_reads_when_it_first_runs(engine: st
     # not the one at 10k.  Each output is measured from the origin before it: 10k+4 - (10(k-1)+2) = 12.
     # (Read at the trigger it would be 14.)
     assert chain_response(BEHIND, "fifo-static", "imu", engine=engine) == pytest.approx((12.0, 12.0))
+
+
+def test_a_wake_up_delays_each_hop_of_the_baseline() -> None:
+    # cam's timer at 40k ms, cam runs from 40k + d (its origin) for 4 ms, det d after it for 6 ms:
+    # done at 40k + 2d + 10, measured from the origin before it, 40(k-1) + d: 50 + d.
+    assert chain_response(ONE_SUBCHAIN, "baseline", "cam", delays=Delays(wake_ms=0.5)) == pytest.approx((50.5, 50.5))
+
+
+def test_a_wake_up_delays_each_hop_of_catancs_dedicated_subchain() -> None:
+    # Triggered every 20 ms: the same count as the baseline's, 20 + 10 + d.
+    assert chain_response(ONE_SUBCHAIN, "catan", "cam", delays=Delays(wake_ms=0.5)) == pytest.approx((30.5, 30.5))
+
+
+@settings(max_examples=10, deadline=None)
+@given(wake=st.floats(0.0, 2.0), late=st.floats(0.0, 2.0))
+def test_no_delay_is_the_model_and_a_delay_never_shortens_the_baseline(wake: float, late: float) -> None:
+    # The baseline's chain is 50 ms without delays (the test above, d = 0); each of its two hops adds
+    # the wake-up, its origin one of them; the enforcer's switches do not touch it.
+    got = chain_response(ONE_SUBCHAIN, "baseline", "cam", delays=Delays(wake_ms=wake, switch_late_ms=late))
+    assert got == pytest.approx((50.0 + wake, 50.0 + wake))
+
+
+# fast (1 ms) and slow (10 ms) share catanc's one core: slot-triggered heads, no sensor.
+TWO_SHARED: dict[str, Any] = {
+    "catan": 1,
+    "app": "two",
+    "nodes": {"fast": {"compute_ms": 1}, "slow": {"compute_ms": 10}, "out": {"scheduled": False}},
+    "edges": [["fast", "out"], ["slow", "out"]],
+    "subchains": {"fast": ["fast"], "slow": ["slow"]},
+    "objective": [{"chain": ["fast", "out"], "weight": 1.0}, {"chain": ["slow", "out"], "weight": 0.1}],
+}
+
+
+@settings(max_examples=3, deadline=None)
+@given(late=st.floats(0.01, 1.0))
+def test_switches_all_equally_late_shift_the_schedule_but_no_response(late: float) -> None:
+    # Every switch (and so every head's trigger and every raise) moves by the same amount: each run
+    # moves with its trigger, and a chain that starts at a scheduled head measures from that head's
+    # run, so every response stays (1.9 s: before the first re-solve at 2 s).
+    spec = spec_of(TWO_SHARED)
+
+    def figures(delays: Delays) -> list[float]:
+        result = simulate(Setup(spec, 1, 1.9, 0), "catan", constant, engine="python", delays=delays)
+        return [value for c in result.chains if c.response for value in (c.response.mean, c.response.max)]
+
+    on_time = figures(Delays())
+    assert len(on_time) == 4
+    assert figures(Delays(switch_late_ms=late)) == pytest.approx(on_time, abs=1e-6)
+
+
+def test_the_compiled_engine_refuses_delays_and_negative_ones_are_refused() -> None:
+    spec = spec_of(ONE_SUBCHAIN)
+    with pytest.raises(UsageError, match="delays"):
+        simulate(Setup(spec, 1, 1.0, 0), "baseline", engine="compiled", delays=Delays(wake_ms=0.1))
+    with pytest.raises(ValueError, match="negative"):
+        Delays(wake_ms=-0.1)
