@@ -74,7 +74,7 @@ def chain_response(document: dict[str, Any], policy: str, first: str, **options:
 def test_a_run_waiting_behind_a_higher_level_reads_when_it_first_runs(engine: str) -> None:
     # lo is triggered at 10k ms but runs 10k+3 .. 10k+4, after hi: it reads imu's tick at 10k+2,
     # not the one at 10k.  Each output is measured from the origin before it: 10k+4 - (10(k-1)+2) = 12.
-    # (Read at the trigger it would be 14.)
+    # (Read at its trigger, as before, it was 16: the timer fires before the tick at 10k, so lo read 10k-2.)
     assert chain_response(BEHIND, "fifo-static", "imu", engine=engine) == pytest.approx((12.0, 12.0))
 
 
