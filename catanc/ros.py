@@ -32,7 +32,8 @@ Under ``catanc run``:
   ``SingleThreadedExecutor`` (``rclpy.spin``), one per thread.  A ``MultiThreadedExecutor``
   gets a :class:`CatancRosError` saying so.
 - ``rclpy.shutdown()`` and Ctrl-C: the context's shutdown leaves catanc (bye) and stops the
-  watcher; no callback runs after it.
+  watcher; no callback runs after it.  A context that rclpy's signal handler shut down (SIGTERM, or
+  SIGINT where Python ignores it) is noticed within :data:`PROBE_S` and the executor woken again.
 
 This file imports rclpy and catanc's standalone client only (Python 3.8+).  To use it without
 catanc installed, copy it next to the client: ``cp "$(catanc client --ros)" catanc_ros.py`` and
@@ -42,12 +43,13 @@ catanc installed, copy it next to the client: ``cp "$(catanc client --ros)" cata
 
 from __future__ import annotations
 
+import contextlib
 import os
 import select
 import threading
 import time
 from collections.abc import Callable
-from typing import Any, TypeVar
+from typing import Any, ClassVar, TypeVar
 
 try:
     import rclpy
@@ -113,6 +115,49 @@ def _check_executor(node: Any, dag: str) -> None:
         )
 
 
+class _ShutdownWatch:
+    """Wakes a context's executors once rclpy's signal handler has shut the context down.
+
+    On SIGINT or SIGTERM rclpy's own handler thread first wakes the executors (a guard condition), then
+    shuts the context down (in C, without Python's ``on_shutdown`` callbacks).  An executor thread that
+    catanc raised to SCHED_FIFO on the same CPU takes the wake-up in between, finds the context still up
+    and waits again; a node that runs on its input then sleeps until its next message, which never
+    comes once the app is stopping (a timer node is woken by its triggers or timer).  This thread, one
+    per context, at the process's own level, looks every :data:`PROBE_S` and wakes them again.
+    """
+
+    _lock: ClassVar[threading.Lock] = threading.Lock()
+    _by_context: ClassVar[dict[int, _ShutdownWatch]] = {}
+
+    def __init__(self, context: Any) -> None:
+        self.context = context
+        self.registrations: list[_Registration] = []
+        self.thread = threading.Thread(target=self._watch, name="catanc-shutdown", daemon=True)
+
+    @classmethod
+    def add(cls, registration: _Registration) -> None:
+        context = registration.node.context
+        with cls._lock:
+            watch = cls._by_context.get(id(context))
+            if watch is None:
+                watch = cls._by_context[id(context)] = cls(context)
+                watch.thread.start()
+            watch.registrations.append(registration)
+
+    def _watch(self) -> None:
+        try:
+            while self.context.ok():
+                time.sleep(PROBE_S)
+        except Exception:  # the context was destroyed under the watch: nothing is left to wake
+            return
+        finally:
+            with self._lock:
+                if self._by_context.get(id(self.context)) is self:
+                    del self._by_context[id(self.context)]
+        for registration in list(self.registrations):
+            registration.woken_after_shutdown()
+
+
 class _Registration:
     """A DAG node's client, registered from the executor thread at the first spin (a guard condition)."""
 
@@ -135,6 +180,7 @@ class _Registration:
         self.lock = threading.RLock()  # held through a run: a shutdown from another thread waits for its report
         self.guard = node.create_guard_condition(on_guard or self._on_guard, callback_group=callback_group)
         node.context.on_shutdown(self.close)
+        _ShutdownWatch.add(self)
         self.guard.trigger()  # registers at the first spin, in the executor's thread
 
     def _on_guard(self) -> None:
@@ -175,6 +221,12 @@ class _Registration:
     def holds(self, client: _Client) -> bool:
         """Whether ``client`` is still this node's (not closed by a shutdown meanwhile)."""
         return self.client is client
+
+    def woken_after_shutdown(self) -> None:
+        """The context is down (rclpy's signal handler): leave catanc, and wake the executor to see it."""
+        self.close()
+        with contextlib.suppress(Exception):  # the guard condition is gone already: so is the executor's wait
+            self.guard.trigger()
 
     def close(self) -> None:
         """Leave catanc (a bye), once; from the context's shutdown too."""

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import threading
 import time
@@ -91,7 +92,10 @@ def main() -> int:
     parser.add_argument("--on-loss", default="timer")
     parser.add_argument("--shutdown-after", type=int, default=0, help="ticks, then rclpy.try_shutdown()")
     parser.add_argument("--executor", choices=["single", "multi"], default="single")
+    parser.add_argument("--cpu", type=int, default=None, help="run every thread on this CPU (as a launch pins it)")
     options = parser.parse_args(rclpy.utilities.remove_ros_args(sys.argv)[1:])
+    if options.cpu is not None:
+        os.sched_setaffinity(0, {options.cpu})  # before rclpy makes its threads: they inherit it
     rclpy.init(args=sys.argv)
     main_tid = threading.get_native_id()
     node = App(options, main_tid)

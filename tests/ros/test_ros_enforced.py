@@ -123,6 +123,24 @@ def test_ctrl_c_ends_every_node_at_once_with_exit_0(run: RosRun, table: Path) ->
         assert node.of("exit")
 
 
+def test_sigterm_ends_an_idle_input_node_whose_thread_catanc_raised(run: RosRun, table: Path) -> None:
+    """rclpy's signal thread wakes the executor, then shuts the context down: a raised executor thread on its
+    CPU runs in between, finds the context up and waits again, and a node that runs on its input waits for
+    a message that never comes (issue 46: nav2d's Operator outlived Ctrl-C once its scans had stopped)."""
+    run.start(table, duration=60.0)
+    cam = run.node("head", dag="cam")
+    det = run.node("sub", "--cpu", "0", dag="det")  # its signal thread on the raised thread's CPU, as pinned
+    tids = run.registered_tids(["cam", "det"])
+    det.wait_for("message", 20)
+    os.kill(cam.proc.pid, signal.SIGKILL)  # no more messages
+    time.sleep(0.5)
+    assert os.sched_getscheduler(tids["det"]) == os.SCHED_FIFO  # idle, still raised: the race is there
+    os.kill(det.proc.pid, signal.SIGTERM)
+    assert exits_within(det.proc, EXIT_BOUND_S) == 0, det.stderr()
+    assert det.of("exit")
+    assert "Traceback" not in det.stderr()
+
+
 def test_a_callback_that_shuts_the_context_down_ends_the_node_cleanly(run: RosRun, table: Path) -> None:
     run.start(table, duration=30.0)
     cam = run.node("head", "--shutdown-after", "20", dag="cam")
