@@ -143,7 +143,8 @@ def run_(
     finally:
         if live is not None:
             live.stop()
-        children.stop()
+        for line in children.stop():
+            print(f"catanc run: {line}", file=sys.stderr, flush=True)
         restorer.close()  # done by the run unless it failed before taking it over (its socket in use)
     stdout_console().print(
         status_view(

@@ -22,6 +22,7 @@ import contextlib
 import os
 import signal
 import subprocess
+import time
 from collections.abc import Collection, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -67,17 +68,27 @@ class Children:
             raise
         self.processes.append((name, process))
 
-    def stop(self) -> None:
-        for _, process in self.processes:
-            if process.poll() is None:
+    def stop(self) -> list[str]:
+        """SIGTERM for every process group, SIGKILL for what is left :data:`STOP_GRACE_S` later; what did not stop
+        cleanly, one line each (killed, or an exit status but 0), as launch.sh says it."""
+        stopping = [process.poll() is None for _, process in self.processes]
+        for (_, process), running in zip(self.processes, stopping, strict=True):
+            if running:
                 _signal_group(process, signal.SIGTERM)
-        for _, process in self.processes:
+        deadline = time.monotonic() + STOP_GRACE_S
+        problems = []
+        for (name, process), running in zip(self.processes, stopping, strict=True):
             try:
-                process.wait(timeout=STOP_GRACE_S)
+                code = process.wait(timeout=max(deadline - time.monotonic(), 0.0))
             except subprocess.TimeoutExpired:
+                problems.append(f"{name} (pid {process.pid}) still ran {STOP_GRACE_S:g} s after SIGTERM: SIGKILL")
                 _signal_group(process, signal.SIGKILL)
                 process.wait()
+                continue
+            if running and code != 0:
+                problems.append(f"{name} (pid {process.pid}) exited with status {code} on SIGTERM")
         self.processes.clear()
+        return problems
 
     def exited(self) -> list[tuple[str, int]]:
         """Started processes that have ended, with their status."""

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import sys
 from pathlib import Path
 
@@ -11,6 +12,7 @@ import pytest
 
 from catanc.errors import UsageError
 from catanc.runtime.processes import Children
+from tests.support.linux import poll
 
 THREADED = (
     "import json, os, sys, threading\n"
@@ -44,3 +46,27 @@ def test_cpus_that_cannot_be_had_are_a_usage_error_and_stop_what_started() -> No
         children.start("second", ["true"], None, [4095])
     assert first.wait(timeout=10) is not None
     assert children.processes == []
+
+
+def test_stop_names_what_it_killed_and_what_failed_and_nothing_that_stopped_cleanly(tmp_path: Path) -> None:
+    """SIGTERM to three real processes: one ends with 0, one with 3, one ignores it (SIGKILL 2 s later)."""
+    program = "import pathlib, signal, sys, time\n{}\npathlib.Path(sys.argv[1]).touch()\ntime.sleep(60)\n"
+    kinds = {
+        "clean": "signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))",
+        "failing": "signal.signal(signal.SIGTERM, lambda *_: sys.exit(3))",
+        "stubborn": "signal.signal(signal.SIGTERM, signal.SIG_IGN)",
+    }
+    children = Children()
+    started = {}
+    for name, handler in kinds.items():
+        children.start(name, [sys.executable, "-c", program.format(handler), str(tmp_path / name)], None)
+        started[name] = children.processes[-1][1]
+    poll(lambda: all((tmp_path / name).exists() for name in kinds) or None, "the handlers", timeout=30.0)
+    problems = children.stop()
+    assert started["clean"].returncode == 0
+    assert started["failing"].returncode == 3
+    assert started["stubborn"].returncode == -signal.SIGKILL
+    assert problems == [
+        f"failing (pid {started['failing'].pid}) exited with status 3 on SIGTERM",
+        f"stubborn (pid {started['stubborn'].pid}) still ran 2 s after SIGTERM: SIGKILL",
+    ]
