@@ -5,11 +5,13 @@ Real rclpy processes on real topics, from a scratch copy of the example's folder
 out/cores-1/launch.sh`` (the last two on the real kernel, SCHED_FIFO).  The chain must flow end to
 end: the base receives commands whose origin is the stamp of a scan the scan shim really sent.
 Under catanc the enforcer must also have scheduled the nodes (each registered, the local
-subchain's runs in its log), not merely watched them run on their own timers.
+subchain's runs in its log), not merely watched them run on their own timers.  Ctrl-C (a real
+SIGINT to the launcher's and the robot's process groups) must end every process cleanly within 2 s.
 """
 
 from __future__ import annotations
 
+import json
 import re
 import time
 from pathlib import Path
@@ -26,6 +28,8 @@ REPO = Path(__file__).resolve().parents[2]
 RUN_AFTER_READY_S = 3.0
 LAUNCHER_STATUS = {"plain": 0, "catanc": 0, "launch.sh": 130}  # launch.sh exits 128 + SIGINT
 NODE_SCRIPTS = ("scan_shim.py", "nav_operator.py", "nav_mapper.py", "nav_navigator.py")
+PROCESSES = ("scan_shim", "Operator", "Mapper", "Navigator", "robot")
+EXIT_BOUND_S = 2.0  # issue 46: Ctrl-C ends every process, exit 0, within 2 s
 
 
 def test_the_example_spec_is_the_papers_nav2d_but_for_its_deploy_section_and_hops() -> None:
@@ -73,9 +77,20 @@ def test_commands_reach_the_base_with_the_stamp_of_a_scan_that_was_sent(mode: st
     with running(mode, 1, tmp_path) as app:
         app.wait_ready()
         time.sleep(RUN_AFTER_READY_S)
+        ctrl_c_ns = time.time_ns()
         stopped = app.stop()
-    assert stopped["launcher"] == LAUNCHER_STATUS[mode], app.output_text()
-    assert stopped["robot"] == 0, app.output_text()
+    output = app.output_text()
+    assert stopped["launcher"] == LAUNCHER_STATUS[mode], output
+    assert stopped["robot"] == 0, output
+    # Ctrl-C: every process shut down cleanly within 2 s (its own last words), none was killed or failed
+    # (catanc run and launch.sh say so: "SIGKILL", "exited with status"), and none printed a traceback.
+    for process in PROCESSES:
+        exit_file = app.records / f"{process}.exit"
+        assert exit_file.exists(), f"{process} did not shut down cleanly\n{output}"
+        took_s = (json.loads(exit_file.read_text())["exit_ns"] - ctrl_c_ns) / 1e9
+        assert took_s <= EXIT_BOUND_S, f"{process} took {took_s:.2f} s to exit\n{output}"
+    for sign in ("Traceback", "Exception ignored", "SIGKILL", "exited with status"):
+        assert sign not in output, output
     sent = {row["origin_ns"] for row in read_records(app.records, "scan_shim")}
     commands = app.commands()
     assert len(commands) >= 5
