@@ -319,6 +319,7 @@ def take(w: Walk, s: int, r: int, entry: int, now: float, last: bool) -> None:
     words = w.entries
     index = w.r_index[r]
     seq = int(np.int64(words[entry]))  # numba mixes uint64 with int64 into float64: signed at once
+    delivered = False  # a message's hop into a node that runs on its input (RunBook._take)
     if seq != 0:
         k = slot_of(w, s, seq)
         if k == NONE or w.fl_index[s, k] != index:
@@ -326,7 +327,10 @@ def take(w: Walk, s: int, r: int, entry: int, now: float, last: bool) -> None:
             return
     else:  # a run nothing triggered: the oldest waiting at this node
         k = NONE
+        waiting = 0
         for j in range(w.flying[s]):
+            if w.fl_index[s, j] == index:
+                waiting += 1
             if w.fl_index[s, j] == index and (
                 k == NONE
                 or w.fl_triggered[s, j] < w.fl_triggered[s, k]
@@ -337,12 +341,13 @@ def take(w: Walk, s: int, r: int, entry: int, now: float, last: bool) -> None:
             w.unmatched[s] += 1
             return
         seq = w.fl_seq[s, k]
+        delivered = index > 0 and waiting == 1
     triggered = w.fl_triggered[s, k]
     start_ms = min(max(float(words[entry + 1]) / 1e6, triggered), now)
     end_ms = min(max(float(words[entry + 2]) / 1e6, start_ms), now)
     before = w.fl_last_end[s, k] if index > 0 else triggered
     until = w.fl_until[s, k]
-    if not math.isnan(before) and not math.isnan(until) and start_ms <= until:
+    if not math.isnan(before) and not math.isnan(until) and (delivered or start_ms <= until):
         log(w, EV_HOP, s, r, max(start_ms - before, 0.0), 0.0, 0.0, 0.0, 0.0)
     threads = int(np.int64(words[entry + 4] & np.uint64(0xFFFFFFFF)))
     own = math.nan if words[entry + 3] == UNKNOWN else float(words[entry + 3]) / 1e6

@@ -21,6 +21,13 @@ Nothing a node writes is trusted (issue: a forged completion must not wreck the 
 - the times of an entry are clamped to what the enforcer saw: a run starts no earlier than its
   trigger and ends no later than the moment its entry was read.
 
+A hop is measured while the run's subchain is raised (it started by the end of its slot): later, the
+next node waited for the CPU, no cost of the runtime's.  Not so a message's hop into a node that runs
+on its input (a ROS subscription, seq 0): the middleware's delivery is the hop the plan must make room
+for, whether it ends inside the slot or not (measured only inside, a hop the plan did not yet cover
+was never measured, and ``catanc profile`` could not write it).  It is measured where its pairing
+is sure: one run waiting at that node, not started behind an earlier run of the subchain.
+
 Every :data:`KERNEL_CHECK_EVERY`-th run of a head is also measured by the kernel (the head
 thread's ``schedstat`` at the trigger and when the entry is read) and reconciled with the
 node's own figure (:func:`catanc.runtime.measure.reconcile`), unless the head ran again before
@@ -211,6 +218,7 @@ class RunBook:
         """
         length = len(run.nodes)
         node = run.nodes[index]
+        delivered = False  # a message's hop into a node that runs on its input, from the one run waiting there
         if entry.seq:
             seq = entry.seq
             flight = state.in_flight.get(seq)
@@ -224,10 +232,11 @@ class RunBook:
                 return
             seq = min(waiting)[1]
             flight = state.in_flight[seq]
+            delivered = index > 0 and len(waiting) == 1
         start_ms = min(max(entry.start_ns / 1e6, flight.triggered_ms), now_ms)
         end_ms = min(max(entry.end_ns / 1e6, start_ms), now_ms)
         before = flight.last_end_ms if index > 0 else flight.triggered_ms
-        if before is not None and flight.until_ms is not None and start_ms <= flight.until_ms:
+        if before is not None and flight.until_ms is not None and (delivered or start_ms <= flight.until_ms):
             producer = run.nodes[index - 1] if index > 0 else ""
             seen.hops.append(HopSample(run.name, node, max(start_ms - before, 0.0), index > 0, producer))
         own = entry.compute_ms

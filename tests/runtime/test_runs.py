@@ -282,3 +282,27 @@ def test_lost_runs_are_given_up_after_20_latencies_and_a_second(two_nodes: TwoNo
     assert book.lost({"s": run}, 999.0) == []
     assert book.lost({"s": run}, 1000.5) == [("s", started.seq, "a")]
     assert book.state("s").lost == 1
+
+
+def test_a_messages_hop_into_an_input_node_counts_after_the_slot_too(two_nodes: TwoNodes) -> None:
+    """b runs on its input (seq 0): the middleware's delivery is its hop, inside the slot or not; with two runs
+    waiting at b its pairing is a guess, and no hop is measured."""
+    book, run, (a, b), readers = two_nodes
+    started = book.trigger(run, 0.0, None, until_ms=5.0)
+    assert started is not None
+    a.append(started.seq, 1 * MS, 4 * MS, 3 * MS)
+    b.append(0, 9 * MS, 10 * MS, 1 * MS)  # delivered 5 ms after a's end, past the slot
+    seen = read(book, run, readers, 12.0)
+    assert [(h.edge, round(h.delay_ms, 6)) for h in seen.hops] == [(None, 1.0), (("a", "b"), 5.0)]
+    first = book.trigger(run, 20.0, None, until_ms=25.0)
+    assert first is not None
+    a.append(first.seq, 20 * MS, 21 * MS, 1 * MS)
+    read(book, run, readers, 21.5)
+    second = book.trigger(run, 22.0, None, until_ms=25.0)  # behind the first: no hop of its own either way
+    assert second is not None
+    a.append(second.seq, 22 * MS, 23 * MS, 1 * MS)
+    read(book, run, readers, 23.5)  # two runs wait at b
+    b.append(0, 26 * MS, 27 * MS, 1 * MS)  # past the slot, and which scan it took is a guess
+    seen = read(book, run, readers, 28.0)
+    assert seen.hops == []
+    assert [r.seq for r in seen.runs] == [first.seq]
