@@ -584,6 +584,10 @@ class Enforcer:
                 self._install(self.clock())
             else:
                 self.cores.update(answer.schedule)
+                if before.cores != answer.schedule.cores:  # the same placement on other CPUs (fewer were left)
+                    self.nodes.place_all()
+                    self.cores.forget_raised()
+                    self.own.pin_loop(self.schedule)
             self.nodes.routes()
         self.notes.write(
             "resolve",
