@@ -327,7 +327,11 @@ class CatancTimer:
         if self.on_loss == "exit":
             if why is not None:
                 logger.warning(f"catanc: DAG node {self._registration.name!r}: {why}; shutting down (on_loss='exit')")
-            rclpy.try_shutdown(context=self.node.context)
+            try:
+                rclpy.try_shutdown(context=self.node.context)
+            except RuntimeError:  # rclpy's signal thread shut it down between try_shutdown's check and its shutdown
+                if self.node.context.ok():
+                    raise
             return
         if why is not None:
             logger.warning(

@@ -112,7 +112,11 @@ def main() -> int:
     finally:
         executor.shutdown()
         node.destroy_node()
-        rclpy.try_shutdown()
+        try:
+            rclpy.try_shutdown()
+        except RuntimeError:  # rclpy's signal thread shut it down between try_shutdown's check and its shutdown
+            if rclpy.ok():
+                raise
     say(event="exit")
     return 0
 

@@ -95,10 +95,20 @@ def spin(make_node: Callable[[], Node]) -> None:
     finally:
         if node is not None:
             node.destroy_node()
-        rclpy.try_shutdown()
+        shut_down()
     records = getattr(node, "records", None)
     if isinstance(records, Records):
         records.exited()
+
+
+def shut_down() -> None:
+    """``rclpy.try_shutdown()``, where rclpy's signal thread may shut the context down between its check and its
+    shutdown (Ctrl-C: an RCLError, "rcl_shutdown already called")."""
+    try:
+        rclpy.try_shutdown()
+    except RuntimeError:
+        if rclpy.ok():
+            raise
 
 
 def latest(into: dict[str, Any], key: str) -> Callable[[Any], None]:
