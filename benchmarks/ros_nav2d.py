@@ -2,7 +2,7 @@
 
     python -m benchmarks.ros_nav2d                      # plain and catanc, 1 and 2 cores, 30 s each
     python -m benchmarks.ros_nav2d --duration 10 --cores 1 --json
-    python -m benchmarks.ros_nav2d --dds-fifo 1          # the middleware's threads at SCHED_FIFO 1
+    python -m benchmarks.ros_nav2d --dds-other           # the middleware's threads left at SCHED_OTHER
 
 Each case runs the example as its README says, from a scratch copy of its folder, with the robot
 (``robot_sim.py``: odometry, and the base that records each command; at SCHED_FIFO 3 as root, as
@@ -33,9 +33,10 @@ CLOCK_REALTIME, the clock of the messages' stamps):
   of the ``catanc run`` process over the window, /proc schedstat; its planner and watchdog
   processes not counted), with its own figures (share, hop inside a subchain) from its log.
 
-``--dds-fifo PRIO`` is an experiment: it raises every Fast DDS thread (``dds.*``) of the app's
-processes to SCHED_FIFO PRIO once the app runs, to see what the middleware's threads, which no
-plan covers and the enforcer leaves at SCHED_OTHER, cost the hops between processes.
+``--dds-other`` is an experiment: once the app runs, it puts every middleware thread (``dds.*``) of
+the app's processes back to SCHED_OTHER on all the case's CPUs, undoing what the enforcer gave them
+(the level of nodes on their own clock, on their process's CPUs: docs/guide/ros2.md), to see what
+that buys the hops between processes.  Plain ROS 2 leaves them there anyway.
 
 The targets (issue 46; reported, never asserted): on 1 core catanc's local-chain p95 at least 3x
 lower than plain ROS 2's; on 2 cores every bounded chain's p95 within its bound (nav2d bounds
@@ -63,6 +64,7 @@ from benchmarks.enforcer import load, process_cpu_ns
 from catanc.runtime.log import read_log
 from catanc.runtime.log_summary import PlannedRate, summarise
 from catanc.runtime.measure import percentile
+from catanc.runtime.sched import MIDDLEWARE_THREADS, thread_name, threads_of
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "ros" / "nav2d"
@@ -404,28 +406,30 @@ def descendants(pid: int) -> list[int]:
     return found
 
 
-def raise_middleware(pids: Sequence[int], priority: int) -> int:
-    """Every Fast DDS thread (``dds.*``) of ``pids`` to SCHED_FIFO ``priority``; how many (an experiment: do
-    the middleware's own threads, which no plan covers, make the hops between processes slow?)."""
-    raised = 0
+def lower_middleware(pids: Sequence[int], cpus: Sequence[int]) -> int:
+    """Every middleware thread (as the enforcer names them) of ``pids`` to SCHED_OTHER on ``cpus``; how many (an
+    experiment: what does the enforcer's placement of them buy the hops between processes?)."""
+    lowered = 0
     for pid in pids:
-        for task in Path(f"/proc/{pid}/task").glob("*"):
-            with contextlib.suppress(OSError):
-                if (task / "comm").read_text().startswith("dds."):
-                    os.sched_setscheduler(int(task.name), os.SCHED_FIFO, os.sched_param(priority))
-                    raised += 1
-    return raised
+        for tid in threads_of(pid):
+            if (thread_name(pid, tid) or "").startswith(MIDDLEWARE_THREADS):
+                with contextlib.suppress(OSError):
+                    os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))
+                    os.sched_setaffinity(tid, cpus)
+                    lowered += 1
+    return lowered
 
 
-def measure_case(mode: str, cores: int, duration_s: float, warmup_s: float, dds_fifo: int | None = None) -> Case:
+def measure_case(mode: str, cores: int, duration_s: float, warmup_s: float, dds_other: bool = False) -> Case:
     load_before = load()
     with tempfile.TemporaryDirectory(prefix=f"ros-nav2d-{mode}-{cores}-") as scratch_name:
         scratch = Path(scratch_name)
         with running(mode, cores, scratch) as app:
             app.wait_ready()
-            if dds_fifo is not None:
-                raised = raise_middleware([app.robot.pid, *descendants(app.launcher.pid)], dds_fifo)
-                print(f"# {raised} DDS threads at SCHED_FIFO {dds_fifo}", file=sys.stderr, flush=True)
+            if dds_other and mode != "plain":
+                time.sleep(2.0)  # the enforcer places them once a second: after that, they stay put
+                lowered = lower_middleware(descendants(app.launcher.pid), range(cores))
+                print(f"# {lowered} middleware threads back at SCHED_OTHER", file=sys.stderr, flush=True)
             time.sleep(warmup_s)
             start_ns = time.time_ns()
             enforcer_before = process_cpu_ns(app.launcher.pid) if mode == "catanc" else 0
@@ -540,10 +544,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--mode", action="append", choices=BENCHMARK_MODES, help="repeat; default both")
     parser.add_argument("--json", action="store_true", help="print the cases as JSON")
     parser.add_argument(
-        "--dds-fifo",
-        type=int,
-        metavar="PRIO",
-        help="an experiment: raise the app's Fast DDS threads to SCHED_FIFO PRIO once it runs (every mode)",
+        "--dds-other",
+        action="store_true",
+        help="an experiment: put the app's middleware threads back to SCHED_OTHER once it runs (catanc mode)",
     )
     args = parser.parse_args(argv)
     os.environ.setdefault("ROS_DOMAIN_ID", str(101 + os.getpid() % 100))  # apart from the tests' 1..100
@@ -553,7 +556,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     for cores in args.cores or [1, 2]:
         for mode in args.mode or BENCHMARK_MODES:
             print(f"# {mode}, {cores} core(s) ...", file=sys.stderr, flush=True)
-            cases.append(measure_case(mode, cores, args.duration, args.warmup, args.dds_fifo))
+            cases.append(measure_case(mode, cores, args.duration, args.warmup, args.dds_other))
     print(json.dumps([asdict(case) for case in cases], indent=2) if args.json else render(cases))
 
 

@@ -49,6 +49,7 @@ import select
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any, ClassVar, TypeVar
 
 try:
@@ -364,6 +365,7 @@ class CatancTimer:
         fd = None if client is None else client.fd()
         if client is None or fd is None:
             return
+        _name_thread(f"catanc-{client.name}")  # the enforcer raises and pins it with the executor thread
         poller = select.poll()
         poller.register(fd, select.POLLIN)
         try:
@@ -382,6 +384,13 @@ class CatancTimer:
                     return
         except Exception:  # the context shut down under the watcher: nothing to wake any more
             return
+
+
+def _name_thread(name: str) -> None:
+    """The calling thread's name in /proc (its first 15 bytes): ``catanc-<node>`` tells the enforcer it serves the
+    node's thread (catanc.runtime.nodes)."""
+    with contextlib.suppress(OSError):
+        Path(f"/proc/self/task/{threading.get_native_id()}/comm").write_text(name.encode()[:15].decode(errors="ignore"))
 
 
 def create_timer(

@@ -10,6 +10,13 @@
   are triggered by the enforcer.  Routes are sent again whenever a neighbour comes or goes.
 - **Adopting**: threads a raised node thread starts inherit its level and CPUs; once a second
   they are looked for and remembered, so they are put back too.
+- **Companions**: a thread of a registered process named ``catanc-<node>`` (catanc.ros's watcher,
+  which wakes the executor when a trigger comes) follows ``<node>``'s thread: its CPUs, its
+  resting level, raised with it in its subchain's slice, re-pinned with it.
+- **Middleware**: a registered process's middleware threads (Fast DDS ``dds.*``, ...) carry every
+  message between processes, the hops the plan counts (``hops_ms``): they run at the level of
+  nodes on their own clock (3, :data:`MIDDLEWARE_FIFO`), on the CPUs the plan gives the process's
+  node threads, so a message is not delivered behind the subchains' work (docs/guide/ros2.md).
 """
 
 from __future__ import annotations
@@ -19,12 +26,25 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 from catanc.control.schedule import RuntimeSchedule, SubchainRun, node_priority
-from catanc.core.priorities import APP_FIFO_LEVELS
+from catanc.core.priorities import APP_FIFO_LEVELS, UNSCHEDULED_FIFO
 from catanc.runtime import protocol
 from catanc.runtime.endpoints import Endpoint, EnforcerSocket, Received, Registry, open_endpoint
 from catanc.runtime.levels import Levels
 from catanc.runtime.ring import RingReader
-from catanc.runtime.sched import SCHED_RESET_ON_FORK, Restorer, ThreadGone, read_policy, set_affinity, threads_of
+from catanc.runtime.sched import (
+    COMPANION_PREFIX,
+    MIDDLEWARE_THREADS,
+    SCHED_RESET_ON_FORK,
+    Restorer,
+    ThreadGone,
+    read_policy,
+    set_affinity,
+    thread_name,
+    threads_of,
+)
+
+MIDDLEWARE_FIFO = UNSCHEDULED_FIFO
+"""Middleware threads deliver messages when they come, as nodes on their own clock run (docs/guide/ros2.md)."""
 
 Note = Callable[[str, str], None]
 """(kind, text): something to tell (throttled per kind by the caller)."""
@@ -75,6 +95,9 @@ class NodeThreads:
         self.log = log
         self.version = 0  # bumped whenever a node thread comes or goes (what the enforcer derives is redone)
         self.preexisting: dict[int, set[int]] = {}  # pid -> its threads when a node of it first registered
+        self.companions: dict[int, set[int]] = {}  # a node thread -> the threads that serve it (catanc-<node>)
+        self.middleware: dict[int, set[int]] = {}  # pid -> its middleware threads, placed
+        self.examined: dict[int, set[int]] = {}  # pid -> its threads already looked at by name
 
     # ------------------------------------------------------------------ registering
 
@@ -148,19 +171,47 @@ class NodeThreads:
         for tid in set(tids):
             for endpoint in [e for e in self.registry.endpoints() if e.tid == tid]:
                 self.gone(endpoint)
+            self._drop(tid)
 
     # ------------------------------------------------------------------ placing
 
     def place(self, endpoint: Endpoint) -> bool:
-        """Pin a node thread to its subchain's CPUs at its resting level (CPUs only without RT); False if gone."""
-        run = self.schedule.subchain_of(endpoint.node)
-        cores = run.cores if run is not None else range(self.schedule.cores)
-        level = node_priority(run)
+        """Pin a node thread to its subchain's CPUs at its resting level (CPUs only without RT); False if gone.
+
+        Its companions go with it (one that is gone is forgotten).
+        """
+        cpus = self._cpus(endpoint)
+        level = max(node_priority(self.schedule.subchain_of(endpoint.node)), self._other_roles(endpoint))
         try:
-            set_affinity(endpoint.tid, self.cpus_of(cores))
+            set_affinity(endpoint.tid, cpus)
         except ThreadGone:
             return False
-        return self.levels.rest(endpoint.tid, max(level, self._other_roles(endpoint)))
+        if not self.levels.rest(endpoint.tid, level):
+            return False
+        for tid in list(self.companions.get(endpoint.tid, ())):
+            if not self._put(tid, cpus, level):
+                self._drop(tid)
+        return True
+
+    def _cpus(self, endpoint: Endpoint) -> frozenset[int]:
+        run = self.schedule.subchain_of(endpoint.node)
+        return self.cpus_of(run.cores if run is not None else range(self.schedule.cores))
+
+    def _put(self, tid: int, cpus: frozenset[int], level: int) -> bool:
+        """A thread that is no node's own on ``cpus`` at resting ``level``; False if it is gone."""
+        try:
+            set_affinity(tid, cpus)
+        except ThreadGone:
+            return False
+        return self.levels.rest(tid, level)
+
+    def _drop(self, tid: int) -> None:
+        """Forget a companion or middleware thread (it exited)."""
+        self.levels.forget(tid)
+        for group in (*self.companions.values(), *self.middleware.values()):
+            if tid in group:
+                group.discard(tid)
+                self.version += 1
 
     def _other_roles(self, endpoint: Endpoint) -> int:
         """The highest resting level the same thread has as another node (an executor serving several)."""
@@ -172,11 +223,20 @@ class NodeThreads:
         return max(levels, default=0)
 
     def place_all(self) -> None:
-        """Re-pin every node thread for a new allocation (the caller resets what it had raised)."""
+        """Re-pin every node thread for a new allocation (the caller resets what it had raised), its companions
+        and its process's middleware threads."""
         self.levels.reset()
         for endpoint in self.registry.endpoints():
             if not self.place(endpoint):
                 self.gone(endpoint)
+        for pid in list(self.middleware):
+            self._place_middleware(pid)
+
+    def _place_middleware(self, pid: int) -> None:
+        cpus = frozenset().union(*(self._cpus(e) for e in self.registry.endpoints() if e.pid == pid))
+        for tid in list(self.middleware.get(pid, ())):
+            if not cpus or not self._put(tid, cpus, MIDDLEWARE_FIFO):
+                self._drop(tid)
 
     # ------------------------------------------------------------------ routes
 
@@ -235,7 +295,12 @@ class NodeThreads:
                 if endpoint.reader is not None
             )
             tids[name] = tuple(
-                tuple(endpoint.tid for node in run.nodes[first:] for endpoint in self.registry.of(node))
+                tuple(
+                    tid
+                    for node in run.nodes[first:]
+                    for endpoint in self.registry.of(node)
+                    for tid in (endpoint.tid, *sorted(self.companions.get(endpoint.tid, ())))
+                )
                 for first in range(len(run.nodes))
             )
             heads[name] = self.head(run)
@@ -262,8 +327,13 @@ class NodeThreads:
         for pid in list(self.preexisting):
             if pid not in creators:
                 del self.preexisting[pid]
+        for table in (self.middleware, self.examined):
+            for pid in [pid for pid in table if pid not in creators]:
+                del table[pid]
         for pid, creator in creators.items():
-            for tid in threads_of(pid):
+            tids = threads_of(pid)
+            self._name_threads(pid, tids)
+            for tid in tids:
                 if tid in known or tid in self.preexisting.get(pid, ()):
                     continue
                 try:
@@ -272,6 +342,40 @@ class NodeThreads:
                         self.restorer.remember(tid, original=known[creator])
                 except ThreadGone:
                     continue
+
+    def _name_threads(self, pid: int, tids: list[int]) -> None:
+        """Place the threads of ``pid`` not looked at yet that are named as companions or middleware (remembered
+        first, so they are put back); each thread is looked at once."""
+        examined = self.examined.setdefault(pid, set())
+        examined &= set(tids)  # a tid of an exited thread may come back as another
+        own = {endpoint.tid for endpoint in self.registry.endpoints()}
+        for tid in tids:
+            if tid in examined or tid in own:
+                continue
+            examined.add(tid)
+            name = thread_name(pid, tid) or ""
+            try:
+                if name.startswith(COMPANION_PREFIX):
+                    self._companion(pid, tid, name)
+                elif name.startswith(MIDDLEWARE_THREADS) and self.rt:
+                    self.restorer.remember(tid)
+                    self.middleware.setdefault(pid, set()).add(tid)
+                    self.version += 1
+            except ThreadGone:
+                continue
+        if pid in self.middleware:
+            self._place_middleware(pid)
+
+    def _companion(self, pid: int, tid: int, name: str) -> None:
+        """``tid`` serves the node thread of ``pid`` its name gives (``catanc-<node>``, cut to 15 bytes)."""
+        for endpoint in self.registry.endpoints():
+            if endpoint.pid == pid and (COMPANION_PREFIX + endpoint.node)[:15] == name:
+                # It inherited the node thread's level and CPUs if that started it: the node thread's original is its.
+                self.restorer.remember(tid, original=self.restorer.remembered.get(endpoint.tid))
+                self.companions.setdefault(endpoint.tid, set()).add(tid)
+                self.version += 1
+                self.place(endpoint)
+                return
 
 
 def _raw(address: bytes | str | None) -> bytes | None:

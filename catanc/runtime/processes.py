@@ -30,7 +30,7 @@ from pathlib import Path
 from catanc.artifacts.runtime_table import ros_arguments
 from catanc.errors import UsageError
 from catanc.runtime.protocol import SOCKET_ENV
-from catanc.runtime.sched import format_cpus, threads_of
+from catanc.runtime.sched import MIDDLEWARE_THREADS, format_cpus, threads_of
 from catanc.runtime.worker.command import worker_command, worker_groups
 from catanc.runtime.worker.draws import Profile
 from catanc.spec.language import ModalCompute, Spec
@@ -182,11 +182,6 @@ def start_launch(
             children.start(str(process.get("key")), words, socket_path, pinned)
 
 
-MIDDLEWARE_THREADS = ("dds.", "recvUC", "recvMC", "dq.", "tev", "xmit.")
-"""How middleware names its threads (``/proc/PID/task/TID/comm``): Fast DDS ``dds.*``; Cyclone DDS ``recvUC``,
-``recvMC``, ``dq.*``, ``tev``, ``xmit.*``.  They never register: the enforcer neither triggers nor raises them."""
-
-
 def middleware_on(pid: int, cpus: Collection[int]) -> list[str]:
     """Names of process ``pid``'s middleware threads that may run on any of ``cpus``."""
     found = []
@@ -205,8 +200,9 @@ def middleware_on(pid: int, cpus: Collection[int]) -> list[str]:
 class MiddlewareWatch:
     """Says once per started process that middleware threads of it may run on CPUs the plan schedules.
 
-    They run under SCHED_OTHER: on a scheduled CPU they take what the subchains leave, and what they take
-    there a subchain may miss when it is not raised.  Checked again as processes make them (at init).
+    They run under SCHED_OTHER until a node thread of their process registers (then the enforcer places
+    them, :mod:`catanc.runtime.nodes`): on a scheduled CPU they take what the subchains leave, and what
+    they take there a subchain may miss when it is not raised.  Checked again as processes make them.
     """
 
     reported: set[str] = field(default_factory=set)
@@ -222,7 +218,8 @@ class MiddlewareWatch:
                 named = ", ".join(sorted(set(threads))[:3]) + (", ..." if len(set(threads)) > 3 else "")
                 lines.append(
                     f"{name} (pid {process.pid}): {plural(len(threads), 'middleware thread')} ({named}) may run on "
-                    f"scheduled CPUs {format_cpus(scheduled_cpus)}, under SCHED_OTHER beside the subchains"
+                    f"scheduled CPUs {format_cpus(scheduled_cpus)}, under SCHED_OTHER beside the subchains "
+                    "until a node of it registers"
                 )
         return lines
 

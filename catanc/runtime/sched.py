@@ -141,6 +141,21 @@ def threads_of(pid: int) -> list[int]:
         return []
 
 
+def thread_name(pid: int, tid: int) -> str | None:
+    """Thread ``tid`` of process ``pid``'s name (``comm``), or None if it is gone."""
+    try:
+        return Path(f"/proc/{pid}/task/{tid}/comm").read_text().strip()
+    except OSError:
+        return None
+
+
+MIDDLEWARE_THREADS = ("dds.", "recvUC", "recvMC", "dq.", "tev", "xmit.")
+"""How middleware names its threads (``/proc/PID/task/TID/comm``): Fast DDS ``dds.*``; Cyclone DDS ``recvUC``,
+``recvMC``, ``dq.*``, ``tev``, ``xmit.*``.  They never register: they carry the messages between processes."""
+COMPANION_PREFIX = "catanc-"
+"""A thread of a registered process named ``catanc-<node>`` serves ``<node>``'s thread (catanc.ros's watcher)."""
+
+
 def exited(pid: int) -> bool:
     """Whether process ``pid`` has exited (a zombie too) or is gone, asked through a pidfd, not ``/proc``."""
     try:
