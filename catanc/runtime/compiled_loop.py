@@ -105,8 +105,8 @@ class CompiledLoop:
             walk.unmatched[s], walk.steals[s] = state.unmatched, state.steals
             walk.pending[s] = wa.NONE if state.pending is None else state.pending
             flights = state.in_flight
-            if len(flights) >= wa.FLIGHTS:
-                return False  # more than the walk holds: this wake-up stays in Python
+            if len(flights) >= wa.FLIGHTS - 2:
+                return False  # more than the walk holds with room to spare (crowded()): this wake-up stays in Python
             k = 0
             for seq, flight in flights.items():
                 walk.fl_seq[s, k], walk.fl_index[s, k], walk.fl_triggered[s, k] = seq, flight.index, flight.triggered_ms

@@ -554,6 +554,17 @@ def next_wake(w: Walk, c: int) -> float:
 
 
 @compiled
+def crowded(w: Walk) -> bool:
+    """Whether some subchain has so many runs in flight that a boundary or a clock could overflow its row: one
+    may add a trigger's run to its own subchain and, reading the rings of others (thieves, the raised one),
+    one run that waited for each head."""
+    for s in range(w.flying.size):
+        if w.flying[s] >= FLIGHTS - 2:
+            return True
+    return False
+
+
+@compiled
 def run_due(w: Walk, now: float) -> int:
     """:meth:`SharedCores.run_due`: every boundary due by ``now``, in order, on every core.
 
@@ -567,8 +578,7 @@ def run_due(w: Walk, now: float) -> int:
         while w.due[c] <= now:
             if w.flags[LOGGED] + w.flags[ROOM] > w.events.shape[0]:
                 return LOG_FULL
-            sub = w.rule_sub[w.version[c], c, w.position[c]]
-            if sub != NONE and w.flying[sub] >= FLIGHTS - 1:
+            if crowded(w):
                 return FULL
             boundary(w, c, now, w.due[c] >= planned)
             advance(w, c, now)
@@ -601,7 +611,7 @@ def fire_clocks(w: Walk, now: float) -> int:
         if k == NONE or w.clk_due[k] > now:
             break
         s = w.clk_sub[k]
-        if w.flying[s] >= FLIGHTS - 1:
+        if crowded(w):
             return FULL
         if w.flags[LOGGED] + w.flags[ROOM] > w.events.shape[0]:
             return LOG_FULL

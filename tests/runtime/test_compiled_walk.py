@@ -179,6 +179,27 @@ def test_the_compiled_walk_does_what_the_python_one_does(seed: int) -> None:
         close(both)
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_a_subchain_near_its_rows_end_hands_every_boundary_to_python(seed: int) -> None:
+    """A boundary reads other subchains' rings too (thieves, the one raised), and each read may start the run
+    that waited for its head: with any subchain two runs short of :data:`FLIGHTS` the walk does nothing and
+    says FULL (nav2d's 2-core run overflowed a row: IndexError, the enforcer ended)."""
+    both = made(random.Random(seed))
+    try:
+        s = seed % len(both.names)
+        both.walk.flying[s] = wa.FLIGHTS - 2
+        before = (both.walk.due.copy(), both.walk.position.copy(), both.walk.seq.copy())
+        assert cw.run_due(both.walk, 10_000.0) == wa.FULL
+        after = (both.walk.due, both.walk.position, both.walk.seq)
+        assert all((b == a).all() for b, a in zip(before, after, strict=True))  # nothing was done
+        both.walk.flying[s] = wa.FLIGHTS - 3
+        assert cw.run_due(both.walk, 10_000.0) != wa.FULL or any(
+            both.walk.flying[k] >= wa.FLIGHTS - 2 for k in range(len(both.names))
+        )
+    finally:
+        close(both)
+
+
 def test_a_schedstat_line_is_read_as_the_python_side_reads_it() -> None:
     """kernel_ns parses a real thread's schedstat as catanc.runtime.cpu_clocks does (the first field, ns)."""
     from catanc.runtime.cpu_clocks import parse_schedstat
