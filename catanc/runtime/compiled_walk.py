@@ -325,23 +325,38 @@ def take(w: Walk, s: int, r: int, entry: int, now: float, last: bool) -> None:
         if k == NONE or w.fl_index[s, k] != index:
             w.unmatched[s] += 1
             return
-    else:  # a run nothing triggered: the oldest waiting at this node
+    else:  # a run nothing triggered: the one its data came from, else the oldest waiting at this node
         k = NONE
+        sensed = NONE
         waiting = 0
+        origin_ms = float(words[entry + 5]) / 1e6
         for j in range(w.flying[s]):
-            if w.fl_index[s, j] == index:
-                waiting += 1
-            if w.fl_index[s, j] == index and (
+            if w.fl_index[s, j] != index:
+                continue
+            waiting += 1
+            if (
                 k == NONE
                 or w.fl_triggered[s, j] < w.fl_triggered[s, k]
                 or (w.fl_triggered[s, j] == w.fl_triggered[s, k] and w.fl_seq[s, j] < w.fl_seq[s, k])
             ):
                 k = j
+            if (
+                words[entry + 5] != 0
+                and w.fl_triggered[s, j] <= origin_ms
+                and (
+                    sensed == NONE
+                    or w.fl_triggered[s, j] > w.fl_triggered[s, sensed]
+                    or (w.fl_triggered[s, j] == w.fl_triggered[s, sensed] and w.fl_seq[s, j] > w.fl_seq[s, sensed])
+                )
+            ):
+                sensed = j
         if k == NONE:
             w.unmatched[s] += 1
             return
+        if sensed != NONE:
+            k = sensed
         seq = w.fl_seq[s, k]
-        delivered = index > 0 and waiting == 1
+        delivered = index > 0 and (sensed != NONE or waiting == 1)
     triggered = w.fl_triggered[s, k]
     start_ms = min(max(float(words[entry + 1]) / 1e6, triggered), now)
     end_ms = min(max(float(words[entry + 2]) / 1e6, start_ms), now)

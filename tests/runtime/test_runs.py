@@ -306,3 +306,24 @@ def test_a_messages_hop_into_an_input_node_counts_after_the_slot_too(two_nodes: 
     seen = read(book, run, readers, 28.0)
     assert seen.hops == []
     assert [r.seq for r in seen.runs] == [first.seq]
+
+
+def test_a_run_nothing_triggered_goes_with_the_run_its_data_came_from(two_nodes: TwoNodes) -> None:
+    """Two runs wait at b; b's message carries the second head run's data (its origin is after the second
+    trigger): it ends the second run, in time, and the first (whose message was dropped) waits on, to be given up
+    as lost.  Paired oldest-first, b's run would end the first run, one period late."""
+    book, run, (a, b), readers = two_nodes
+    first = book.trigger(run, 0.0, None, until_ms=5.0)
+    assert first is not None
+    a.append(first.seq, 0, 1 * MS, 1 * MS)
+    read(book, run, readers, 1.5)
+    second = book.trigger(run, 20.0, None, until_ms=25.0)
+    assert second is not None
+    a.append(second.seq, 20 * MS, 21 * MS, 1 * MS)
+    read(book, run, readers, 21.5)  # both wait at b
+    b.append(0, 23 * MS, 24 * MS, 1 * MS, origin_ns=20_500_000)  # sensed at 20.5 ms: the second run's
+    seen = read(book, run, readers, 24.5)
+    assert [(r.seq, r.latency_ms) for r in seen.runs] == [(second.seq, 4.0)]  # 20 -> 24 ms, within 10
+    assert seen.hops == []  # triggered behind the first run: no hop of its own
+    assert list(book.state("s").in_flight) == [first.seq]
+    assert book.state("s").late == 0
