@@ -205,6 +205,8 @@ def install(
         text=np.zeros(64, dtype=np.uint8),
     )
     for s, state in enumerate(states):
+        if len(state.in_flight) >= wa.FLIGHTS - 2:  # no room (compiled_walk.crowded): the caller stays in Python
+            raise ValueError(f"{len(state.in_flight)} runs in flight: more than the walk holds")
         for seq, flight in state.in_flight.items():
             k = walk.flying[s]
             walk.fl_seq[s, k], walk.fl_index[s, k], walk.fl_triggered[s, k] = seq, flight.index, flight.triggered_ms

@@ -200,6 +200,23 @@ def test_a_subchain_near_its_rows_end_hands_every_boundary_to_python(seed: int) 
         close(both)
 
 
+def test_a_book_with_more_runs_in_flight_than_a_row_holds_is_not_laid_out() -> None:
+    """A re-plan lays the walk out again from Python's book, which has no limit: a subchain with a row's worth of
+    runs in flight is a ValueError (its wake-ups stay in Python), not an IndexError that ends the enforcer."""
+    from catanc.runtime.runs import RunFlight
+
+    both = made(random.Random(0))
+    try:
+        name = both.names[0]
+        state = both.side.book.state(name)
+        for seq in range(1, wa.FLIGHTS + 1):
+            state.in_flight[seq] = RunFlight(1 if len(both.schedule.subchains[name].nodes) > 1 else 0, float(seq))
+        with pytest.raises(ValueError, match="runs in flight"):
+            compiled_state.install(both.schedule, both.side.wiring, both.side.book, both.side.levels, 0.0)
+    finally:
+        close(both)
+
+
 def test_a_schedstat_line_is_read_as_the_python_side_reads_it() -> None:
     """kernel_ns parses a real thread's schedstat as catanc.runtime.cpu_clocks does (the first field, ns)."""
     from catanc.runtime.cpu_clocks import parse_schedstat
