@@ -214,10 +214,13 @@ def periods_as_run(problem: Problem, timings: Mapping[str, Timing], groups: Iter
     rate; where an executor's late run steals a subchain's slots, one over what it keeps; else as planned.
 
     A node that does not head its subchain waits instead (its head loses the triggers, which the
-    model does not count): its subchain keeps its planned period.
+    model does not count): its subchain keeps its planned period.  Where several executors' threads
+    take from one subchain (two processes' executors on one core), their losses add up, as the
+    losses to two members of one executor do.
     """
     groups = list(groups)
-    result = {name: timing.period_ms for name, timing in timings.items()}
+    lost_hz: dict[str, float] = {}  # triggers a second lost, per subchain
+    lost_share: dict[str, float] = {}  # per batch subchain: the share of its time its slots are stolen
     for executor in problem.executors:
         turns = executor_turns(problem, executor, timings, groups)
         if turns is None:
@@ -225,14 +228,17 @@ def periods_as_run(problem: Problem, timings: Mapping[str, Timing], groups: Iter
         for rate in turns.rates:
             sub = problem.subchain_of(rate.node)
             if sub.nodes[0] == rate.node and rate.rate_hz < rate.planned_hz:
-                result[sub.name] = _period(rate.rate_hz)
-        for name, lost_hz in turns.stolen_hz.items():
-            planned = timings[name].period_ms
-            share = turns.stolen_share[name]
+                lost_hz[sub.name] = lost_hz.get(sub.name, 0.0) + rate.planned_hz - rate.rate_hz
+        for name, lost in turns.stolen_hz.items():
             if problem.subchain(name).batch:  # it runs whenever it has its slots: it loses time, not triggers
-                result[name] = planned / (1.0 - share) if share < 1.0 else math.inf
-            elif lost_hz > 0.0:
-                result[name] = _period(1000.0 / planned - lost_hz)
+                lost_share[name] = lost_share.get(name, 0.0) + turns.stolen_share[name]
+            elif lost > 0.0:
+                lost_hz[name] = lost_hz.get(name, 0.0) + lost
+    result = {name: timing.period_ms for name, timing in timings.items()}
+    for name in lost_hz.keys() | lost_share.keys():
+        period = _period(max(0.0, 1000.0 / timings[name].period_ms - lost_hz.get(name, 0.0)))
+        share = lost_share.get(name, 0.0)
+        result[name] = period / (1.0 - share) if share < 1.0 else math.inf
     return result
 
 

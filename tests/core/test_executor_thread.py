@@ -169,3 +169,41 @@ def test_a_node_that_does_not_head_its_subchain_keeps_its_period() -> None:
     timings = {name: TIMINGS[name] for name in ("short", "long", "other")}
     group = CoreGroup(tuple(timings), 1, PRIORITIES, stealing=False)
     assert periods_as_run(problem, timings, [group]) == {name: timing.period_ms for name, timing in timings.items()}
+
+
+def test_two_executors_taking_from_one_subchain_add_up_their_losses() -> None:
+    # One core: lead (x), short (a), other (o), long (b), zed (z), ranked in that order; a and b share one
+    # thread, o and z another, and no slack.  Worker's thread (a, b) gets 1 - 0.1 - 0.2 - 0.2 = 0.5 of the
+    # core; a's waiting run is late 2.5 + 5 ms into b's hold (3.75 ms of b's 30 done), then has 1 - 0.1:
+    # the hold is 7.5 + 26.25 / 0.9 ms, a loses hold / 5 - 2 per run of b (10 a second), and a steals o's
+    # slots for 26.25 / 0.9 ms of it: o, every 10 ms, loses that / 10 - 2 per run of b.
+    # Pair's thread (o, z) gets 1 - 0.1 - 0.2 - 0.3 = 0.4; o's run is late 5 + 10 ms into z's hold (6 ms of
+    # z's 40 done), then has 1 - 0.1 - 0.2: the hold is 15 + 34 / 0.7 ms, o loses hold / 10 - 2 per run of z
+    # (5 a second); o steals from b, every 100 ms, too briefly to cost it a trigger.
+    # o loses to both threads: its losses add up.
+    problem = build_problem(
+        spec_of(
+            {
+                "catan": 1,
+                "app": "two_threads",
+                "nodes": {
+                    name: {"compute_ms": ms}
+                    for name, ms in (("x", 0.5), ("a", 1.0), ("o", 2.0), ("b", 30.0), ("z", 40.0))
+                },
+                "subchains": {"lead": ["x"], "short": ["a"], "other": ["o"], "long": ["b"], "zed": ["z"]},
+                "objective": [{"node": "a", "weight": 1.0}],
+                "executors": {"worker": ["a", "b"], "pair": ["o", "z"]},
+            }
+        )
+    )
+    timings = TIMINGS | {"zed": Timing(200.0, 200.0)}
+    group = CoreGroup(tuple(timings), 1, PRIORITIES | {"zed": 0}, stealing=True)
+    worker_hold = 7.5 + 26.25 / 0.9
+    a_lost_hz = (worker_hold / 5.0 - 2.0) * 10.0
+    o_stolen_hz = ((worker_hold - 7.5) / 10.0 - 2.0) * 10.0
+    o_lost_hz = ((15.0 + 34.0 / 0.7) / 10.0 - 2.0) * 5.0
+    expected = {name: timing.period_ms for name, timing in timings.items()} | {
+        "short": 1000.0 / (200.0 - a_lost_hz),
+        "other": 1000.0 / (100.0 - o_stolen_hz - o_lost_hz),
+    }
+    assert periods_as_run(problem, timings, [group]) == pytest.approx(expected)
