@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from catanc.artifacts.runtime_table import PARAMS_FILE, RATE_DIGITS, ProcessEntry, ms
-from catanc.core.priorities import resting_fifo, static_policy
+from catanc.core.priorities import static_policy
 from catanc.errors import Diagnostic, SpecError
 from catanc.spec.deploy_checks import PERIOD_NS, RESERVED_PREFIX, process_keys, qualified, split_command
 from catanc.spec.language import Spec
@@ -139,7 +139,7 @@ def processes(spec: Spec, plan: Plan, cpus: Sequence[int] | None = None) -> tupl
         used: set[int] = set()
         priority = 0
         for node in nodes:
-            node_cpus, level = _placement(plan, node, membership, on)
+            node_cpus, level = _placement(plan, node, on)
             used.update(node_cpus)
             priority = max(priority, level)
         shared = any(node in membership and plan.subchains[membership[node]].shared for node in nodes)
@@ -265,13 +265,10 @@ def _rate_parameter(spec: Spec, node: str, period_ms: float) -> float:
         raise SpecError([Diagnostic(where, ".".join(path), message)]) from None
 
 
-def _placement(plan: Plan, node: str, membership: dict[str, str], on: tuple[int, ...]) -> tuple[tuple[int, ...], int]:
-    """A node's CPUs and resting SCHED_FIFO priority: its subchain's cores' CPUs (``on[core]``), or every core's
-    when unscheduled."""
-    if node in membership:
-        sub = plan.subchains[membership[node]]
-        return tuple(sorted(on[core] for core in sub.cores)), resting_fifo(sub.shared)
-    return tuple(sorted(on)), resting_fifo(None)
+def _placement(plan: Plan, node: str, on: tuple[int, ...]) -> tuple[tuple[int, ...], int]:
+    """A node's CPUs (``on[core]`` of its plan cores) and resting SCHED_FIFO priority (:meth:`Plan.placement`)."""
+    cores, level = plan.placement(node)
+    return tuple(sorted(on[core] for core in cores)), level
 
 
 def _node_params(
@@ -280,7 +277,7 @@ def _node_params(
     found: dict[str, ParamValue] = {}
     if node in membership:
         found["subchain"] = membership[node]
-    cpus, priority = _placement(plan, node, membership, on)
+    cpus, priority = _placement(plan, node, on)
     found["cpus"] = list(cpus)
     found["priority"] = priority
     period = node_period_ms(spec, plan, node, membership)
@@ -388,7 +385,7 @@ def _static_placement(
     plan: Plan, node: str, membership: dict[str, str], on: tuple[int, ...]
 ) -> tuple[tuple[int, ...], str, int]:
     """A node thread's CPUs, policy and priority without the enforcer (:func:`static_policy`)."""
-    node_cpus, _ = _placement(plan, node, membership, on)
+    node_cpus, _ = _placement(plan, node, on)
     shared = plan.subchains[membership[node]].shared if node in membership else None
     policy, priority = static_policy(shared)
     return node_cpus, policy, priority

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from catanc.core.priorities import resting_fifo
 from catanc.planning.stage1.estimate import Allocation
 from catanc.planning.stage1.result import Stage1Result
 
@@ -100,3 +101,12 @@ class Plan:
     objective_as_run: float | None = None  # with the triggers executors' threads lose: what plans are ranked by
     offered_periods_ms: dict[str, float] = field(default_factory=dict)  # the offered period picked per subchain
     offered: tuple[OfferedChoice, ...] = ()  # those subchains: their rates, and what a free rate would give
+
+    def placement(self, node: str) -> tuple[tuple[int, ...], int]:
+        """A node's plan cores and resting SCHED_FIFO level (docs/explanation/model.md section 6): its
+        subchain's cores and level, or, for a node in no subchain (on its own clock), every core and the
+        unscheduled level."""
+        sub = next((sub for sub in self.subchains.values() if node in sub.nodes), None)
+        if sub is None:
+            return tuple(range(self.cores)), resting_fifo(None)
+        return tuple(sorted(sub.cores)), resting_fifo(sub.shared)
