@@ -9,13 +9,14 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import replace
 
 from catanc.core import graph
 from catanc.core.problem import Chain, Executor, PeriodTerm, Problem, ResponseBound, ResponseTerm, Stage, Subchain
 from catanc.errors import Diagnostic, FieldPath, SpecError, close_matches, did_you_mean, format_path
 from catanc.spec.deploy_checks import deploy_problems
+from catanc.spec.executors import ProcessThreads, executor_groups, spec_processes
 from catanc.spec.language import (
     ChainConstraint,
     ChainsConstraint,
@@ -369,11 +370,42 @@ class _Builder:
             )
 
     def check_executors(self, subchains: tuple[Subchain, ...]) -> tuple[Executor, ...]:
-        """Each executor's nodes: known, scheduled, in one executor only, and able to keep up with their floors."""
+        """The executors: the ``executors:`` entries (known, scheduled nodes, each in one entry) joined with the
+        processes that run their nodes in one thread (:mod:`catanc.spec.executors`); each must keep up with its
+        rate floors, and an entry must stay inside its nodes' processes."""
+        checked = self.check_executor_entries()
+        processes = spec_processes(self.spec)
+        checked = self.check_entries_in_processes(checked, processes)
+        by_name = {sub.name: sub for sub in subchains}
+        order = list(self.spec.subchains)
+        source = self.spec.source
+        executors = []
+        for group in executor_groups(self.spec, checked):
+            if not all(node in self.membership for node in group.nodes):
+                continue  # reported already: a node in no (valid) subchain
+            owners = sorted(dict.fromkeys(self.membership[node] for node in group.nodes), key=order.index)
+            at_key = group.origin[0] == "executors"
+            where = str(source.locate(group.origin, at_key=at_key)) if source is not None else ""
+            process = group.process
+            executor = Executor(
+                group.name,
+                group.nodes,
+                tuple(owners),
+                where,
+                declared=format_path(group.origin),
+                process=process.key if process is not None else None,
+                why=process.reason if process is not None else "",
+            )
+            if all(owner in by_name for owner in owners):
+                self.check_executor_load(executor, group.origin, by_name)
+            executors.append(executor)
+        return tuple(executors)
+
+    def check_executor_entries(self) -> dict[str, list[str]]:
+        """The ``executors:`` entries whose nodes are known, scheduled, in a subchain and in no other entry."""
         spec = self.spec
         first_path: dict[str, FieldPath] = {}
-        executors = []
-        by_name = {sub.name: sub for sub in subchains}
+        checked = {}
         for name, nodes in spec.executors.items():
             ok = True
             for index, node in enumerate(nodes):
@@ -397,20 +429,66 @@ class _Builder:
                     ok = False
                 elif node not in self.membership:
                     ok = False  # reported already: in no (valid) subchain
-            if not ok:
-                continue
-            owners = list(dict.fromkeys(self.membership[node] for node in nodes))
-            order = list(spec.subchains)
-            owners.sort(key=order.index)
-            source = spec.source
-            where = str(source.locate(("executors", name), at_key=True)) if source is not None else ""
-            executor = Executor(name, tuple(nodes), tuple(owners), where)
-            if all(owner in by_name for owner in owners):
-                self.check_executor_load(executor, by_name)
-            executors.append(executor)
-        return tuple(executors)
+            if ok:
+                checked[name] = nodes
+        return checked
 
-    def check_executor_load(self, executor: Executor, by_name: Mapping[str, Subchain]) -> None:
+    def check_entries_in_processes(
+        self, entries: dict[str, list[str]], processes: Sequence[ProcessThreads]
+    ) -> dict[str, list[str]]:
+        """The entries that agree with the processes: a thread runs in one process, and a process whose
+        nodes share one thread is not split between two entries."""
+        process_of = {node: process for process in processes for node in process.nodes}
+        inside: dict[str, str] = {}  # one-thread process -> the first entry inside it
+        agreed = {}
+        for name, nodes in entries.items():
+            problem = self._entry_problem(name, nodes, process_of, inside)
+            if problem is not None:
+                self.error(*problem)
+                continue
+            agreed[name] = nodes
+        return agreed
+
+    def _entry_problem(
+        self, name: str, nodes: Sequence[str], process_of: Mapping[str, ProcessThreads], inside: dict[str, str]
+    ) -> tuple[FieldPath, str] | None:
+        """Why an ``executors:`` entry contradicts the deploy section's processes, at which of its fields."""
+        placed = [(index, node, process_of[node]) for index, node in enumerate(nodes) if node in process_of]
+        single = next((process for _, _, process in placed if process.one_thread), None)
+        if single is not None:
+            stray = next(((index, node) for index, node in enumerate(nodes) if node not in single.scheduled), None)
+            if stray is not None:
+                index, node = stray
+                runs = f"runs in process {process_of[node].key!r}" if node in process_of else "has no deploy entry"
+                member = next(node for node in nodes if node in single.scheduled)
+                return (
+                    ("executors", name, index),
+                    f"node {node!r} {runs}, but {member!r} runs in process {single.key!r}, whose nodes "
+                    f"{', '.join(single.scheduled)} share one thread ({single.reason}): an executor's thread runs "
+                    f"in one process; list only the nodes of {single.key!r}, or give {node!r} deploy.{node}.process: "
+                    f"{single.key}",
+                )
+            first = inside.setdefault(single.key, name)
+            if first != name:
+                return (
+                    ("executors", name),
+                    f"executors {first!r} and {name!r} both list nodes of process {single.key!r}, whose nodes "
+                    f"{', '.join(single.scheduled)} share one thread ({single.reason}): one entry for them all, "
+                    "or none (the process makes them one executor)",
+                )
+            return None
+        if len({process.key for _, _, process in placed}) > 1:
+            _, first_node, first_process = placed[0]
+            index, node, process = next(item for item in placed if item[2].key != first_process.key)
+            return (
+                ("executors", name, index),
+                f"node {node!r} runs in process {process.key!r} and {first_node!r} in {first_process.key!r}: an "
+                f"executor's thread runs in one process; list nodes of one process, or give both one "
+                "deploy.<node>.process",
+            )
+        return None
+
+    def check_executor_load(self, executor: Executor, origin: FieldPath, by_name: Mapping[str, Subchain]) -> None:
         """One thread gives at most 100% of a core: the executor's nodes at their rate floors must fit.
 
         Each node runs once per run of its subchain, at a period of at most the
@@ -426,15 +504,22 @@ class _Builder:
             fastest = sub.node_compute_ms[position] / max(sub.node_speedups[position])
             loads.append((node, 1000.0 / sub.max_period_ms, fastest / sub.max_period_ms))
         total = math.fsum(load for _, _, load in loads)
-        if total > 1.0:
-            parts = ", ".join(f"{node} at >= {rate:g} Hz needs {load:.0%}" for node, rate, load in loads)
-            self.error(
-                ("executors", executor.name),
-                f"executor {executor.name!r} cannot keep up with its rate floors: {parts} of its one thread, "
-                f"{total:.0%} in all; a single-threaded executor runs one callback at a time on any number of "
-                "cores (lower a min_rate_hz, or split the executor)",
-                at_key=True,
-            )
+        if total <= 1.0:
+            return
+        parts = ", ".join(f"{node} at >= {rate:g} Hz needs {load:.0%}" for node, rate, load in loads)
+        if executor.process is None or origin[0] == "executors":
+            what = f"executor {executor.name!r}"
+            fix = "lower a min_rate_hz, or split the executor"
+        else:
+            nodes = ", ".join(executor.nodes)
+            what = f"process {executor.process!r} runs {nodes} in one thread ({executor.why}), so it"
+            fix = "lower a min_rate_hz, or move a node to a process of its own"
+        self.error(
+            origin,
+            f"{what} cannot keep up with its rate floors: {parts} of its one thread, {total:.0%} in all; a "
+            f"single-threaded executor runs one callback at a time on any number of cores ({fix})",
+            at_key=origin[0] == "executors",
+        )
 
     # -- chains
 

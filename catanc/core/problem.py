@@ -151,16 +151,28 @@ class ResponseBound:
 
 @dataclass(frozen=True)
 class Executor:
-    """Scheduled nodes that share one single-threaded executor: they run one after the other."""
+    """Scheduled nodes that share one single-threaded executor: they run one after the other.
+
+    Declared by an ``executors:`` entry, or implied by a process that runs its nodes in one thread
+    (:mod:`catanc.spec.executors`).
+    """
 
     name: str
     nodes: tuple[str, ...]
     subchains: tuple[str, ...]  # the subchains its nodes belong to, in spec order
     where: str = field(default="", compare=False)  # ``file:line:col`` of its declaration ("" without a source)
+    declared: str = field(default="", compare=False)  # the field declaring it: executors.mapper, deploy.GP.ros_node
+    process: str | None = None  # the process whose nodes share its thread, when one does
+    why: str = field(default="", compare=False)  # why that process runs them in one thread
 
     @property
     def label(self) -> str:
         return f"executor {self.name!r}" + (f" ({self.where})" if self.where else "")
+
+    @property
+    def field_name(self) -> str:
+        """The field declaring it, for a message (``executors.<name>`` where none was recorded)."""
+        return self.declared or f"executors.{self.name}"
 
 
 @dataclass(frozen=True)

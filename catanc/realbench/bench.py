@@ -66,6 +66,7 @@ from catanc.runtime.worker.command import worker_groups, workload_worker_command
 from catanc.runtime.worker.records import RunRecord, read_records
 from catanc.sim.metrics import PolicyResult
 from catanc.sim.simulate import CATAN_POLICIES, Setup, policy_spec, promised_rates, reported_chains, static_profile
+from catanc.spec.executors import executor_nodes
 from catanc.spec.language import Spec
 
 POLICIES = ("catan", "catan-nosteal", "baseline", "fifo-static", "static-fullrun", "static-20s")
@@ -225,7 +226,7 @@ class Workers:
         self.children = Children()
         self.records: dict[str, Path] = {}  # by the worker's nodes, joined by ", "
         self.nodes = [name for name, node in setup.spec.nodes.items() if node.scheduled]
-        self.groups = worker_groups(self.nodes, setup.spec.executors)
+        self.groups = worker_groups(self.nodes, executor_nodes(setup.spec))
         for index, group in enumerate(self.groups):
             self.records[", ".join(group)] = folder / f"worker-{index}.runs"  # node names need not be file names
 

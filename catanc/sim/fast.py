@@ -27,6 +27,7 @@ from catanc.core.workload import ComputeSampler, NodeStream
 from catanc.sim import kernel as k
 from catanc.sim.policies import Reoptimiser, Replan
 from catanc.sim.records import Records
+from catanc.spec.executors import executor_nodes
 from catanc.spec.language import Spec
 
 Fields = dict[str, Any]
@@ -132,7 +133,7 @@ def topology(
         "priority": priority,
         "cores": cores,
         "executor_of": np.array(
-            [next((e for e, nodes in enumerate(spec.executors.values()) if name in nodes), -1) for name in names],
+            [next((e for e, nodes in enumerate(executor_nodes(spec).values()) if name in nodes), -1) for name in names],
             np.int64,
         ),
     }

@@ -14,6 +14,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Callable
 
+from catanc.spec.executors import executor_nodes
 from catanc.spec.language import Spec
 
 
@@ -21,7 +22,7 @@ class ExecutorGate:
     """Which node each executor runs now, and the starts waiting for it."""
 
     def __init__(self, spec: Spec) -> None:
-        self.executor_of = {node: name for name, nodes in spec.executors.items() for node in nodes}
+        self.executor_of = {node: name for name, nodes in executor_nodes(spec).items() for node in nodes}
         self._running: dict[str, str] = {}
         self._waiting: dict[str, deque[tuple[str, Callable[[], None]]]] = {}
 

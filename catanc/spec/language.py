@@ -650,7 +650,8 @@ class Deploy(_Model):
         default=None,
         pattern=APP_NAME_PATTERN,
         description="The process the node runs in, by a name of your choice: nodes naming one process (several ROS "
-        "nodes, e.g. a component container) share one command, the union of their CPUs and the highest level. "
+        "nodes, e.g. a component container) share one command, the union of their CPUs and the highest level, "
+        "and one executor thread when the command runs Python or no node names a callback_group. "
         "Default: its ROS node's process (or its own).",
     )
     callback_group: str | None = Field(
@@ -696,7 +697,9 @@ class Spec(_Model):
         description=(
             "Nodes that share one single-threaded executor (one ROS process spinning one thread): "
             "name -> its scheduled nodes. They run one after the other, never at once, and are planned "
-            "on one core set. Sharing deploy.ros_node does not imply it (a process may spin several threads)."
+            "on one core set. A process of the deploy section implies one for its scheduled nodes when it is "
+            "Python (its command runs python3, ...) or none of its nodes names a callback_group; an entry "
+            "stays inside one process."
         ),
     )
 

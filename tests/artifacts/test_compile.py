@@ -52,7 +52,9 @@ nodes:
   motor: {scheduled: false}
 edges: [[cam, det], [det, track], [imu, track], [track, motor], [det, map]]
 subchains:
-  front: [cam, det, track]
+  # /perception runs det, track and map in one thread (no callback groups): front and map share a core.
+  cam: [cam]
+  front: [det, track]
   map: [map]
 objective:
   - {chain: [cam, det, track, motor], weight: 1.0}
@@ -297,15 +299,25 @@ def test_params_quote_every_string_rcl_would_misread(tmp_path: Path) -> None:
     assert {"y", "inf"} <= subchains
 
 
-def test_params_of_a_process_hosting_several_subchains() -> None:
-    spec = Spec.model_validate(yaml.safe_load(DEPLOYED))
-    result = plan(spec, 2)
+@pytest.mark.parametrize("isolated", [False, True])
+def test_params_of_a_process_hosting_several_subchains(isolated: bool) -> None:
+    text = DEPLOYED
+    if isolated:  # each node's callbacks in a group of their own: threads that may run on other cores
+        for node, topic in (("det", "image"), ("track", "detections"), ("map", "map_in")):
+            text = text.replace(
+                f"  {node}: {{ros_node: /perception, ",
+                f"  {node}: {{ros_node: /perception, callback_group: '/perception@Subscription(/{topic})', ",
+            )
+    spec = Spec.model_validate(yaml.safe_load(text))
+    result = plan(spec, 3)
     by_key = {process.key: process for process in processes(spec, result)}
     perception = by_key["/perception"]
     assert perception.nodes == ("det", "track", "map")
-    assert perception.cpus == tuple(sorted({*result.subchains["front"].cores, *result.subchains["map"].cores}))
+    front, mapping = result.subchains["front"].cores, result.subchains["map"].cores
+    assert perception.cpus == tuple(sorted({*front, *mapping}))
+    assert (front == mapping) != isolated  # one thread: one core; apart, each subchain a core of its own
     imu = by_key["/imu_driver"]
-    assert imu.cpus == (0, 1)
+    assert imu.cpus == (0, 1, 2)  # on its own clock: every core
     assert imu.priority == 3
     assert imu.argv == ("imu_driver", "--port", "/dev/tty USB0")
     assert imu.ros_nodes[0].params["rate"] == 200.0

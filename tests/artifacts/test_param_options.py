@@ -34,7 +34,9 @@ nodes:
   motor: {scheduled: false}
 edges: [[cam, det], [det, motor], [imu, det], [det, map]]
 subchains:
-  front: [cam, det]
+  # /perception runs det and map in one thread (no callback groups): front and map share a core.
+  cam: [cam]
+  front: [det]
   map: [map]
 objective:
   - {chain: [cam, det, motor], weight: 1.0}

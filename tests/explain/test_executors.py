@@ -45,12 +45,15 @@ def planned(spec: Spec, cores: int) -> tuple[Plan, Problem]:
     return plan_problem(problem, spec.schedule, cores), problem
 
 
-def nav2d(*, executor: bool) -> Spec:
+def nav2d(*, executor: bool, processes: bool = False) -> Spec:
     """nav2d with every compute time fixed at its planned mean (no growth, spikes or jitter): the
-    simulator then runs what the plan assumes."""
+    simulator then runs what the plan assumes.  Without ``processes`` its deploy section is left out, so
+    its Mapper's executor is the only one (the deploy section's Navigator runs GP and NC in one thread)."""
     data = copy.deepcopy(yaml.safe_load((SPECS / "nav2d.yaml").read_text()))
     if not executor:
         del data["executors"]
+    if not processes:
+        del data["deploy"]
     for node in data["nodes"].values():
         node.pop("workload", None)
     data["nodes"]["GL"]["compute_ms"] = 3.2  # its modes' mean

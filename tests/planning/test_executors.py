@@ -216,12 +216,14 @@ def test_nav2d_mapper_shares_a_core() -> None:
 
     spec = load_spec("specs/nav2d.yaml")
     problem = build_problem(spec)
-    assert problem.together == (("GL", "GM"),)
+    # The spec's mapper, and its deploy section's Navigator process (GP and NC in one thread).
+    assert problem.together == (("GL", "GM"), ("GP", "NC"))
     for cores in (1, 2, 3):
         result = plan(spec, cores)
-        assert result.subchains["GL"].cores == result.subchains["GM"].cores
-        assert result.subchains["GL"].shared
-        assert result.stage1.allocation.options()["GL"] == result.stage1.allocation.options()["GM"]
+        for a, b in problem.together:
+            assert result.subchains[a].cores == result.subchains[b].cores
+            assert result.subchains[a].shared
+            assert result.stage1.allocation.options()[a] == result.stage1.allocation.options()[b]
         assert math.isfinite(result.objective)
 
 

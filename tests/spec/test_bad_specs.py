@@ -46,6 +46,11 @@ REQUIRED_CATEGORIES = [
     "executor_unscheduled_node",
     "executor_one_node",
     "executor_overload",
+    # processes whose nodes share one thread (catanc.spec.executors), against the executors: entries
+    "process_executor_joins_two_processes",
+    "process_executor_reaches_outside",
+    "process_two_executors_split_one_thread",
+    "process_overload",
     # YAML itself
     "yaml_syntax_indent",
     "yaml_syntax_unclosed_bracket",

@@ -115,9 +115,10 @@ def check_cores(problem: Problem, cores: int) -> None:
         return
     bound = [executor for executor in problem.executors if len(executor.subchains) >= 2]
     first = bound[0]
-    where = f"{first.where}: executors.{first.name}: " if first.where else f"executors.{first.name}: "
+    where = f"{first.where}: {first.field_name}: " if first.where else f"{first.field_name}: "
     reasons = "; ".join(
-        f"executor {e.name!r} runs {', '.join(e.nodes)} in one thread (subchains {', '.join(e.subchains)})"
+        f"{'process' if e.process is not None and e.name == e.process else 'executor'} {e.name!r} runs "
+        f"{', '.join(e.nodes)} in one thread (subchains {', '.join(e.subchains)})"
         for e in bound
     )
     most = len(units)
