@@ -38,6 +38,7 @@ from catanc.explain.enforceable import short_slots
 from catanc.explain.executor_caps import cap_offer
 from catanc.explain.executors import objective_as_run, plan_turns, rate_warnings
 from catanc.explain.headroom import NEAR_SATURATION, Headroom, plan_headrooms
+from catanc.explain.processes import ProcessView, process_views
 from catanc.planning.baseline import BaselineEvaluation, BaselineGap, TermValue, evaluate_baseline, objective_terms
 from catanc.planning.order import slot_starts
 from catanc.planning.stage1.estimate import Allocation
@@ -126,6 +127,7 @@ class Explanation:
     machine: str | None = None  # which machine profile the plan's costs came from (compile/explain --machine)
     unscheduled: tuple[str, ...] = ()  # nodes on their own clock (SCHED_FIFO 3)
     offered: tuple[str, ...] = ()  # one sentence per node whose driver offers rates: the one picked, a free one
+    processes: tuple[ProcessView, ...] = ()  # the deploy section's processes: cores, level, one executor or not
 
 
 # --------------------------------------------------------------------------- analysis
@@ -178,6 +180,7 @@ def explain_plan(spec: Spec, problem: Problem, plan: Plan, machine: MachineUse |
         offered=tuple(offered_note(choice, plan) for choice in plan.offered),
         machine=machine.sentence() if machine is not None else None,
         unscheduled=tuple(name for name, node in spec.nodes.items() if not node.scheduled),
+        processes=process_views(spec, problem, plan),
     )
 
 
@@ -196,32 +199,45 @@ def executor_note(executor: Executor, spec: Spec, problem: Problem, plan: Plan) 
     longest, what the objective becomes with the triggers lost meanwhile, and a rate cap on the
     long node that would run better, if one does (:mod:`catanc.explain.executor_caps`).
     """
-    nodes = ", ".join(executor.nodes)
+    runs = _runs_in_one_thread(executor)
     subs = executor.subchains
     cores = sorted({core for name in subs for core in plan.subchains[name].cores})
     where = cores_text(cores)
     if len(subs) == 1:
         how = f"in subchain {subs[0]} on {where}: its period covers their compute added up"
-        return f"Executor {executor.name} runs {nodes} in one thread (never at once): {how}."
+        return f"{runs}: {how}."
     how = f"subchains {', '.join(subs)} share {where}, one slot after the other"
     turns = plan_turns(executor, plan, problem, spec.schedule)
     if turns is None:
-        return f"Executor {executor.name} runs {nodes} in one thread (never at once): {how}."
+        return f"{runs}: {how}."
     rate = max(turns.rates, key=lambda rate: rate.longest_wait_ms)
     note = (
-        f"Executor {executor.name} runs {nodes} in one thread (never at once): {how}; a run may wait for "
+        f"{runs}: {how}; a run may wait for "
         f"the others' to end, up to about {rate.longest_wait_ms:.1f} ms for {rate.node} behind {rate.blocked_by} "
         f"({turns.member(rate.blocked_by).compute_ms:.3g} ms of compute, at what the slack and the other subchains "
         "leave of the core), which the plan's latencies do not count."
     )
+    # The objective as run counts every thread's losses: said once, after the first thread that takes turns.
+    taking_turns = [e for e in problem.executors if plan_turns(e, plan, problem, spec.schedule) is not None]
     as_run = objective_as_run(plan, problem, spec.schedule)
-    if as_run > plan.objective * (1 + 1e-9):
+    if executor == taking_turns[0] and as_run > plan.objective * (1 + 1e-9):
+        whose = "it" if len(taking_turns) == 1 else "the threads of " + ", ".join(e.name for e in taking_turns)
         note += (
-            f" With the triggers lost to it counted, the objective as run is about {as_run:.3f} ms, "
+            f" With the triggers lost to {whose} counted, the objective as run is about {as_run:.3f} ms, "
             f"{as_run / plan.objective - 1:.1%} above the plan's."
         )
     offer = cap_offer(spec, problem, plan, executor)
     return note if offer is None else f"{note} {offer.sentence}"
+
+
+def _runs_in_one_thread(executor: Executor) -> str:
+    """``Executor mapper runs GL, GM in one thread (never at once)``, and the process that makes it one, if any."""
+    nodes = ", ".join(executor.nodes)
+    if executor.process is None:
+        return f"Executor {executor.name} runs {nodes} in one thread (never at once)"
+    what = f"Process {executor.process}" if executor.name == executor.process else f"Executor {executor.name}"
+    also = "" if executor.name == executor.process else f", the nodes of process {executor.process}"
+    return f"{what} runs {nodes}{also} in one thread (never at once; {executor.why})"
 
 
 def allocation_text(allocation: Allocation) -> str:

@@ -413,4 +413,20 @@ def report_blocks(explanation: Explanation) -> list[Block]:
     blocks.append(Bullets(explanation.warnings) if explanation.warnings else Paragraph("none"))
     blocks.append(Heading("6. Baseline"))
     blocks += _baseline_section(explanation)
+    if explanation.processes:
+        blocks += [Heading("7. Processes"), _process_table(explanation)]
     return blocks
+
+
+def _process_table(explanation: Explanation) -> TableBlock:
+    """Each process the launchers start: its nodes, the union of their cores, the highest of their levels, and
+    whether its nodes are planned as one executor (one thread) and why."""
+    rows = tuple(
+        (view.key, ", ".join(view.nodes), ",".join(str(c) for c in view.cores) or "-", str(view.level), view.threads)
+        for view in explanation.processes
+    )
+    return TableBlock(
+        _columns(("process", "nodes", "cores", "FIFO", "threads"), left=("process", "nodes", "threads")),
+        rows,
+        footer="cores: the union of its nodes' cores; FIFO: the highest of their resting levels, at launch.",
+    )

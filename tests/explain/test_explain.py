@@ -12,6 +12,7 @@ from collections import Counter
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
+from typing import Any
 
 import pytest
 from rich.console import Console
@@ -31,6 +32,7 @@ from catanc.explain.blocks import (
     Paragraph,
     Preformatted,
     TableBlock,
+    _process_table,
     report_blocks,
     timeline_bar,
 )
@@ -38,6 +40,7 @@ from catanc.explain.markdown import blocks_markdown, render_markdown
 from catanc.explain.terminal import render
 from catanc.planning.planner import plan
 from catanc.planning.types import Plan
+from tests.support.strategies import spec_of
 
 ROOT = Path(__file__).parents[2]
 SPECS = ROOT / "specs"
@@ -468,8 +471,9 @@ def test_markdown_is_a_well_formed_reproducible_document(report: Report) -> None
     assert lines[0].startswith(f"**{report.name} on {report.cores} core")
     assert [line for line in lines if line != line.rstrip()] == []
     headings = [line for line in lines if line.startswith("#")]
-    assert len(headings) == len(SECTIONS)
-    assert all(h.startswith(f"## {s}") for h, s in zip(headings, SECTIONS, strict=True))
+    expected = SECTIONS + (("7. Processes",) if report.explanation.processes else ())  # with a deploy section
+    assert len(headings) == len(expected)
+    assert all(h.startswith(f"## {s}") for h, s in zip(headings, expected, strict=True))
     # Each shared core's timeline bar sits in a fenced block with its legend (it is made of `|`, `.` and letters).
     fenced = [lines[i + 1] for i, line in enumerate(lines) if line == "```" and lines[i + 3] == "```"]
     assert fenced == [timeline_bar(view) for view in report.explanation.shared]
@@ -598,3 +602,60 @@ def test_explain_says_when_no_offered_rate_fits() -> None:
     (note,) = explanation.offered
     assert "picked 15 Hz (none fits: planned at 11.31 Hz, the bounds scaled by 1.326)" in note
     assert any("none of the rates its driver offers (15, 30 Hz) can be met" in w for w in explanation.warnings)
+# --------------------------------------------------------------------------- processes
+
+
+def test_processes_are_shown_with_their_cores_level_and_threads() -> None:
+    spec = load_spec(SPECS / "nav2d.yaml")
+    problem = build_problem(spec)
+    result = plan(spec, 3)
+    explanation = explain_plan(spec, problem, result)
+    rows = {row[0]: row for row in _process_table(explanation).rows}
+    assert list(rows) == ["/Mapper", "/Navigator", "/Operator", "/scan_shim"]  # as runtime.json lists them
+    for key, nodes in (("/Mapper", ["GL", "GM"]), ("/Navigator", ["GP", "NC"]), ("/Operator", ["LM", "LP"])):
+        # By hand from the plan: the union of the nodes' subchains' cores, the highest resting level.
+        subs = [result.subchains[problem.subchain_of(node).name] for node in nodes]
+        cores = sorted({core for sub in subs for core in sub.cores})
+        level = max(1 if sub.shared else 2 for sub in subs)
+        assert rows[key][1:4] == (", ".join(nodes), ",".join(map(str, cores)), str(level))
+    assert rows["/Mapper"][4].startswith("one executor (executors.mapper): no node names a callback group")
+    assert rows["/Navigator"][4].startswith("one executor: no node names a callback group")
+    assert rows["/scan_shim"][4] == "one scheduled node"
+    text = flat(runner.invoke(app, ["explain", str(SPECS / "nav2d.yaml"), "-k", "3", "--width", "200"]).output)
+    assert "7. Processes" in text
+    assert "Process /Navigator runs GP, NC in one thread (never at once; no node names a callback group" in text
+    assert "Executor mapper runs GL, GM, the nodes of process /Mapper in one thread" in text
+
+
+@pytest.mark.parametrize(
+    ("extra", "threads"),
+    [
+        ({"a": {"command": "python3 app.py"}}, "one executor: a Python process (python3): the interpreter lock"),
+        (
+            {
+                "a": {"ros_node": "/a", "callback_group": "/a@Timer(1000)"},
+                "b": {"ros_node": "/b", "callback_group": "/b@Timer(1000)"},
+            },
+            "may run at once: a, b name callback groups: a callback-isolated executor runs each group in a thread",
+        ),
+    ],
+)
+def test_a_process_says_why_its_nodes_are_one_executor_or_not(extra: dict[str, Any], threads: str) -> None:
+    deploy: dict[str, Any] = {"a": {"process": "app", "command": "ros2 run demo app"}, "b": {"process": "app"}}
+    for node, fields in extra.items():
+        deploy[node] = deploy[node] | fields
+    spec = spec_of(
+        {
+            "catan": 1,
+            "app": "two",
+            "nodes": {"a": {"compute_ms": 1.0}, "b": {"compute_ms": 2.0}},
+            "subchains": {"A": ["a"], "B": ["b"]},
+            "objective": [{"node": "a", "weight": 1.0}],
+            "deploy": deploy,
+        }
+    )
+    problem = build_problem(spec)
+    (view,) = explain_plan(spec, problem, plan(spec, 1)).processes
+    assert (view.key, view.nodes, view.cores) == ("app", ("a", "b"), (0,))
+    assert view.threads.startswith(threads)
+    assert (view.executor is not None) == threads.startswith("one executor")
