@@ -83,6 +83,16 @@ class App(Node):  # type: ignore[misc]
         burn(self.options.burn_ms)
 
 
+def signal_thread_done(timeout_s: float = 1.0) -> None:
+    """Wait, after a KeyboardInterrupt, until rclpy's signal thread has shut the context down. That thread
+    triggers every executor's SIGINT guard condition first, through raw pointers: an executor destroyed before
+    it is done is a use-after-free in rclpy (a SIGSEGV 1 run in 3 here, when the executor's thread, woken by
+    catanc's trigger, reaches the KeyboardInterrupt before the signal thread gets the CPU)."""
+    deadline = time.monotonic() + timeout_s
+    while rclpy.ok() and time.monotonic() < deadline:
+        time.sleep(0.002)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser()
     parser.add_argument("role", choices=["head", "sub", "plain"])
@@ -104,7 +114,9 @@ def main() -> int:
     say(event="spinning", main=main_tid)
     try:
         executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
+    except KeyboardInterrupt:
+        signal_thread_done()
+    except ExternalShutdownException:
         pass
     except catanc_ros.CatancRosError as exc:
         say(event="error", text=str(exc))

@@ -87,7 +87,9 @@ def spin(make_node: Callable[[], Node]) -> None:
         # neither in a callback nor at exit (where walking it took ~2 s of Ctrl-C on a loaded CPU, 0.3 s frozen).
         gc.freeze()
         rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
+    except KeyboardInterrupt:
+        signal_thread_done()
+    except ExternalShutdownException:
         pass
     except RuntimeError:  # rclpy's RCLError
         if rclpy.ok():  # else a signal shut the context down while the node was being made
@@ -99,6 +101,16 @@ def spin(make_node: Callable[[], Node]) -> None:
     records = getattr(node, "records", None)
     if isinstance(records, Records):
         records.exited()
+
+
+def signal_thread_done(timeout_s: float = 1.0) -> None:
+    """Wait, after Ctrl-C, until rclpy's signal thread has shut the context down: it triggers the executors'
+    SIGINT guard conditions first, through raw pointers, and a node or executor destroyed before it is done
+    is a use-after-free in rclpy (a SIGSEGV at exit, more likely when catanc's trigger wakes the executor
+    before that thread gets the CPU)."""
+    deadline = time.monotonic() + timeout_s
+    while rclpy.ok() and time.monotonic() < deadline:
+        time.sleep(0.002)
 
 
 def shut_down() -> None:
