@@ -223,6 +223,16 @@ def check_against_enumeration(document: dict[str, Any], cores: int, *, loose: bo
         assert capped is not None
         assert capped.objective >= expected * (1 - 1e-6)
         assert capped.objective * (1 - capped.gap) <= expected * (1 + 1e-6)
+        # Past the node limit without a plan better than the cutoff, the search goes on best first:
+        # a plan below the cutoff when one exists (its gap bracketing the optimum), None when none does.
+        for cutoff in (expected * (1 + 1e-3), expected * (1 - 1e-3)):
+            late = solve_integer(model, problem, scale, enumerate_up_to=0, node_limit=1, cutoff=cutoff)
+            if cutoff < expected:
+                assert late is None
+                continue
+            assert late is not None
+            assert expected * (1 - 1e-6) <= late.objective < cutoff
+            assert late.objective * (1 - late.gap) <= expected * (1 + 1e-6)
 
 
 # Two one-node subchains a (2 ms), b (4 ms) on one core, no slack or switch cost, periods weighted 1:

@@ -9,12 +9,23 @@ finite because the minimum slice caps ``n_i <= c_i / min_slice``; the search
 explores the child holding the relaxed value's nearest integer first and
 prunes by the incumbent, which starts as the rounded root relaxation.
 
+Depth first finds a plan within a few dives where the leaves' exact values
+are near their relaxations.  Where the rate caps put them far above (whole
+trigger counts: Autoware on 2 cores, 1.5%), dives can end in leaves no
+better than the cutoff for thousands of relaxations.  Past the node limit
+without a plan, the search therefore turns best first: the open box with
+the least bound next, its relaxation's rounded point evaluated exactly (a
+plan below the cutoff within ~10 boxes there, not ~1,700).  Both orders
+are exact; the node limit then stops at the first plan, its gap proven.
+
 (A throwaway prototype of the model rounded floor/ceil and searched
 neighbourhoods; that missed the integer optimum by up to 0.95%.)
 """
 
 from __future__ import annotations
 
+import heapq
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -163,14 +174,28 @@ def solve_integer(
     if best is None or best[1] != rounded:
         offer(rounded)
 
-    stack: list[tuple[Box, RelaxedSolution]] = [(root, first)]
-    while stack:
-        if node_limit is not None and nodes >= node_limit and best is not None:
-            open_bound = min(solution.objective for _, solution in stack)
-            return _result(best, first, nodes, gap=max(0.0, (best[0] - open_bound) / best[0]) if best[0] else 0.0)
-        box, solution = stack.pop()
-        if solution.objective >= threshold * (1 - tolerance):
+    # Open boxes with their bounds and the order they were found in: a stack (depth first) until
+    # the node limit passes without a plan, then a heap by bound (best first, ties: found first).
+    created = itertools.count()
+    boxes: list[tuple[float, int, Box, RelaxedSolution]] = [(first.objective, next(created), root, first)]
+    best_first = False
+    while boxes:
+        if node_limit is not None and nodes >= node_limit:
+            if best is not None:
+                open_bound = min(bound for bound, _, _, _ in boxes)
+                return _result(best, first, nodes, gap=max(0.0, (best[0] - open_bound) / best[0]) if best[0] else 0.0)
+            if not best_first:
+                best_first = True
+                heapq.heapify(boxes)
+        bound, _, box, solution = heapq.heappop(boxes) if best_first else boxes.pop()
+        if bound >= threshold * (1 - tolerance):
+            if best_first:
+                break  # and every box still open: none has a lower bound
             continue
+        if best_first and fixed is not None:  # its rounded point: a plan sooner than the leaves give one
+            offer({name: (r, r) for name, r in _nearest(solution, model.integral, box).items()})
+            if best is not None:  # past the node limit: stop with it (this box's bound is the least open)
+                return _result(best, first, nodes, gap=max(0.0, (best[0] - bound) / best[0]) if best[0] else 0.0)
         branch = _most_fractional(solution, model.integral, box, rank)
         if branch is None:  # whole already: evaluate exactly with n fixed
             point = _nearest(solution, model.integral, box)
@@ -191,10 +216,14 @@ def solve_integer(
             below = {**box, name: (low, math.floor(runs))}
             above = {**box, name: (math.ceil(runs), high)}
             children = [below, above] if runs - math.floor(runs) < 0.5 else [above, below]
-        for child in reversed(children):  # the nearer child is explored first
+        for child in reversed(children):  # the nearer child is explored first (depth first)
             relaxed = relax(child)
             if relaxed is not None and relaxed.objective < threshold * (1 - tolerance):
-                stack.append((child, relaxed))
+                entry = (relaxed.objective, next(created), child, relaxed)
+                if best_first:
+                    heapq.heappush(boxes, entry)
+                else:
+                    boxes.append(entry)
     return _result(best, first, nodes)
 
 
