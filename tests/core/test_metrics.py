@@ -16,7 +16,9 @@ from hypothesis import strategies as st
 from catanc.core.build import build_problem
 from catanc.core.load import load_spec, parse_spec
 from catanc.core.metrics import (
+    QUICK_MARGIN,
     Timing,
+    WeightedSums,
     chain_metrics,
     chain_metrics_of,
     dedicated_timing,
@@ -180,3 +182,19 @@ def test_chain_forms_agree_with_the_stage_by_stage_reference(problem: Problem, d
         updated = problem.with_compute({first.nodes[0]: 7.5})
         assert updated.chain_forms == problem.chain_forms
         assert updated.subchain(first.name).node_compute_ms[0] == 7.5
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(problem=problems(max_subchains=6), data=st.data())
+def test_weighted_sums_agree_with_the_terms_one_by_one(problem: Problem, data: st.DataObject) -> None:
+    # The search rules a choice out when the per-subchain sums put it QUICK_MARGIN above a threshold:
+    # they must be within far less than that of the objective as section 2 states it, term by term.
+    positive = st.floats(0.01, 1000, allow_nan=False)
+    timings = {sub.name: Timing(data.draw(positive), data.draw(positive)) for sub in problem.subchains}
+    terms = [
+        term.weight * evaluate_chain(problem, problem.chains[term.chain], timings).response_ms
+        for term in problem.response_terms
+    ]
+    terms += [term.weight * timings[term.subchain].period_ms for term in problem.period_terms]
+    reference = math.fsum(terms)
+    assert WeightedSums.of(problem).value(timings) == pytest.approx(reference, rel=QUICK_MARGIN / 1000, abs=1e-12)

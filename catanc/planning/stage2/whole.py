@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from catanc.core.metrics import Timing, bound_scale, capped_dedicated, objective
+from catanc.core.metrics import QUICK_MARGIN, Timing, WeightedSums, bound_scale, capped_dedicated, objective
 from catanc.core.problem import Problem
 from catanc.planning.stage2.base import (
     RelaxedSolution,
@@ -72,6 +72,7 @@ class WholeRuns:
             for name, k in model.layout.dedicated
         }
         self.by_name = {sub.name: sub for sub in problem.subchains}
+        self.quick = WeightedSums.of(problem)
 
     @staticmethod
     def applies(model: Stage2Model, problem: Problem) -> bool:
@@ -91,8 +92,12 @@ class WholeRuns:
         batch: Mapping[str, float] | None = None,
         lengths: Mapping[int, float] | None = None,
         aligned: bool = True,
+        above: float = math.inf,
     ) -> RelaxedSolution | None:
         """The plan with these runs at these schedule lengths (None: it misses the scaled bounds).
+
+        Its objective is :func:`~catanc.core.metrics.objective`'s, or where :class:`WeightedSums` puts it
+        clearly above ``above`` that estimate (within rounding of it): the caller only rejects it then.
 
         ``batch`` gives each batch subchain's fraction, chosen by the caller
         (:mod:`catanc.planning.stage2.onebatch`); without batch subchains it is empty.
@@ -124,8 +129,12 @@ class WholeRuns:
             value = max(1.0, needed)
         elif needed > scale * (1 + FEASIBILITY):
             return None
+        elif not self.problem.weighted:
+            value = math.fsum(chosen.values())
         else:
-            value = objective(self.problem, timings) if self.problem.weighted else math.fsum(chosen.values())
+            value = self.quick.value(timings)
+            if value <= above * (1 + QUICK_MARGIN):
+                value = objective(self.problem, timings)
         return RelaxedSolution(
             core_period_ms=chosen,
             fraction=fractions,
@@ -143,7 +152,7 @@ class WholeRuns:
         """
         if self.aligned_matters:
             return self.exact(runs, scale, least_scale=least_scale, cutoff=cutoff)
-        return self.solve(runs, scale, least_scale=least_scale)
+        return self.solve(runs, scale, least_scale=least_scale, above=cutoff)
 
     def capped(self, core: SharedCore) -> list[str]:
         """The core's non-batch subchains with a rate cap or a fixed rate (their ``k`` may exceed ``n``)."""
@@ -175,16 +184,24 @@ class WholeRuns:
         ``leaf`` and ``relaxed_leaf`` score a choice of lengths exactly and relaxed (default: this
         module's :meth:`solve`; the relaxed one a lower bound that grows with every ``T``).
         """
+        best: RelaxedSolution | None = None
+
+        def threshold() -> float:
+            return cutoff if best is None else best.objective
+
         if leaf is None:
 
             def leaf(chosen: dict[int, float]) -> RelaxedSolution | None:
-                return self.solve(runs, scale, least_scale=least_scale, batch=batch, lengths=chosen)
+                return self.solve(runs, scale, least_scale=least_scale, batch=batch, lengths=chosen, above=threshold())
 
         if relaxed_leaf is None:
 
             def relaxed_leaf(chosen: dict[int, float]) -> float | None:
-                found = self.solve(runs, scale, least_scale=least_scale, batch=batch, lengths=chosen, aligned=False)
-                return None if found is None else found.objective
+                # A bound only: the estimate, lowered past its rounding (never prunes more than the exact one).
+                found = self.solve(
+                    runs, scale, least_scale=least_scale, batch=batch, lengths=chosen, aligned=False, above=-math.inf
+                )
+                return None if found is None else found.objective * (1 - QUICK_MARGIN)
 
         fractions = {name: 1.0 / runs[name] for name in self.shared if name in runs}  # a searched core's
         searched = [core for core in self.layout.shared if core.core not in fixed_cores and self.capped(core)]
@@ -195,14 +212,13 @@ class WholeRuns:
             )
             for core in searched
         ]
-        best: RelaxedSolution | None = None
 
         def visit(level: int, chosen: dict[int, float], known: float | None) -> None:
             """Search the cores from ``level`` on; ``known`` is ``chosen``'s bound (NaN: not computed)."""
             nonlocal best
             if level == len(searched):
                 found = leaf(chosen)
-                if found is not None and found.objective < (cutoff if best is None else best.objective):
+                if found is not None and found.objective < threshold():
                     best = found
                 return
             for index, length in enumerate(options[level]):
@@ -210,7 +226,7 @@ class WholeRuns:
                 # The cores not chosen yet at the least T: a lower bound. The first option is that
                 # least T, so its bound is the one ``chosen`` already has.
                 bound = known if index == 0 and not _unknown(known) else relaxed_leaf(trial)
-                if bound is None or bound >= (cutoff if best is None else best.objective):
+                if bound is None or bound >= threshold():
                     break  # and every longer T of this core: the relaxation only grows with it
                 visit(level + 1, trial, bound)
 
