@@ -28,9 +28,10 @@ from catanc.core.build import build_problem
 from catanc.core.metrics import Timing, bound_scale, capped_dedicated, evaluate_chain, objective
 from catanc.core.problem import Problem
 from catanc.planning.stage1 import allocate
+from catanc.planning.stage2.conic import ConicStage2
 from catanc.planning.stage2.integer import most_runs, solve_integer
 from catanc.planning.stage2.relaxed import Layout, RelaxedStage2
-from catanc.planning.stage2.whole import ENUMERATE_UP_TO
+from catanc.planning.stage2.whole import ENUMERATE_UP_TO, WholeRuns
 from catanc.spec.language import Schedule, Spec
 from tests.support.strategies import spec_documents, spec_of
 
@@ -263,3 +264,34 @@ def test_integer_optimum_by_hand() -> None:
     assert searched is not None
     assert searched.objective == pytest.approx(found.objective, rel=1e-7)
     assert searched.root_bound == pytest.approx(6 + 4 * math.sqrt(2), rel=1e-6)
+
+
+@pytest.mark.slow
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(app=small_apps(), data=st.data())
+def test_box_bound_is_below_the_relaxation_and_every_plan_in_the_box(
+    app: tuple[dict[str, Any], int], data: st.DataObject
+) -> None:
+    # The search prunes a box unsolved when this bound reaches the threshold: it must not exceed the
+    # relaxation over the box (else it would prune a box the relaxation keeps), nor any plan in it.
+    document, cores = app
+    spec, problem, layout = planned(document, cores)
+    assume(bool(layout.shared) and problem.weighted)
+    model = ConicStage2(problem, layout, spec.schedule)
+    assume(WholeRuns.applies(model, problem))
+    box: dict[str, tuple[int, int]] = {}
+    for core in layout.shared:
+        for name in core.subchains:
+            most = most_runs(problem.subchain(name).compute_ms, spec.schedule)
+            low = data.draw(st.integers(1, most))
+            box[name] = (low, data.draw(st.integers(low, most)))
+    bound = WholeRuns(model, problem).box_bound(box)
+    model.set_box(box)
+    relaxed = model.solve(1e6)
+    assert relaxed is not None
+    assert bound <= relaxed.objective * (1 + 1e-7)
+    names = list(box)
+    for combo in itertools.product(*(range(low, high + 1) for low, high in box.values())):
+        runs = dict(zip(names, combo, strict=True))
+        for every in intervals(problem, layout, spec.schedule, runs):
+            assert bound <= objective(problem, closed_form(problem, layout, spec.schedule, runs, every)) * (1 + 1e-9)

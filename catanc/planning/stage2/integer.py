@@ -45,6 +45,10 @@ the relaxation's own accuracy (Clarabel: ~1e-8): where the objective does not de
 whole boxes tie with the incumbent and a tighter tolerance would explore every one of them (a
 subchain in no weighted term took 11,055 relaxations, 50 s). The optimum is exact to this."""
 
+SCREEN_MARGIN = 1e-6
+"""Relative: a box whose bound without a solver is this far above the pruning threshold is pruned
+unsolved (beyond the relaxation's own accuracy, ~1e-9, so that the solver would have pruned it)."""
+
 UNBOUNDED_RUNS = 10_000
 """The cap on ``n`` when no minimum slice bounds it (``min_slice_ms: 0``)."""
 
@@ -136,11 +140,18 @@ def solve_integer(
         value = found.solution.objective
         return IntegerSolution(found.runs, found.solution, value, root_bound=value, nodes=0)
 
-    def relax(box: Box) -> RelaxedSolution | None:
+    # A child box whose bound without a solver already reaches the pruning threshold is not solved:
+    # the relaxation (at least that bound) would prune it too. It still counts as a relaxation, so
+    # that node limits stop where they did (the same plans; Autoware at K=2: ~9% of solves saved).
+    screen = whole.box_bound if whole is not None and problem.weighted and not least_scale else None
+
+    def relax(box: Box, prune_at: float = math.inf) -> RelaxedSolution | None:
         nonlocal nodes
         nodes += 1
         if effort is not None:
             effort.relaxations += 1
+        if screen is not None and prune_at < math.inf and screen(box) >= prune_at * (1 + SCREEN_MARGIN):
+            return None
         model.set_box(box)
         return model.solve_least_scale() if least_scale else model.solve(scale)
 
@@ -217,7 +228,7 @@ def solve_integer(
             above = {**box, name: (math.ceil(runs), high)}
             children = [below, above] if runs - math.floor(runs) < 0.5 else [above, below]
         for child in reversed(children):  # the nearer child is explored first (depth first)
-            relaxed = relax(child)
+            relaxed = relax(child, prune_at=threshold * (1 - tolerance))
             if relaxed is not None and relaxed.objective < threshold * (1 - tolerance):
                 entry = (relaxed.objective, next(created), child, relaxed)
                 if best_first:

@@ -142,6 +142,26 @@ class WholeRuns:
             objective=value,
         )
 
+    def box_bound(self, box: Mapping[str, tuple[int, int]]) -> float:
+        """A lower bound on the relaxation's objective over ``box`` (weighted problems), without a solver.
+
+        Each core's ``T`` is at least what fits the slices at the box's largest runs (and the minimum
+        slice); each latency ``T / f`` at least ``low T``, each period at least that and ``p_min``;
+        the objective grows with each of them.  The estimate is lowered past its rounding.
+        """
+        timings = dict(self.dedicated)
+        usable = 1.0 - self.schedule.slack
+        for core in self.layout.shared:
+            load = 0.0
+            for name in core.subchains:
+                compute = self.by_name[name].compute_ms
+                load += max(compute / box[name][1], min(self.schedule.min_slice_ms, compute))
+            length = (load + len(core.subchains) * self.schedule.switch_ms) / usable
+            for name in core.subchains:
+                latency = box[name][0] * length
+                timings[name] = Timing(max(latency, self.by_name[name].min_period_ms), latency)
+        return self.quick.value(timings) * (1 - QUICK_MARGIN)
+
     def fixed_runs(
         self, runs: dict[str, int], scale: float, *, least_scale: bool, cutoff: float = math.inf
     ) -> RelaxedSolution | None:
