@@ -32,11 +32,13 @@ from catanc.planning.order import data_flow_order, flow_weights, priorities
 from catanc.planning.stage1 import Allocation, Stage1Result, allocate, next_best
 from catanc.planning.stage1.exhaustive import every_allocation
 from catanc.planning.stage2.base import Layout, SharedCore, Stage2Model
+from catanc.planning.stage2.convex import Open
 from catanc.planning.stage2.integer import Effort
 from catanc.planning.stage2.solve import (
     SCALE_PRECISION,
     Stage2Result,
     better,
+    closed_fixed_plan,
     fixed_rate_conflicts,
     lower_bound,
     solve_layout,
@@ -202,9 +204,12 @@ def plan_problem(
         # The winner's numbers come from the model of record, at the runs the search chose.
         scale = 1.0 if best.scale <= 1.0 + SCALE_PRECISION else best.scale * (1 + SCALE_PRECISION)
         fixed = (best.runs, scale)
-        record = solve_layout(
-            problem, best.layout, schedule, new_model(problem, best.layout, schedule, "cvxpy"), fixed=fixed
-        )
+        # Where the closed form gives the plan (rate caps on shared subchains), no solver runs: the model
+        # of record is then not built, nor cvxpy imported (~1 s of a whole process, Autoware).
+        model = conic_model(cache, problem, best.layout, schedule)
+        if model is None or isinstance(closed_fixed_plan(model, *fixed), Open):
+            model = new_model(problem, best.layout, schedule, "cvxpy")
+        record = solve_layout(problem, best.layout, schedule, model, fixed=fixed)
         if record is not None:
             best = replace(record, gap=best.gap, relaxations=best.relaxations, offered=best.offered)
     comparison = TwoStageComparison(

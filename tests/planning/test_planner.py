@@ -269,3 +269,20 @@ def test_a_capped_integer_search_says_how_close_it_is(monkeypatch: pytest.Monkey
     gap = float(notes[0].split("within ")[1].split("%")[0]) / 100
     assert exact.objective <= capped.objective * (1 + 1e-9)
     assert capped.objective * (1 - gap) <= exact.objective * (1 + 1e-5)
+
+
+def test_a_plan_from_the_closed_form_leaves_cvxpy_unloaded() -> None:
+    # nav2d's shared subchains have rate caps, so its plan's numbers come from the closed form: the
+    # model of record (cvxpy, ~1 s to import) is then not built. A fresh interpreter shows it.
+    import subprocess
+    import sys
+
+    script = (
+        "import sys\n"
+        "from catanc.core.load import load_spec\n"
+        "from catanc.planning.planner import plan\n"
+        f"plan(load_spec({str(SPECS / 'nav2d.yaml')!r}), 2)\n"
+        "print('cvxpy' in sys.modules)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", script], check=True, capture_output=True, text=True, timeout=120)
+    assert done.stdout.strip() == "False"

@@ -40,7 +40,7 @@ from catanc.core.metrics import Timing, bound_scale, capped_dedicated, objective
 from catanc.core.problem import Problem
 from catanc.errors import InfeasibleError
 from catanc.planning.stage2.base import Layout, Stage2Model, aligned_every, schedule_length
-from catanc.planning.stage2.convex import Open
+from catanc.planning.stage2.convex import OPEN, Open
 from catanc.planning.stage2.integer import Effort, IntegerSolution, closed_form, solve_integer
 from catanc.planning.stage2.turns import LayoutTurns
 from catanc.spec.language import Schedule
@@ -434,16 +434,25 @@ def _integer_plan(
     return solve_integer(model, problem, scale, start=least.runs, gap=gap, node_limit=node_limit, effort=effort)
 
 
+def closed_fixed_plan(model: Stage2Model, runs: dict[str, int], scale: float) -> IntegerSolution | Open | None:
+    """The plan with these runs by the exact closed form, where some ``k`` can exceed ``n`` (None: they miss
+    the bounds so scaled); OPEN where the model's relaxation gives it. The closed form reads only the
+    model's layout and schedule: with it, which model (cvxpy's or the conic one) makes no difference."""
+    closed = closed_form(model, model.problem)
+    if closed is None or not closed.aligned_matters:
+        return OPEN
+    found = closed.fixed_runs(runs, scale, least_scale=False)
+    if found is None or isinstance(found, Open):
+        return found
+    return IntegerSolution(dict(runs), found, found.objective, root_bound=found.objective, nodes=0)
+
+
 def _fixed_plan(model: Stage2Model, runs: dict[str, int], scale: float) -> IntegerSolution | None:
     """The plan with these runs: the model's relaxation, or the exact closed form where some ``k`` can exceed
     ``n`` (the relaxation then leaves ``k`` continuous: a bound, not a plan)."""
-    closed = closed_form(model, model.problem)
-    if closed is not None and closed.aligned_matters:
-        found = closed.fixed_runs(runs, scale, least_scale=False)
-        if found is None:
-            return None
-        if not isinstance(found, Open):
-            return IntegerSolution(dict(runs), found, found.objective, root_bound=found.objective, nodes=0)
+    closed = closed_fixed_plan(model, runs, scale)
+    if not isinstance(closed, Open):
+        return closed
     model.set_box({name: (n, n) for name, n in runs.items()})
     solution = model.solve(scale)
     if solution is None:
