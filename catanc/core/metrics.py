@@ -14,11 +14,12 @@ module evaluates.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 
-from catanc.core.problem import Chain, ChainForm, Problem, Stage, Subchain, chain_form
+from catanc.core.problem import Chain, ChainForm, PeriodTerm, Problem, ResponseTerm, Stage, Subchain, chain_form
 
 __all__ = ["ChainForm", "chain_form"]  # re-exported: the solvers' view of a chain lives with the problem
 
@@ -208,12 +209,23 @@ class WeightedSums:
 
     @classmethod
     def of(cls, problem: Problem) -> WeightedSums:
+        # Cached by the terms and the chains' forms, which re-planning with new compute times keeps
+        # (~0.4 ms to gather for Autoware, against a ~6 ms warm re-solve).
+        return _weighted_sums(problem.chain_forms, problem.response_terms, problem.period_terms)
+
+    @classmethod
+    def gather(
+        cls,
+        forms: tuple[ChainForm, ...],
+        response_terms: tuple[ResponseTerm, ...],
+        period_terms: tuple[PeriodTerm, ...],
+    ) -> WeightedSums:
         latency: dict[str, float] = {}
         period: dict[str, float] = {}
         longest: dict[tuple[float, tuple[str, ...]], float] = {}
         constant = 0.0
-        for term in problem.response_terms:
-            form = problem.chain_forms[term.chain]
+        for term in response_terms:
+            form = forms[term.chain]
             for name in form.latency_of:
                 latency[name] = latency.get(name, 0.0) + term.weight
             for name in form.period_of:
@@ -221,7 +233,7 @@ class WeightedSums:
             constant += term.weight * form.constant
             key = (form.floor, tuple(sorted(set(form.longest_of))))
             longest[key] = longest.get(key, 0.0) + term.weight
-        for period_term in problem.period_terms:
+        for period_term in period_terms:
             period[period_term.subchain] = period.get(period_term.subchain, 0.0) + period_term.weight
         return cls(
             latency=tuple(latency.items()),
@@ -239,3 +251,10 @@ class WeightedSums:
         for weight, floor, names in self.longest:
             total += weight * max([floor, *(timings[name].period_ms for name in names)])
         return total
+
+
+@functools.lru_cache(maxsize=16)
+def _weighted_sums(
+    forms: tuple[ChainForm, ...], response_terms: tuple[ResponseTerm, ...], period_terms: tuple[PeriodTerm, ...]
+) -> WeightedSums:
+    return WeightedSums.gather(forms, response_terms, period_terms)
