@@ -131,6 +131,8 @@ class WholeRuns:
             return None
         elif not self.problem.weighted:
             value = math.fsum(chosen.values())
+        elif above == math.inf:  # every value is of interest: no estimate first
+            value = objective(self.problem, timings)
         else:
             value = self.quick.value(timings)
             if value <= above * (1 + QUICK_MARGIN):
