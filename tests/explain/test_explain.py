@@ -602,6 +602,8 @@ def test_explain_says_when_no_offered_rate_fits() -> None:
     (note,) = explanation.offered
     assert "picked 15 Hz (none fits: planned at 11.31 Hz, the bounds scaled by 1.326)" in note
     assert any("none of the rates its driver offers (15, 30 Hz) can be met" in w for w in explanation.warnings)
+
+
 # --------------------------------------------------------------------------- processes
 
 
