@@ -58,8 +58,8 @@ from typing import Any
 
 from benchmarks.wake_cost import build_c_loop, c_loop, c_loop_argv, parsed_per_wake_us
 from catanc.artifacts.runtime_table import PlanPayload, load_table
-from catanc.runtime.log import read_log
-from catanc.runtime.processes import demo_profiles
+from catanc.runtime.enforcer.processes import demo_profiles
+from catanc.runtime.logs.writer import read_log
 from catanc.runtime.worker.command import worker_command
 from catanc.runtime.worker.draws import Profile
 
@@ -125,7 +125,7 @@ class Tree:
         the tree's bytecode, as ``pip install`` does (without it every run compiled catanc's modules again at its
         start: ~0.13 s of CPU for the enforcer and its planner, measured 2026-11-29)."""
         found = subprocess.run(
-            [self.python, "-c", "import catanc, catanc.runtime.planning; print(catanc.__file__)"],
+            [self.python, "-c", "import catanc, catanc.runtime.enforcer.reoptimiser; print(catanc.__file__)"],
             cwd=self.cwd,
             env=self.env,
             capture_output=True,

@@ -9,9 +9,9 @@ Per spec: ``catanc compile`` into a temporary folder, ``catanc run --demo`` for 
 figure, the proposed one and how far off (the workers burn exactly the spec's profile), then
 whether ``--write`` followed by ``--check --tolerance 0`` round-trips, and the load average.
 Beside the proposal, the p95 of the clients' own figures, and for heads what the kernel said of
-every 8th run (``catanc.runtime.runs``): by how much its count exceeded the client's figure (the
+every 8th run (``catanc.runtime.enforcer.runs``): by how much its count exceeded the client's figure (the
 median: the client's own work around its callback) and on how many checked runs it stood in for
-the client's figure (:func:`catanc.runtime.measure.reconcile`).
+the client's figure (:func:`catanc.control.measure.reconcile`).
 """
 
 from __future__ import annotations
@@ -24,11 +24,11 @@ import sys
 import tempfile
 from pathlib import Path
 
+from catanc.control.measure import percentile
 from catanc.core.load import load_spec
-from catanc.runtime.log import read_log
-from catanc.runtime.measure import percentile
-from catanc.runtime.profile import profile_spec
-from catanc.runtime.samples import MeasurementsError
+from catanc.runtime.logs.samples import MeasurementsError
+from catanc.runtime.logs.writer import read_log
+from catanc.runtime.profile.propose import profile_spec
 
 ROOT = Path(__file__).parents[1]
 

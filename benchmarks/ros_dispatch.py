@@ -31,8 +31,8 @@ import time
 from pathlib import Path
 
 from catanc.core.priorities import ENFORCER_FIFO, RUNNING_FIFO
-from catanc.runtime.endpoints import EnforcerSocket, open_endpoint
-from catanc.runtime.protocol import Hello, Route, Stop, decode, trigger_datagram
+from catanc.runtime.protocol.endpoints import EnforcerSocket, open_endpoint
+from catanc.runtime.protocol.messages import Hello, Route, Stop, decode, trigger_datagram
 
 ROOT = Path(__file__).resolve().parent.parent
 NODE_CPU, ENFORCER_CPU = 0, 1

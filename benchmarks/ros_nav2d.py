@@ -61,10 +61,10 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.enforcer import load, process_cpu_ns
-from catanc.runtime.log import read_log
-from catanc.runtime.log_summary import PlannedRate, summarise
-from catanc.runtime.measure import percentile
-from catanc.runtime.sched import MIDDLEWARE_THREADS, thread_name, threads_of
+from catanc.control.measure import percentile
+from catanc.control.run_summary import PlannedRate, summarise
+from catanc.runtime.linux.sched import MIDDLEWARE_THREADS, thread_name, threads_of
+from catanc.runtime.logs.writer import read_log
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "ros" / "nav2d"

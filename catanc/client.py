@@ -47,7 +47,7 @@ and :attr:`Node.lost` says why: the loop ends cleanly.
 
 This file uses only the standard library, imports nothing else of catanc, and runs on Python
 3.8 and newer: copy it next to a node if catanc is not installed there (``catanc client
---python`` prints its path).  :mod:`catanc.runtime.protocol` documents the protocol
+--python`` prints its path).  :mod:`catanc.runtime.protocol.messages` documents the protocol
 (``catanc/2``) for clients in other languages; ``catanc client --cflags`` gives the C++
 client's include folder.
 """

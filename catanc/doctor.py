@@ -26,9 +26,9 @@ from typing import Any
 from catanc.artifacts.runtime_table import RuntimeTable
 from catanc.core.priorities import ENFORCER_FIFO
 from catanc.errors import CatancError, Diagnostic, SpecError
-from catanc.runtime import compiled_ready
-from catanc.runtime.compiled_ready import LoopState
-from catanc.runtime.sched import check_fifo_allowed, fix_message, format_cpus, privilege_facts
+from catanc.runtime.compiled import ready as compiled_ready
+from catanc.runtime.compiled.ready import LoopState
+from catanc.runtime.linux.sched import check_fifo_allowed, fix_message, format_cpus, privilege_facts
 
 LAUNCH_TOOLS = ("chrt", "setsid", "taskset")
 """What launch.sh runs besides the app (all from util-linux)."""

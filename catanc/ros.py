@@ -388,7 +388,7 @@ class CatancTimer:
 
 def _name_thread(name: str) -> None:
     """The calling thread's name in /proc (its first 15 bytes): ``catanc-<node>`` tells the enforcer it serves the
-    node's thread (catanc.runtime.nodes)."""
+    node's thread (catanc.runtime.enforcer.nodes)."""
     with contextlib.suppress(OSError):
         Path(f"/proc/self/task/{threading.get_native_id()}/comm").write_text(name.encode()[:15].decode(errors="ignore"))
 

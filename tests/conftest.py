@@ -40,7 +40,7 @@ from tests.support.fake_enforcer import FakeEnforcer
 from tests.support.linux import missing_tools, nobody_ids, require_fifo
 
 if TYPE_CHECKING:
-    from catanc.runtime.compiled_entry import WalkEntry
+    from catanc.runtime.compiled.entry import WalkEntry
 
 REALTIME_FIXTURES = frozenset({"real_kernel", "nobody"})
 COMPILED_FIXTURES = frozenset({"compiled_loop_built", "compiled_loop"})
@@ -125,7 +125,7 @@ def compiled_loop_built() -> None:
     seconds.  Without numba it does nothing: the enforcers run the Python loop."""
     if importlib.util.find_spec("numba") is None:
         return
-    from catanc.runtime.compiled_ready import LoopState, build, state
+    from catanc.runtime.compiled.ready import LoopState, build, state
 
     if state() is LoopState.READY:
         return
@@ -137,7 +137,7 @@ def compiled_loop_built() -> None:
 def compiled_loop(compiled_loop_built: None) -> WalkEntry:
     """The compiled loop's entry linked into this process, for a test of it: skips without numba."""
     pytest.importorskip("numba", reason="the compiled loop needs numba")
-    from catanc.runtime.compiled_ready import load
+    from catanc.runtime.compiled.ready import load
 
     return load()
 

@@ -1,7 +1,7 @@
 """The node client and the synthetic worker, against the enforcer's side of the protocol.
 
 :class:`FakeEnforcer` plays the enforcer in the test thread with the enforcer's own socket and
-endpoints (:mod:`catanc.runtime.endpoints`): it welcomes nodes (each with its ring), sends
+endpoints (:mod:`catanc.runtime.protocol.endpoints`): it welcomes nodes (each with its ring), sends
 triggers and routes by hand, and reads what the nodes report from their rings.  Clients run in
 threads, workers in processes.  Every wait has a generous timeout; nothing here measures speed.
 """
@@ -30,8 +30,9 @@ import catanc.client as client_module
 from catanc.client import ClientError, Node, Trigger
 from catanc.core.load import load_spec
 from catanc.core.workload import ComputeSampler
-from catanc.runtime import protocol, ring
-from catanc.runtime.protocol import (
+from catanc.runtime.protocol import messages as protocol
+from catanc.runtime.protocol import ring
+from catanc.runtime.protocol.messages import (
     MAX_NAME,
     SOCKET_ENV,
     Bye,

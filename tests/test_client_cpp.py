@@ -22,8 +22,9 @@ from pathlib import Path
 
 import pytest
 
-from catanc.runtime import protocol, ring
-from catanc.runtime.protocol import Bye, Done, Hello, Reject, Route, Stop, trigger_datagram
+from catanc.runtime.protocol import messages as protocol
+from catanc.runtime.protocol import ring
+from catanc.runtime.protocol.messages import Bye, Done, Hello, Reject, Route, Stop, trigger_datagram
 from tests.support.client_nodes import Run, build_cpp_example, finish, parse_runs, without_enforcer
 from tests.support.fake_enforcer import TIMEOUT_S, FakeEnforcer
 

@@ -14,7 +14,7 @@ import time
 import pytest
 
 from catanc.client import ClientError, Node
-from catanc.runtime.protocol import Route, Stop
+from catanc.runtime.protocol.messages import Route, Stop
 from tests.support.fake_enforcer import TIMEOUT_S, FakeEnforcer
 from tests.test_client import Background
 

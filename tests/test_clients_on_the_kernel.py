@@ -23,7 +23,7 @@ from pathlib import Path
 import pytest
 
 from catanc.core.priorities import RUNNING_FIFO
-from catanc.runtime.watchdog import WATCHDOG_PRIORITY
+from catanc.runtime.linux.watchdog import WATCHDOG_PRIORITY
 from tests.support.client_nodes import (
     Run,
     build_cpp_example,

@@ -16,7 +16,8 @@ from pydantic import BaseModel
 
 from catanc.artifacts import runtime_table
 from catanc.artifacts.compile import Options, compile_spec
-from catanc.runtime import endpoints, protocol, ring
+from catanc.runtime.protocol import endpoints, ring
+from catanc.runtime.protocol import messages as protocol
 from catanc.spec.machine import MACHINE_FORMAT, MachineProfile
 
 ROOT = Path(__file__).resolve().parent.parent

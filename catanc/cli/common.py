@@ -27,7 +27,7 @@ if TYPE_CHECKING:
     from rich.console import Console
 
     from catanc.core.problem import Problem
-    from catanc.runtime.compiled_ready import LoopChoice
+    from catanc.runtime.compiled.ready import LoopChoice
     from catanc.spec.language import Spec
 
 P = ParamSpec("P")

@@ -32,8 +32,8 @@ def profile(
     subchain (hops_ms, its p95) from a run's log."""
     from catanc.artifacts.output import replace_file
     from catanc.errors import UsageError
-    from catanc.runtime.log import read_log_text
-    from catanc.runtime.profile import profile_spec
+    from catanc.runtime.logs.writer import read_log_text
+    from catanc.runtime.profile.propose import profile_spec
     from catanc.spec.parse import read_spec_text
 
     if write and check:

@@ -56,9 +56,7 @@ def run_(
     from catanc.artifacts.runtime_table import load_table
     from catanc.core.priorities import ENFORCER_FIFO
     from catanc.errors import UsageError
-    from catanc.runtime.endpoints import default_socket_path
-    from catanc.runtime.enforcer import Enforcer
-    from catanc.runtime.processes import (
+    from catanc.runtime.enforcer.processes import (
         MIDDLEWARE_CHECK_S,
         Children,
         MiddlewareWatch,
@@ -66,9 +64,11 @@ def run_(
         start_demo,
         start_launch,
     )
-    from catanc.runtime.sched import Restorer, check_fifo_allowed, threads_of
-    from catanc.runtime.status import status_view
-    from catanc.runtime.watchdog import Watchdog
+    from catanc.runtime.enforcer.run import Enforcer
+    from catanc.runtime.enforcer.status import status_view
+    from catanc.runtime.linux.sched import Restorer, check_fifo_allowed, threads_of
+    from catanc.runtime.linux.watchdog import Watchdog
+    from catanc.runtime.protocol.endpoints import default_socket_path
 
     if demo + launch > 1:
         raise UsageError("--demo and --launch both start the app: pick one")
@@ -172,8 +172,8 @@ def observe_(
     from catanc.artifacts.runtime_table import load_table
     from catanc.cli.progress import progress
     from catanc.errors import UsageError
-    from catanc.runtime.observe import Observer, launched_nodes
-    from catanc.runtime.processes import Children, parse_attach, start_launch
+    from catanc.runtime.enforcer.observe import Observer, launched_nodes
+    from catanc.runtime.enforcer.processes import Children, parse_attach, start_launch
 
     if demo:
         raise UsageError("--observe with --demo: the demo workers wait for triggers; observe --launch or --attach")
@@ -253,9 +253,9 @@ def calibrate(
     from catanc.artifacts.output import replace_file
     from catanc.cli.progress import progress
     from catanc.core.priorities import ENFORCER_FIFO
-    from catanc.runtime.calibrate import calibrate as measure
-    from catanc.runtime.sched import Restorer, check_fifo_allowed
-    from catanc.runtime.watchdog import Watchdog
+    from catanc.runtime.linux.sched import Restorer, check_fifo_allowed
+    from catanc.runtime.linux.watchdog import Watchdog
+    from catanc.runtime.profile.calibrate import calibrate as measure
     from catanc.spec.machine import profile_text
 
     check_fifo_allowed(ENFORCER_FIFO)
@@ -306,7 +306,7 @@ def report(
 ) -> None:
     """Summarise a `catanc run` log: rates, latencies, compute times, re-plans; optionally plot a timeline."""
     from catanc.extras import require
-    from catanc.runtime.log_report import report_command
+    from catanc.runtime.logs.report import report_command
 
     if plot is not None:
         require("matplotlib", "catanc report --plot")

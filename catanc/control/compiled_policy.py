@@ -1,6 +1,6 @@
 """The slot rule compiled with numba, once, for both engines: :func:`catanc.control.policy.decide` over arrays.
 
-The enforcer's compiled walk (:mod:`catanc.runtime.compiled_walk`) and the simulator's kernel
+The enforcer's compiled walk (:mod:`catanc.runtime.compiled.walk`) and the simulator's kernel
 (:mod:`catanc.sim.kernel`) call :func:`decide` at each boundary of a shared core, over the slot
 rules laid out by :mod:`catanc.control.slot_table`.  It writes the boundary's *actions* (whom to
 raise, whether the previous owner is lowered, which head to trigger, whether the slot was stolen)

@@ -12,7 +12,7 @@ it is *in flight* until its last node finishes.
 - A node never gets a second run while it runs (:class:`NodeQueues`): the
   runs of a pipelined subchain wait at each node, in order.
 
-:mod:`catanc.runtime.enforcer` and :mod:`catanc.sim.policies` both keep
+:mod:`catanc.runtime.enforcer.run` and :mod:`catanc.sim.policies` both keep
 their subchains' runs here, so the simulation follows the enforcer's rules by
 construction; the compiled simulator keeps the same rules in arrays and is
 checked run for run against the Python one.

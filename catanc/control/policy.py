@@ -1,6 +1,6 @@
 """The runtime policy: what ``catanc run`` does and ``catanc simulate`` models, decided in one place.
 
-Pure (no I/O, no clock): the enforcer (:mod:`catanc.runtime.enforcer`) and the simulator's
+Pure (no I/O, no clock): the enforcer (:mod:`catanc.runtime.enforcer.run`) and the simulator's
 Python engine (:mod:`catanc.sim.policies`) ask the same functions, with the time as an
 argument, so the simulation follows the enforcer's rules by construction.  Runs in flight and
 their hand-offs are :mod:`catanc.control.flights`'s; the schedule they run is

@@ -3,7 +3,7 @@
 The same comparison as ``catanc simulate`` (:mod:`catanc.sim`), measured
 instead of simulated: synthetic worker processes (:mod:`catanc.runtime.worker`)
 burn CPU as the spec's workload model says, once under the real enforcer
-(:mod:`catanc.runtime.enforcer`) and once per baseline under a small trigger
+(:mod:`catanc.runtime.enforcer.run`) and once per baseline under a small trigger
 driver; every run's timestamps are then replayed through the simulator's
 dataflow and metrics, so both commands report the same figures.
 

@@ -5,7 +5,7 @@ Per policy, in a temporary folder: one synthetic worker process per scheduled no
 model draws, with ``at_s`` counted from the moment the workers are started, shared by all
 of them, and records every run); then
 
-- ``catan``: the real enforcer, as ``catanc run`` runs it (:class:`~catanc.runtime.enforcer.Enforcer`
+- ``catan``: the real enforcer, as ``catanc run`` runs it (:class:`~catanc.runtime.enforcer.run.Enforcer`
   with SCHED_FIFO, its watchdog, and re-solving), starting from the spec's plan as the
   simulator's ``catan`` does;
 - ``catan-nosteal`` (not run by default): the same with the spec's ``schedule.stealing`` off, so the
@@ -50,10 +50,10 @@ from catanc.planning.baseline import static_priorities
 from catanc.planning.types import Plan
 from catanc.realbench.driver import BenchError, Driver, DriverSocket
 from catanc.realbench.replay import measured_result, replay, utilisation
-from catanc.runtime import compiled_ready, protocol
-from catanc.runtime.compiled_ready import LoopChoice, LoopState
-from catanc.runtime.processes import Children
-from catanc.runtime.sched import (
+from catanc.runtime.compiled import ready as compiled_ready
+from catanc.runtime.compiled.ready import LoopChoice, LoopState
+from catanc.runtime.enforcer.processes import Children
+from catanc.runtime.linux.sched import (
     Restorer,
     allowed_cpus,
     apply_policy,
@@ -62,6 +62,7 @@ from catanc.runtime.sched import (
     set_affinity,
     set_fifo,
 )
+from catanc.runtime.protocol import messages as protocol
 from catanc.runtime.worker.command import worker_groups, workload_worker_command
 from catanc.runtime.worker.records import RunRecord, read_records
 from catanc.sim.metrics import PolicyResult
@@ -297,9 +298,9 @@ def planned_spec(setup: BenchSetup, policy: str) -> Spec:
 def run_enforced(setup: BenchSetup, spec: Spec, folder: Path, workers: Workers) -> Measured:
     """The workers under the real enforcer planning with ``spec``, as ``catanc run`` runs them."""
     from catanc.artifacts.runtime_table import RuntimeTable  # noqa: PLC0415
-    from catanc.runtime.enforcer import Enforcer  # noqa: PLC0415 - the baselines need none of it
-    from catanc.runtime.log import read_log  # noqa: PLC0415
-    from catanc.runtime.watchdog import Watchdog  # noqa: PLC0415
+    from catanc.runtime.enforcer.run import Enforcer  # noqa: PLC0415 - the baselines need none of it
+    from catanc.runtime.linux.watchdog import Watchdog  # noqa: PLC0415
+    from catanc.runtime.logs.writer import read_log  # noqa: PLC0415
 
     table = RuntimeTable(path=setup.spec_path, app=spec.app, cores=setup.cores, spec=spec, plan=None, processes=())
     socket_path = folder / "enforcer.sock"
@@ -362,7 +363,7 @@ def last_plan(spec: Spec, cores: int, resolves: Sequence[Mapping[str, Any]]) -> 
 
     The enforcer's planner process is deterministic: its plan is the spec's, then one re-solve
     per ``resolve`` line of its log, with the compute times the line lists
-    (:mod:`catanc.runtime.planning`).  This does the same.
+    (:mod:`catanc.runtime.enforcer.reoptimiser`).  This does the same.
     """
     from catanc.planning.replan import Replanner  # noqa: PLC0415 - solvers: only for catan
 
@@ -396,7 +397,7 @@ def run_timers(setup: BenchSetup, policy: str, folder: Path, workers: Workers) -
     fifo = policy == "fifo-static"
     levels = fifo_levels(build_problem(spec), spec) if fifo else {}
     if fifo:
-        from catanc.runtime.watchdog import Watchdog  # noqa: PLC0415
+        from catanc.runtime.linux.watchdog import Watchdog  # noqa: PLC0415
 
         restorer = Restorer(Watchdog().start())
     else:

@@ -1,6 +1,6 @@
 """The baselines' side of the trigger protocol: registrations, triggers on timers and inputs, stop.
 
-Plays the enforcer's part of :mod:`catanc.runtime.protocol` (:class:`DriverSocket`: the
+Plays the enforcer's part of :mod:`catanc.runtime.protocol.messages` (:class:`DriverSocket`: the
 enforcer's socket and an endpoint per node, as ``catanc run`` makes them), so the workers of
 every policy run the same client code, but only triggers: the rules of
 :mod:`catanc.control.timers`, no slices, no re-planning.  Each node is routed to report
@@ -18,9 +18,9 @@ from pathlib import Path
 
 from catanc.control.timers import TIMER, Clock, TriggerRules, Triggers
 from catanc.errors import CatancError, ExitCode
-from catanc.runtime import protocol
-from catanc.runtime.endpoints import Endpoint, EnforcerSocket, decode_or_none, open_endpoint
-from catanc.runtime.protocol import Address
+from catanc.runtime.protocol import messages as protocol
+from catanc.runtime.protocol.endpoints import Endpoint, EnforcerSocket, decode_or_none, open_endpoint
+from catanc.runtime.protocol.messages import Address
 from catanc.spec.language import Spec
 
 POLL_S = 0.05

@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from catanc.control.measure import between, percentile, percentile_rank
 from catanc.control.schedule import RuntimeSchedule
-from catanc.runtime.measure import between, percentile, percentile_rank
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -43,7 +43,7 @@ def response_arrays(
 
 
 def percentile_of(values: Sequence[float] | FloatArray, q: float) -> float:
-    """:func:`~catanc.runtime.measure.percentile` to the last bit, without sorting an array (no NaN).
+    """:func:`~catanc.control.measure.percentile` to the last bit, without sorting an array (no NaN).
 
     The percentile depends on two order statistics only, which ``np.partition`` finds in linear time:
     sorting nav2d's ~500k staleness samples took most of turning a run into results.

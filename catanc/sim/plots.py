@@ -30,9 +30,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from catanc.control.run_summary import RATE_BIN_S, rate_bins
 from catanc.control.schedule import CoreSchedule, RuntimeSchedule, SubchainRun
 from catanc.files import write_files
-from catanc.runtime.log_summary import RATE_BIN_S, rate_bins
 from catanc.sim.metrics import ChainResult, PolicyResult
 
 if TYPE_CHECKING:

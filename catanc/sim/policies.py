@@ -23,12 +23,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from catanc.control.flights import Flight, Flights, NodeQueues
+from catanc.control.measure import Measurements
 from catanc.control.policy import Cadence, SlotRule, boundary_ms, decide, hand_over, replanned, slot_rules
 from catanc.control.schedule import CoreSchedule, RuntimeSchedule, SubchainRun, is_late, runtime_schedule
 from catanc.control.timers import Triggers, trigger_rules
 from catanc.core.priorities import RUNNING_FIFO, SHARED_FIFO
 from catanc.planning.replan import Replanner
-from catanc.runtime.measure import Measurements
 from catanc.sim.cpu import Discipline, Job, Pool
 from catanc.sim.dataflow import Dataflow, Origins
 from catanc.sim.engine import Engine

@@ -27,6 +27,7 @@ from typing import Literal
 import numpy as np
 import numpy.typing as npt
 
+from catanc.control.measure import estimate, mode_times
 from catanc.control.schedule import RuntimeSchedule, runtime_schedule
 from catanc.core.build import build_problem, spec_dag
 from catanc.core.graph import all_chains
@@ -38,7 +39,6 @@ from catanc.planning.baseline import static_priorities
 from catanc.planning.planner import plan_problem
 from catanc.planning.replan import Replanner
 from catanc.planning.types import Plan
-from catanc.runtime.measure import estimate, mode_times
 from catanc.sim.cpu import Discipline
 from catanc.sim.dataflow import Dataflow
 from catanc.sim.engine import Engine

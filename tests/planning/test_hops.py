@@ -12,7 +12,7 @@ from catanc.control.schedule import RuntimeSchedule, runtime_schedule
 from catanc.core.build import build_problem
 from catanc.core.load import parse_spec
 from catanc.planning.planner import plan
-from catanc.runtime.runs import RunBook
+from catanc.runtime.enforcer.runs import RunBook
 
 FACE = """catan: 1
 app: face

@@ -25,6 +25,7 @@ from typing import Any
 
 import pytest
 
+from catanc.control.run_summary import summarise
 from catanc.control.timers import TICK, TIMER, Clock, Triggers, trigger_rules
 from catanc.core.build import build_problem
 from catanc.core.load import load_spec, parse_spec
@@ -34,11 +35,10 @@ from catanc.realbench import bench as bench_run
 from catanc.realbench.bench import fifo_levels
 from catanc.realbench.driver import BenchError, Driver
 from catanc.realbench.replay import measured_result, replay, utilisation
-from catanc.runtime import protocol
-from catanc.runtime.log_report import load_events
-from catanc.runtime.log_summary import summarise
-from catanc.runtime.protocol import Address
-from catanc.runtime.sched import read_policy
+from catanc.runtime.linux.sched import read_policy
+from catanc.runtime.logs.report import load_events
+from catanc.runtime.protocol import messages as protocol
+from catanc.runtime.protocol.messages import Address
 from catanc.runtime.worker.records import RunRecord
 from catanc.sim.simulate import Setup, prepare, reported_chains, simulate_policies, workload_sampler
 from catanc.spec.language import Spec

@@ -21,7 +21,7 @@ import yaml
 
 from benchmarks.ros_nav2d import EXAMPLE, all_records, read_records, running
 from catanc.core.load import load_spec
-from catanc.runtime.log import read_log
+from catanc.runtime.logs.writer import read_log
 from tests.support.linux import require_fifo
 
 REPO = Path(__file__).resolve().parents[2]

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from catanc.runtime.watchdog import WATCHDOG_PRIORITY
+from catanc.runtime.linux.watchdog import WATCHDOG_PRIORITY
 from tests.support.enforcer_runs import compile_table
 from tests.support.ros_runs import CHAIN_SPEC, PLANNED_HZ, RosRun, exits_within, ros_run
 

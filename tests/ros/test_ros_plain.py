@@ -18,7 +18,7 @@ from rclpy.node import Node
 from rclpy.timer import Timer
 
 from catanc import ros as catanc_ros
-from catanc.runtime.protocol import SOCKET_ENV
+from catanc.runtime.protocol.messages import SOCKET_ENV
 from tests.support.ros_runs import ROOT, RosRun, exits_within, ros_run
 
 PACKAGE = Path(catanc_ros.__file__).parent

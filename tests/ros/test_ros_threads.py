@@ -3,7 +3,7 @@
 - catanc.ros's watcher (``catanc-<node>``: it wakes the executor when a trigger comes) follows its
   node's executor thread: its CPUs and level, after a Stage I re-pin too;
 - Fast DDS's threads (``dds.*``: they deliver every message between processes) run at SCHED_FIFO
-  :data:`~catanc.runtime.nodes.MIDDLEWARE_FIFO` on the CPUs the plan gives the process's nodes;
+  :data:`~catanc.runtime.enforcer.nodes.MIDDLEWARE_FIFO` on the CPUs the plan gives the process's nodes;
 - when the enforcer ends, every one of them is back as it was.
 
 Everything is read from /proc (the kernel's view), never from catanc.  The re-pin is the enforcer's
@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from catanc.runtime.nodes import MIDDLEWARE_FIFO
+from catanc.runtime.enforcer.nodes import MIDDLEWARE_FIFO
 from tests.support.enforcer_runs import compile_table
 from tests.support.linux import missing_tools, poll
 from tests.support.ros_runs import CHAIN_SPEC, RosRun, ros_run

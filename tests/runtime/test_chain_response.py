@@ -1,7 +1,7 @@
 """Chains measured from origins (issue 46): ``catanc report``'s chain table and JSON, ``catanc profile --check``.
 
 Each ``compute`` sample's ``age_ms`` is its run's end less the run's origin; a chain's response is the age of
-its last scheduled node's runs (catanc.runtime.log_summary).  Logs are made by hand with known ages; the
+its last scheduled node's runs (catanc.control.run_summary).  Logs are made by hand with known ages; the
 percentiles are worked by hand (linear interpolation between closest ranks).
 """
 
@@ -14,9 +14,9 @@ from typing import Any
 import pytest
 from rich.console import Console
 
-from catanc.runtime.log_report import render_summary, summary_payload
-from catanc.runtime.log_summary import Quantiles, chain_response, summarise
-from catanc.runtime.profile import MIN_SAMPLES, profile_spec
+from catanc.control.run_summary import Quantiles, chain_response, summarise
+from catanc.runtime.logs.report import render_summary, summary_payload
+from catanc.runtime.profile.propose import MIN_SAMPLES, profile_spec
 from tests.support.run_logs import SPEC, every_node, log_text
 
 PLAN: dict[str, Any] = {

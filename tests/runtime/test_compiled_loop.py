@@ -1,4 +1,4 @@
-"""The enforcer's Python state kept in step with the compiled walk (catanc.runtime.compiled_loop), run for run.
+"""The enforcer's Python state kept in step with the compiled walk (catanc.runtime.compiled.loop), run for run.
 
 Two copies of the enforcer's hot-path state over the same rings: one walked by SharedCores as
 ``catanc run`` does without the compiled loop, the other by :class:`CompiledLoop` (copied into
@@ -26,11 +26,12 @@ from hypothesis import strategies as st
 pytest.importorskip("numba", reason="the compiled loop needs numba (the sim extra)")
 
 from catanc.errors import LoopError
-from catanc.runtime import compiled_ready, ring
-from catanc.runtime import walk_arrays as wa
-from catanc.runtime.compiled_build import sample_walk
-from catanc.runtime.compiled_entry import WalkEntry, describe, layout_of
-from catanc.runtime.compiled_loop import CompiledLoop
+from catanc.runtime.compiled import arrays as wa
+from catanc.runtime.compiled import ready as compiled_ready
+from catanc.runtime.compiled.build import sample_walk
+from catanc.runtime.compiled.entry import WalkEntry, describe, layout_of
+from catanc.runtime.compiled.loop import CompiledLoop
+from catanc.runtime.protocol import ring
 from tests.support.hot_path import (
     Side,
     drained,
@@ -163,7 +164,7 @@ def test_the_compiled_loop_keeps_the_enforcers_state_as_the_python_walk_does(
 
 def test_the_entry_returns_at_once_when_its_time_is_past(compiled_loop: WalkEntry) -> None:
     """The object file's entry, linked without numba, walks a walk of nothing and comes back: its time is past."""
-    from catanc.runtime.compiled_build import sample_walk
+    from catanc.runtime.compiled.build import sample_walk
 
     walk = sample_walk()
     assert compiled_loop.wait(walk, np.zeros(0, dtype=np.int32), -math.inf) == wa.TIME

@@ -13,7 +13,7 @@ import sys
 import time
 from pathlib import Path
 
-from catanc.runtime.watchdog import WATCHDOG_PRIORITY
+from catanc.runtime.linux.watchdog import WATCHDOG_PRIORITY
 from tests.support.client_nodes import client_run, python_node
 from tests.support.enforcer_runs import compile_table, of_kind
 

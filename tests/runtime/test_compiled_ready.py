@@ -1,4 +1,4 @@
-"""Whether the compiled loop is built here (catanc.runtime.compiled_ready), and ``catanc run --loop auto``.
+"""Whether the compiled loop is built here (catanc.runtime.compiled.ready), and ``catanc run --loop auto``.
 
 The stamp's checks are tested on folders made here (an upgrade, an edit, another CPU, a removed or
 rewritten object file each make it "not built").  ``--loop auto`` is tested on the real kernel as a robot meets it: a
@@ -22,9 +22,9 @@ from pathlib import Path
 import pytest
 
 from catanc.errors import LoopError
-from catanc.runtime import compiled_ready
-from catanc.runtime.compiled_ready import OBJECT_NAME, STAMP_NAME, LoopState, cpu_identity, find, load, state
-from catanc.runtime.watchdog import WATCHDOG_PRIORITY
+from catanc.runtime.compiled import ready as compiled_ready
+from catanc.runtime.compiled.ready import OBJECT_NAME, STAMP_NAME, LoopState, cpu_identity, find, load, state
+from catanc.runtime.linux.watchdog import WATCHDOG_PRIORITY
 from tests.support.enforcer_runs import ENFORCER_MAIN, EnforcerRun, compile_table, kill_groups, of_kind
 from tests.support.linux import alive, poll
 
@@ -194,8 +194,8 @@ def test_nothing_built_is_a_load_error(stamps: Path) -> None:
 
 
 def build_child(stamps: Path, parent: int) -> subprocess.CompletedProcess[str]:
-    """``python -m catanc.runtime.compiled_ready PARENT``: the background build, as the enforcer starts it."""
-    argv = [sys.executable, "-m", "catanc.runtime.compiled_ready", str(parent)]
+    """``python -m catanc.runtime.compiled.ready PARENT``: the background build, as the enforcer starts it."""
+    argv = [sys.executable, "-m", "catanc.runtime.compiled.ready", str(parent)]
     env = {**os.environ, compiled_ready.CACHE_ENV: str(stamps)}
     return subprocess.run(argv, env=env, capture_output=True, text=True, timeout=300, check=False)
 

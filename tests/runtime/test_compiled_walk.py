@@ -1,4 +1,4 @@
-"""The compiled walk (catanc.runtime.compiled_walk) held to the Python one (SharedCores and RunBook), run for run.
+"""The compiled walk (catanc.runtime.compiled.walk) held to the Python one (SharedCores and RunBook), run for run.
 
 Random shared-core schedules and random node behaviour (runs reported in real rings, some late,
 some forged, some overrunning a small ring), walked by both at the same times: after every
@@ -23,12 +23,13 @@ from hypothesis import strategies as st
 pytest.importorskip("numba", reason="the compiled walk needs numba (the sim extra)")
 
 from catanc.control.schedule import RuntimeSchedule
-from catanc.runtime import compiled_state, ring
-from catanc.runtime import compiled_walk as cw
-from catanc.runtime import walk_arrays as wa
-from catanc.runtime.levels import Levels
-from catanc.runtime.nodes import Wiring
-from catanc.runtime.runs import RunBook
+from catanc.runtime.compiled import arrays as wa
+from catanc.runtime.compiled import state as compiled_state
+from catanc.runtime.compiled import walk as cw
+from catanc.runtime.enforcer.nodes import Wiring
+from catanc.runtime.enforcer.runs import RunBook
+from catanc.runtime.linux.levels import Levels
+from catanc.runtime.protocol import ring
 from tests.support.hot_path import Side, drained, next_wake_up, random_schedule, report_runs, rescheduled, side
 
 
@@ -203,7 +204,7 @@ def test_a_subchain_near_its_rows_end_hands_every_boundary_to_python(seed: int) 
 def test_a_book_with_more_runs_in_flight_than_a_row_holds_is_not_laid_out() -> None:
     """A re-plan lays the walk out again from Python's book, which has no limit: a subchain with a row's worth of
     runs in flight is a ValueError (its wake-ups stay in Python), not an IndexError that ends the enforcer."""
-    from catanc.runtime.runs import RunFlight
+    from catanc.runtime.enforcer.runs import RunFlight
 
     both = made(random.Random(0))
     try:
@@ -218,8 +219,8 @@ def test_a_book_with_more_runs_in_flight_than_a_row_holds_is_not_laid_out() -> N
 
 
 def test_a_schedstat_line_is_read_as_the_python_side_reads_it() -> None:
-    """kernel_ns parses a real thread's schedstat as catanc.runtime.cpu_clocks does (the first field, ns)."""
-    from catanc.runtime.cpu_clocks import parse_schedstat
+    """kernel_ns parses a real thread's schedstat as catanc.runtime.linux.cpu_clocks does (the first field, ns)."""
+    from catanc.runtime.linux.cpu_clocks import parse_schedstat
 
     path = f"/proc/self/task/{os.getpid()}/schedstat"
     fd = os.open(path, os.O_RDONLY)

@@ -1,4 +1,4 @@
-"""The enforcer's hot path (catanc.runtime.cores) without a kernel: which threads it raises at each boundary,
+"""The enforcer's hot path (catanc.runtime.enforcer.cores) without a kernel: which threads it raises at each boundary,
 which heads it triggers, and when it asks to be woken, against the schedule worked by hand."""
 
 from __future__ import annotations
@@ -6,11 +6,11 @@ from __future__ import annotations
 import math
 
 from catanc.control.schedule import CoreSchedule, RuntimeSchedule, Slot, SubchainRun
-from catanc.runtime.cores import SharedCores
-from catanc.runtime.costs import Costs
-from catanc.runtime.levels import Levels
-from catanc.runtime.nodes import Wiring
-from catanc.runtime.runs import RunBook, Seen
+from catanc.runtime.enforcer.cores import SharedCores
+from catanc.runtime.enforcer.costs import Costs
+from catanc.runtime.enforcer.nodes import Wiring
+from catanc.runtime.enforcer.runs import RunBook, Seen
+from catanc.runtime.linux.levels import Levels
 
 # T = 10 ms: a (2 ms, triggered every period, priority 2) then b (3 ms, every 2 periods); threads a: 11, b: 12.
 CORE = CoreSchedule(0, 10.0, 0.5, (Slot("a", 0.5, 2.0), Slot("b", 3.0, 3.0)))

@@ -1,4 +1,4 @@
-"""The enforcer's cost figures (catanc.runtime.costs) and how `catanc report` shows them, worked by hand."""
+"""The enforcer's cost figures (catanc.runtime.enforcer.costs) and how `catanc report` shows them, worked by hand."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ from pathlib import Path
 
 from rich.console import Console
 
-from catanc.runtime.costs import Costs
-from catanc.runtime.log_report import render_summary, summary_payload
-from catanc.runtime.log_summary import summarise
+from catanc.control.run_summary import summarise
+from catanc.runtime.enforcer.costs import Costs
+from catanc.runtime.logs.report import render_summary, summary_payload
 
 
 def test_hops_are_kept_together_and_apart_by_kind() -> None:

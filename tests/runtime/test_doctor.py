@@ -40,8 +40,8 @@ from catanc.doctor import (
     render,
 )
 from catanc.errors import ExitCode
-from catanc.runtime.compiled_ready import LoopState
-from catanc.runtime.sched import format_cpus
+from catanc.runtime.compiled.ready import LoopState
+from catanc.runtime.linux.sched import format_cpus
 from tests.support.linux import as_user, missing_tools, nobody_ids, require_fifo
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -9,7 +9,7 @@ the enforcer left it with.  The specs whose rates are checked have runs of 8-36 
 
 What each thread runs at is read from ``/proc/<pid>/task/<tid>`` (``stat`` fields 40 and 41,
 ``status``'s Cpus_allowed_list), never through catanc; what the enforcer planned and measured comes
-from its JSON-lines log (:mod:`catanc.runtime.log`, flushed once a second).  The plan a check compares
+from its JSON-lines log (:mod:`catanc.runtime.logs.writer`, flushed once a second).  The plan a check compares
 with is the one in force at the time (the latest ``start`` or ``resolve`` event).  Rates are
 measured from the ``run`` events' timestamps over the last seconds of a run.  Bounds are generous:
 this checks that the mechanism works; it is not a benchmark.
@@ -40,8 +40,8 @@ import pytest
 
 from catanc.core.priorities import ENFORCER_FIFO, RUNNING_FIFO, SHARED_FIFO, UNSCHEDULED_FIFO
 from catanc.errors import ExitCode
-from catanc.runtime.log import read_log
-from catanc.runtime.watchdog import WATCHDOG_PRIORITY
+from catanc.runtime.linux.watchdog import WATCHDOG_PRIORITY
+from catanc.runtime.logs.writer import read_log
 from catanc.runtime.worker.command import worker_command
 from catanc.runtime.worker.draws import Profile
 from tests.support.enforcer_runs import (

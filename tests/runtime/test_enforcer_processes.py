@@ -44,8 +44,8 @@ import pytest
 
 from catanc.core.priorities import RUNNING_FIFO, SHARED_FIFO, UNSCHEDULED_FIFO
 from catanc.errors import ExitCode
-from catanc.runtime.protocol import SOCKET_ENV
-from catanc.runtime.watchdog import WATCHDOG_PRIORITY
+from catanc.runtime.linux.watchdog import WATCHDOG_PRIORITY
+from catanc.runtime.protocol.messages import SOCKET_ENV
 from catanc.runtime.worker.command import worker_command
 from tests.support.enforcer_runs import ENFORCER_MAIN, EnforcerRun, Event, cmdline, compile_table, kill_groups, of_kind
 from tests.support.linux import (

@@ -29,7 +29,7 @@ import pytest
 
 from catanc import client as client_module
 from catanc.errors import ExitCode
-from catanc.runtime.watchdog import WATCHDOG_PRIORITY
+from catanc.runtime.linux.watchdog import WATCHDOG_PRIORITY
 from tests.support.enforcer_runs import ENFORCER_MAIN, EnforcerRun, Event, cmdline, compile_table, kill_groups, of_kind
 from tests.support.linux import WAIT_S, Sched, alive, poll, sched_of, threads_of
 

@@ -2,7 +2,7 @@
 
 A node whose hello said ``input`` (a ROS subscription callback) is woken by its message; a trigger
 from its predecessor would start a run on the previous message's data.  Checked on the enforcer's
-own :class:`~catanc.runtime.nodes.NodeThreads` with real sockets, and across the wire: what the
+own :class:`~catanc.runtime.enforcer.nodes.NodeThreads` with real sockets, and across the wire: what the
 route says is what a client reads.
 """
 
@@ -15,11 +15,11 @@ from collections.abc import Iterator
 import pytest
 
 from catanc.control.schedule import RuntimeSchedule, SubchainRun
-from catanc.runtime.endpoints import Endpoint, Registry
-from catanc.runtime.levels import Levels
-from catanc.runtime.nodes import NodeThreads
-from catanc.runtime.protocol import Route, decode
-from catanc.runtime.sched import Restorer
+from catanc.runtime.enforcer.nodes import NodeThreads
+from catanc.runtime.linux.levels import Levels
+from catanc.runtime.linux.sched import Restorer
+from catanc.runtime.protocol.endpoints import Endpoint, Registry
+from catanc.runtime.protocol.messages import Route, decode
 
 CHAIN = SubchainRun("front", ("cam", "det", "ctl"), (0,), False, 20.0, 10.0, None, 1)
 

@@ -1,4 +1,4 @@
-"""``catanc report`` (catanc.runtime.log_summary, log_report, log_timeline) on hand-made logs, hand-worked numbers.
+"""``catanc report`` (catanc.control.run_summary, log_report, log_timeline) on hand-made logs, hand-worked numbers.
 
 The main log: subchain ``a`` planned at 5 Hz (200 ms) completes 10 runs in
 the first 2 s; a re-plan at t = 3 s sets it to 10 Hz (100 ms) and it
@@ -21,11 +21,11 @@ from typing import Any
 import pytest
 from rich.console import Console
 
+from catanc.control.run_summary import PlannedRate, ResolveSummary, Stats, rate_bins, stats, summarise
 from catanc.errors import OutputError, UsageError
-from catanc.runtime.log import RunLog
-from catanc.runtime.log_report import load_events, render_summary, report_command, summary_json
-from catanc.runtime.log_summary import PlannedRate, ResolveSummary, Stats, rate_bins, stats, summarise
-from catanc.runtime.log_timeline import plot_timeline
+from catanc.runtime.logs.report import load_events, render_summary, report_command, summary_json
+from catanc.runtime.logs.timeline import plot_timeline
+from catanc.runtime.logs.writer import RunLog
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -361,7 +361,7 @@ def test_plot_to_a_missing_folder(tmp_path: Path) -> None:
 
 def test_matplotlib_is_imported_only_to_plot() -> None:
     code = (
-        "import sys, catanc.runtime.log_report, catanc.runtime.enforcer, catanc.client, catanc.cli\n"
+        "import sys, catanc.runtime.logs.report, catanc.runtime.enforcer.run, catanc.client, catanc.cli\n"
         "assert 'matplotlib' not in sys.modules, 'matplotlib was imported'\n"
     )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)

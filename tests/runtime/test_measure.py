@@ -1,4 +1,4 @@
-"""Measuring compute times at runtime: catanc.runtime.measure.
+"""Measuring compute times at runtime: catanc.control.measure.
 
 Oracles: numpy's percentile (an independent implementation of the same
 definition), hand-worked windows, a log-distance argmin for modes (the code
@@ -19,11 +19,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, invariant, rule
 
-from catanc.core.load import load_spec, parse_spec
-from catanc.errors import UsageError
-from catanc.planning.replan import Replanner
-from catanc.runtime.cpu_clocks import CpuClock, OpenCpuClocks, cpu_ms, parse_schedstat, schedstat_path
-from catanc.runtime.measure import (
+from catanc.control.measure import (
     MIN_PLANNING_MS,
     ComputeWindow,
     Measurements,
@@ -36,6 +32,10 @@ from catanc.runtime.measure import (
     split_modes,
     valid_sample,
 )
+from catanc.core.load import load_spec, parse_spec
+from catanc.errors import UsageError
+from catanc.planning.replan import Replanner
+from catanc.runtime.linux.cpu_clocks import CpuClock, OpenCpuClocks, cpu_ms, parse_schedstat, schedstat_path
 from catanc.spec.language import Spec
 
 untimed = settings(deadline=None)  # tests never time things

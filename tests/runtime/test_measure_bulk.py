@@ -16,9 +16,9 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
+from catanc.control.measure import ComputeWindow, Measurements
 from catanc.core.load import load_spec
 from catanc.errors import UsageError
-from catanc.runtime.measure import ComputeWindow, Measurements
 
 untimed = settings(deadline=None)  # tests never time things
 

@@ -20,8 +20,8 @@ from typer.testing import CliRunner
 
 from catanc.cli import app
 from catanc.errors import ExitCode
-from catanc.runtime.observe import MIN_RUN_MS, Bursts, launched_nodes
-from catanc.runtime.profile import profile_spec
+from catanc.runtime.enforcer.observe import MIN_RUN_MS, Bursts, launched_nodes
+from catanc.runtime.profile.propose import profile_spec
 from tests.support.enforcer_runs import compile_table
 
 TIMER_NODE = Path(__file__).parents[1] / "support" / "timer_node.py"

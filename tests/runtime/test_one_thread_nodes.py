@@ -15,8 +15,8 @@ from pathlib import Path
 
 import pytest
 
-from catanc.runtime.measure import percentile
-from catanc.runtime.profile import MIN_SAMPLES, format_hop, profile_spec
+from catanc.control.measure import percentile
+from catanc.runtime.profile.propose import MIN_SAMPLES, format_hop, profile_spec
 from tests.support.client_nodes import client_run, finish
 from tests.support.enforcer_runs import compile_table, of_kind
 

@@ -6,7 +6,7 @@ import threading
 from pathlib import Path
 
 from catanc.core.load import load_spec, parse_spec
-from catanc.runtime.planning import PlannerProcess, Request
+from catanc.runtime.enforcer.reoptimiser import PlannerProcess, Request
 from tests.support.enforcer_runs import cmdline, process_name
 
 SPECS = Path(__file__).parents[2] / "specs"

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from catanc.errors import UsageError
-from catanc.runtime.processes import Children
+from catanc.runtime.enforcer.processes import Children
 from tests.support.linux import poll
 
 THREADED = (

@@ -15,7 +15,8 @@ from hypothesis import strategies as st
 
 from catanc.core.load import parse_spec
 from catanc.errors import ExitCode
-from catanc.runtime.profile import (
+from catanc.runtime.logs.samples import MeasurementsError, read_samples
+from catanc.runtime.profile.propose import (
     MIN_SAMPLES,
     deviations,
     find_modes,
@@ -24,7 +25,6 @@ from catanc.runtime.profile import (
     propose,
     round_shares,
 )
-from catanc.runtime.samples import MeasurementsError, read_samples
 from tests.support.run_logs import SPEC, every_node, log_text
 
 # --------------------------------------------------------------------------- known samples, known answers

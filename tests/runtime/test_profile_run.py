@@ -23,8 +23,8 @@ from typer.testing import CliRunner
 from catanc.cli import app
 from catanc.core.load import load_spec
 from catanc.errors import ExitCode
-from catanc.runtime.profile import MIN_SAMPLES, profile_spec
-from catanc.runtime.watchdog import WATCHDOG_PRIORITY
+from catanc.runtime.linux.watchdog import WATCHDOG_PRIORITY
+from catanc.runtime.profile.propose import MIN_SAMPLES, profile_spec
 from catanc.spec.language import ModalCompute
 from tests.support.enforcer_runs import ENFORCER_MAIN, compile_table, kill_groups
 from tests.support.linux import WAIT_S

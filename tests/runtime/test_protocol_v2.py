@@ -20,8 +20,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from catanc.runtime import ring
-from catanc.runtime.endpoints import (
+from catanc.runtime.protocol import ring
+from catanc.runtime.protocol.endpoints import (
     Credentials,
     Endpoint,
     EnforcerSocket,
@@ -32,7 +32,7 @@ from catanc.runtime.endpoints import (
     may_register,
     open_endpoint,
 )
-from catanc.runtime.protocol import (
+from catanc.runtime.protocol.messages import (
     MAX_DATAGRAM,
     Bye,
     Done,

@@ -1,4 +1,4 @@
-"""When the enforcer re-plans with its measured costs (catanc.runtime.replanning), on a stand-in re-optimiser.
+"""When the enforcer re-plans with its measured costs (catanc.runtime.enforcer.replanning), on a stand-in re-optimiser.
 
 Holding the highest costs measured over 30 s instead (fewer re-plans) was tried and not kept
 (2026-11-28): nav2d on one core, 30 s, re-planned with new costs twice instead of six times, but
@@ -13,8 +13,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, cast
 
-from catanc.runtime.planning import Answer, PlannerProcess, Request
-from catanc.runtime.replanning import Replanning
+from catanc.runtime.enforcer.reoptimiser import Answer, PlannerProcess, Request
+from catanc.runtime.enforcer.replanning import Replanning
 from catanc.spec.language import Runtime
 
 

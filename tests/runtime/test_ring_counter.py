@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 
 from catanc.client import Node
-from catanc.runtime import ring
+from catanc.runtime.protocol import ring
 from tests.support.client_nodes import compiler
 from tests.support.fake_enforcer import FakeEnforcer
 

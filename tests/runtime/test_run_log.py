@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from catanc.runtime.log import RunLog, read_log
+from catanc.runtime.logs.writer import RunLog, read_log
 
 Sample = tuple[str, str, tuple[float | int | None, ...]]
 NAMES = st.sampled_from(["LM", "LP", "scan", "local", "GL"])

@@ -1,4 +1,4 @@
-"""The enforcer's runs in flight as its nodes' rings report them (catanc.runtime.runs), worked by hand.
+"""The enforcer's runs in flight as its nodes' rings report them (catanc.runtime.enforcer.runs), worked by hand.
 
 Rings are real (a memfd written with the documented layout); the kernel's CPU count is a fake
 the test sets, so the numbers are known.
@@ -11,9 +11,9 @@ from collections.abc import Iterator
 import pytest
 
 from catanc.control.schedule import SubchainRun
-from catanc.runtime import ring
-from catanc.runtime.endpoints import Endpoint, Registry
-from catanc.runtime.runs import KERNEL_CHECK_EVERY, RunBook, Seen
+from catanc.runtime.enforcer.runs import KERNEL_CHECK_EVERY, RunBook, Seen
+from catanc.runtime.protocol import ring
+from catanc.runtime.protocol.endpoints import Endpoint, Registry
 
 MS = 1_000_000  # ns
 

@@ -19,8 +19,8 @@ from pathlib import Path
 import pytest
 
 from catanc.errors import ExitCode
-from catanc.runtime.log import read_log
-from catanc.runtime.watchdog import WATCHDOG_PRIORITY
+from catanc.runtime.linux.watchdog import WATCHDOG_PRIORITY
+from catanc.runtime.logs.writer import read_log
 from catanc.spec.machine import read_machine
 from tests.support.enforcer_runs import ENFORCER_MAIN, compile_table, of_kind
 

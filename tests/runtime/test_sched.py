@@ -1,4 +1,4 @@
-"""catanc.runtime.sched and catanc.runtime.watchdog, on the real kernel.
+"""catanc.runtime.linux.sched and catanc.runtime.linux.watchdog, on the real kernel.
 
 The threads changed here belong to a helper process, the *app*: a small Python program whose
 threads start with given policies, priorities and CPUs, sleep, and on ``go`` busy-spin (hashing a
@@ -36,7 +36,7 @@ from typing import IO, Any
 import pytest
 
 from catanc.errors import CatancError, ExitCode, PrivilegeError
-from catanc.runtime.sched import (
+from catanc.runtime.linux.sched import (
     Restorer,
     ThreadGone,
     ThreadPolicy,
@@ -51,7 +51,7 @@ from catanc.runtime.sched import (
     set_fifo,
     set_other,
 )
-from catanc.runtime.watchdog import WATCHDOG_PRIORITY, thread_start_time
+from catanc.runtime.linux.watchdog import WATCHDOG_PRIORITY, thread_start_time
 from tests.support.linux import as_user, cpu_set, poll, stat_fields
 
 WAIT_S = 10.0  # the longest any single wait in here may take
@@ -98,8 +98,8 @@ stop.set()
 
 ENFORCER = """\
 import json, os, signal, sys, time
-from catanc.runtime.sched import Restorer, set_affinity, set_fifo
-from catanc.runtime.watchdog import Watchdog
+from catanc.runtime.linux.sched import Restorer, set_affinity, set_fifo
+from catanc.runtime.linux.watchdog import Watchdog
 
 signal.signal(signal.SIGINT, signal.default_int_handler)  # as in a terminal, even if the test runner ignores it
 how, changes, own_priority = sys.argv[1], json.loads(sys.argv[2]), int(sys.argv[3])
@@ -123,7 +123,7 @@ with Restorer(Watchdog().start()) as restorer:
 PROBE = """\
 import sys
 from catanc.errors import CatancError
-from catanc.runtime.sched import check_fifo_allowed
+from catanc.runtime.linux.sched import check_fifo_allowed
 
 try:
     check_fifo_allowed(int(sys.argv[1]))
@@ -504,7 +504,7 @@ def test_restore_all_leaves_alone_a_thread_whose_tid_now_names_another(monkeypat
             restorer = Restorer()
             restorer.remember(tid)
             set_fifo(tid, 1)  # it sleeps: nothing runs at SCHED_FIFO
-            monkeypatch.setattr("catanc.runtime.sched.thread_start_time", lambda _tid: -1)
+            monkeypatch.setattr("catanc.runtime.linux.sched.thread_start_time", lambda _tid: -1)
             report = restorer.restore_all()
             assert report.gone == (tid,)
             assert sched_of(os.getpid(), tid).policy == os.SCHED_FIFO
@@ -753,7 +753,7 @@ def test_restore_all_looks_threads_up_in_proc_only_below_sched_fifo(monkeypatch:
             set_fifo(tid, 1)  # it sleeps: nothing runs at SCHED_FIFO
             restorer.remember(threading.get_native_id())  # at SCHED_OTHER, remembered last
             with realtime(2):
-                monkeypatch.setattr("catanc.runtime.sched.thread_start_time", start_time)
+                monkeypatch.setattr("catanc.runtime.linux.sched.thread_start_time", start_time)
                 report = restorer.restore_all()
                 after = os.sched_getscheduler(0)
         finally:

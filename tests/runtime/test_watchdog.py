@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from catanc.runtime.watchdog import WATCHDOG_PRIORITY, _dying, _open_stat
+from catanc.runtime.linux.watchdog import WATCHDOG_PRIORITY, _dying, _open_stat
 from tests.support.linux import stat_fields
 
 REALTIME_PRIORITY = WATCHDOG_PRIORITY
@@ -30,8 +30,8 @@ pytestmark = pytest.mark.usefixtures("real_kernel")
 # raise them (one exits before the end), then die without saying goodbye.
 ENFORCER = """
 import os, subprocess, sys, time
-from catanc.runtime.sched import ThreadPolicy
-from catanc.runtime.watchdog import Watchdog
+from catanc.runtime.linux.sched import ThreadPolicy
+from catanc.runtime.linux.watchdog import Watchdog
 
 watchdog = Watchdog().start()
 assert watchdog.priority > 0, watchdog.priority

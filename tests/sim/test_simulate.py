@@ -18,9 +18,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from catanc.control.measure import percentile
 from catanc.core.load import load_spec
 from catanc.errors import CatancError, UsageError
-from catanc.runtime.measure import percentile
 from catanc.sim.comparison import comparison_payload
 from catanc.sim.cpu import Job, Pool
 from catanc.sim.engine import Engine

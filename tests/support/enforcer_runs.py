@@ -1,7 +1,7 @@
 """What the `catanc run` tests share: a compiled table, the enforcer as a process, and its log.
 
 :class:`EnforcerRun` holds one test's enforcer process and reads its JSON-lines log
-(:mod:`catanc.runtime.log`, flushed once a second); each test file subclasses it with how it
+(:mod:`catanc.runtime.logs.writer`, flushed once a second); each test file subclasses it with how it
 starts the enforcer and what it kills at teardown.
 """
 
@@ -21,7 +21,7 @@ import pytest
 
 from catanc.artifacts.compile import Options, compile_spec
 from catanc.artifacts.output import write
-from catanc.runtime.log import read_log
+from catanc.runtime.logs.writer import read_log
 from tests.support.linux import WAIT_S, poll
 
 # The enforcer as `python -m catanc run`, but with Python's own SIGINT handler installed even if

@@ -7,9 +7,9 @@ import time
 from pathlib import Path
 from typing import TypeVar
 
-from catanc.runtime import ring
-from catanc.runtime.endpoints import Endpoint, EnforcerSocket, Received, open_endpoint
-from catanc.runtime.protocol import Hello, Message, decode, trigger_datagram
+from catanc.runtime.protocol import ring
+from catanc.runtime.protocol.endpoints import Endpoint, EnforcerSocket, Received, open_endpoint
+from catanc.runtime.protocol.messages import Hello, Message, decode, trigger_datagram
 
 TIMEOUT_S = 30.0
 """The bound on every wait: generous, since nothing here is timed."""

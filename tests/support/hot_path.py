@@ -17,14 +17,14 @@ from dataclasses import dataclass, field
 
 from catanc.control.policy import next_clock_ms
 from catanc.control.schedule import CoreSchedule, RuntimeSchedule, Slot, SubchainRun
-from catanc.runtime import ring
-from catanc.runtime.cores import SharedCores
-from catanc.runtime.costs import Costs
-from catanc.runtime.endpoints import Endpoint
-from catanc.runtime.levels import Levels
-from catanc.runtime.nodes import Wiring
-from catanc.runtime.protocol import trigger_datagram
-from catanc.runtime.runs import RunBook, Seen
+from catanc.runtime.enforcer.cores import SharedCores
+from catanc.runtime.enforcer.costs import Costs
+from catanc.runtime.enforcer.nodes import Wiring
+from catanc.runtime.enforcer.runs import RunBook, Seen
+from catanc.runtime.linux.levels import Levels
+from catanc.runtime.protocol import ring
+from catanc.runtime.protocol.endpoints import Endpoint
+from catanc.runtime.protocol.messages import trigger_datagram
 
 MS = 1_000_000  # ns
 

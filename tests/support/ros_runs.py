@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from catanc.runtime.protocol import SOCKET_ENV
+from catanc.runtime.protocol.messages import SOCKET_ENV
 from tests.runtime.test_enforcer import children_of
 from tests.support.enforcer_runs import ENFORCER_MAIN, EnforcerRun, kill_groups, of_kind
 from tests.support.linux import poll

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from collections.abc import Mapping, Sequence
 
-from catanc.runtime.log import LOG_FORMAT
+from catanc.runtime.logs.writer import LOG_FORMAT
 
 SPEC = """catan: 1
 app: demo

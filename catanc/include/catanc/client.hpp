@@ -85,7 +85,7 @@
 // `while (auto trigger = node.wait(0.0)) { step(); node.done(); }`, which takes every trigger
 // that has arrived and returns at once.  The waker waits for that callback before it polls again.
 //
-// The protocol is documented in catanc.runtime.protocol (Python) for clients in any language.
+// The protocol is documented in catanc.runtime.protocol.messages (Python) for clients in any language.
 
 #ifndef CATANC_CLIENT_HPP
 #define CATANC_CLIENT_HPP
@@ -121,7 +121,7 @@
 
 namespace catanc {
 
-// What catanc.runtime.protocol and catanc.runtime.ring say (a test checks they agree).
+// What catanc.runtime.protocol.messages and catanc.runtime.protocol.ring say (a test checks they agree).
 inline constexpr const char* kProtocol = "catanc/2";
 inline constexpr const char* kSocketEnv = "CATANC_SOCKET";
 inline constexpr std::size_t kMaxDatagram = 512;

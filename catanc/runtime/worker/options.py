@@ -9,7 +9,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from catanc.runtime.protocol import ProtocolError, check_name
+from catanc.runtime.protocol.messages import ProtocolError, check_name
 from catanc.runtime.worker.draws import Modes, check_profile, parse_modes
 
 MODULE = "catanc.runtime.worker"
