@@ -6,7 +6,7 @@
 
 Per tree, two node processes, A then B of one subchain, each a ``catanc.client.Node`` loaded from
 the tree's ``catanc/client.py`` (the standalone client: it imports nothing else of catanc), all
-pinned to one CPU at SCHED_FIFO :data:`~catanc.core.priorities.RUNNING_FIFO` as a raised subchain
+pinned to one CPU at SCHED_FIFO :data:`~catanc.model.priorities.RUNNING_FIFO` as a raised subchain
 runs (SCHED_OTHER without root).  This process plays the enforcer on another CPU: it welcomes
 them, routes each A's runs to its B, triggers the trees' A in turn every few ms (A burns 0.3 ms
 of CPU a run) and reads the rings.  The hop is B's start less A's end, as ``catanc run``
@@ -30,7 +30,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from catanc.core.priorities import RUNNING_FIFO
+from catanc.model.priorities import RUNNING_FIFO
 from catanc.runtime.protocol.endpoints import Endpoint, EnforcerSocket, open_endpoint
 from catanc.runtime.protocol.messages import Hello, Route, Stop, decode, trigger_datagram
 

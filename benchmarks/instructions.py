@@ -36,7 +36,7 @@ from typing import NamedTuple
 
 import numba
 
-from catanc.core.load import load_spec
+from catanc.model.load import load_spec
 from catanc.sim import kernel
 from catanc.sim.simulate import POLICIES, Setup, simulate
 

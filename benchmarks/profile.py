@@ -25,7 +25,7 @@ import tempfile
 from pathlib import Path
 
 from catanc.control.measure import percentile
-from catanc.core.load import load_spec
+from catanc.model.load import load_spec
 from catanc.runtime.logs.samples import MeasurementsError
 from catanc.runtime.logs.writer import read_log
 from catanc.runtime.profile.propose import profile_spec

@@ -34,7 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.solvers import median_ms
-from catanc.core.load import load_spec
+from catanc.model.load import load_spec
 from catanc.planning.replan import RUNTIME_GAP
 from catanc.planning.types import Plan
 
@@ -154,7 +154,7 @@ import json, time
 started = time.perf_counter()
 from catanc.planning.replan import Replanner
 from benchmarks.solvers import median_ms
-from catanc.core.load import load_spec
+from catanc.model.load import load_spec
 from catanc.planning.replan import RUNTIME_GAP
 imported = time.perf_counter()
 spec = load_spec({str(ROOT / "specs" / f"{name}.yaml")!r})

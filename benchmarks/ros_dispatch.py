@@ -4,7 +4,7 @@
     python -m benchmarks.ros_dispatch --rounds 6 --calls 300
 
 One rclpy node process at a time, pinned to CPU 0 at SCHED_FIFO
-:data:`~catanc.core.priorities.RUNNING_FIFO` as a raised subchain runs (SCHED_OTHER without root),
+:data:`~catanc.model.priorities.RUNNING_FIFO` as a raised subchain runs (SCHED_OTHER without root),
 its callback every 20 ms:
 
 - **plain**: ``node.create_timer(0.02, tick)``; a call's dispatch delay is its start less the time
@@ -30,7 +30,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from catanc.core.priorities import ENFORCER_FIFO, RUNNING_FIFO
+from catanc.model.priorities import ENFORCER_FIFO, RUNNING_FIFO
 from catanc.runtime.protocol.endpoints import EnforcerSocket, open_endpoint
 from catanc.runtime.protocol.messages import Hello, Route, Stop, decode, trigger_datagram
 

@@ -43,10 +43,10 @@ from typing import Any
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
-from catanc.core.build import build_problem
-from catanc.core.load import load_spec
 from catanc.errors import ExitCode, OutputError
 from catanc.files import write_files
+from catanc.model.build import build_problem
+from catanc.model.load import load_spec
 from catanc.planning.planner import plan_problem
 from catanc.sim.metrics import ChainResult, PolicyResult
 from catanc.sim.plots import panel_figure, png_bytes

@@ -37,7 +37,7 @@ import time
 from collections.abc import Callable, Iterator
 from typing import Any
 
-from catanc.core.load import load_spec
+from catanc.model.load import load_spec
 from catanc.sim import fast, kernel, policies
 from catanc.sim import simulate as simulate_run
 from catanc.sim.simulate import POLICIES, EngineChoice, Setup, simulate

@@ -19,9 +19,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from catanc.core.build import build_problem
-from catanc.core.load import load_spec
-from catanc.core.problem import Problem
+from catanc.model.build import build_problem
+from catanc.model.load import load_spec
+from catanc.model.problem import Problem
 from catanc.planning.stage1 import allocate
 from catanc.planning.stage1.milp import DEFAULT_TIME_LIMIT_S, relaxation_bound
 from catanc.spec.language import Spec

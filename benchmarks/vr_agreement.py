@@ -27,7 +27,7 @@ import statistics
 from pathlib import Path
 
 from benchmarks.scenarios import VR_CHAINS
-from catanc.core.load import load_spec
+from catanc.model.load import load_spec
 from catanc.sim.policies import NO_DELAYS, Delays, Sampler
 from catanc.sim.simulate import SamplerFactory, Setup, simulate, workload_sampler
 from catanc.spec.language import Spec

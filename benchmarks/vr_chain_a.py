@@ -23,7 +23,7 @@ import numpy as np
 
 import catanc.sim.simulate as simulate_module
 from benchmarks.vr_agreement import DRIVER, ENFORCER, half_width
-from catanc.core.load import load_spec
+from catanc.model.load import load_spec
 from catanc.sim import policies
 from catanc.sim.dataflow import Dataflow
 from catanc.sim.engine import Engine

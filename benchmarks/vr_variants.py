@@ -23,7 +23,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from benchmarks.scenarios import VR_CHAINS, response
-from catanc.core.load import load_spec
+from catanc.model.load import load_spec
 from catanc.sim.simulate import Setup, simulate
 from tests.support.scenario_specs import spec_file, spec_yaml
 

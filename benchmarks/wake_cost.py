@@ -40,8 +40,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from catanc.core.priorities import ENFORCER_FIFO
 from catanc.extras import require
+from catanc.model.priorities import ENFORCER_FIFO
 
 ROOT = Path(__file__).resolve().parent.parent
 TRIGGER = b"catanc1 trigger LM 123456 1"

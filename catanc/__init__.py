@@ -1,7 +1,7 @@
 """catanc: compile semantic specs of sense-react task graphs into CPU schedules.
 
 The pipeline (docs/development.md, "Layout"): load a spec (:func:`load_spec`),
-build its planning problem (:func:`catanc.core.problem.build_problem`), plan it
+build its planning problem (:func:`catanc.model.problem.build_problem`), plan it
 (:func:`plan`: Stage I, then Stage II), emit.
 
 ``plan``, ``Plan`` and ``Replanner`` (re-planning as compute times drift)
@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 from catanc.errors import CatancError, SpecError
 
 if TYPE_CHECKING:
-    from catanc.core.load import load_spec, parse_spec
+    from catanc.model.load import load_spec, parse_spec
     from catanc.planning.planner import plan
     from catanc.planning.replan import Replanner
     from catanc.planning.types import Plan
@@ -37,7 +37,7 @@ __all__ = [
 def __getattr__(name: str) -> Any:
     # Everything loads on first use: `import catanc.client` in an app node must stay light.
     if name in ("load_spec", "parse_spec"):
-        from catanc.core import load  # noqa: PLC0415
+        from catanc.model import load  # noqa: PLC0415
 
         return getattr(load, name)
     if name == "Spec":

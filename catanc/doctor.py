@@ -24,8 +24,8 @@ from pathlib import Path
 from typing import Any
 
 from catanc.artifacts.runtime_table import RuntimeTable
-from catanc.core.priorities import ENFORCER_FIFO
 from catanc.errors import CatancError, Diagnostic, SpecError
+from catanc.model.priorities import ENFORCER_FIFO
 from catanc.runtime.compiled import ready as compiled_ready
 from catanc.runtime.compiled.ready import LoopState
 from catanc.runtime.linux.sched import check_fifo_allowed, fix_message, format_cpus, privilege_facts

@@ -28,8 +28,8 @@ import pytest
 
 import catanc.client as client_module
 from catanc.client import ClientError, Node, Trigger
-from catanc.core.load import load_spec
-from catanc.core.workload import ComputeSampler
+from catanc.model.load import load_spec
+from catanc.model.workload import ComputeSampler
 from catanc.runtime.protocol import messages as protocol
 from catanc.runtime.protocol import ring
 from catanc.runtime.protocol.messages import (

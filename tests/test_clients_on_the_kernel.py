@@ -22,7 +22,7 @@ from pathlib import Path
 
 import pytest
 
-from catanc.core.priorities import RUNNING_FIFO
+from catanc.model.priorities import RUNNING_FIFO
 from catanc.runtime.linux.watchdog import WATCHDOG_PRIORITY
 from tests.support.client_nodes import (
     Run,

@@ -31,7 +31,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         ("catanc.errors", "catanc.extras", "catanc.files", "catanc.numba_cache", "catanc.text"),
     ),  # errors, extras, atomic writes, numba's cache, words
     ("spec", ("catanc.spec",)),  # the language, YAML positions, syntax and shape, the deploy section's checks
-    ("core", ("catanc.core",)),  # the problem, its building (meaning checks), the analytic model, loading a spec
+    ("core", ("catanc.model",)),  # the problem, its building (meaning checks), the analytic model, loading a spec
     ("planning", ("catanc.planning",)),  # the plan's types, Stage I, Stage II, the planner, re-planning, baseline
     ("explain", ("catanc.explain",)),
     ("artifacts", ("catanc.artifacts",)),  # the runtime table, deployment, emit, output, compile
@@ -164,7 +164,7 @@ SOLVERS = ("cvxpy", "pulp", "highspy", "clarabel", "scipy", "numba", "matplotlib
     [
         ("import catanc.planning.types", (*SOLVERS, "catanc.planning.planner", "catanc.planning.stage2")),
         ("import catanc.artifacts.runtime_table", (*SOLVERS, "jinja2", "rich", "catanc.explain")),
-        ("import catanc.core.load", (*SOLVERS, "catanc.planning")),
+        ("import catanc.model.load", (*SOLVERS, "catanc.planning")),
     ],
 )
 def test_light_modules_stay_light(statement: str, unwanted: tuple[str, ...]) -> None:

@@ -17,8 +17,8 @@ from pathlib import Path, PurePath
 from catanc import __version__
 from catanc.artifacts.emit import emit
 from catanc.artifacts.provenance import Provenance
-from catanc.core.load import SpecFile, read_spec
 from catanc.errors import Diagnostic, UsageError
+from catanc.model.load import SpecFile, read_spec
 from catanc.planning.planner import plan_problem
 from catanc.spec.machine import apply_machine, read_machine
 

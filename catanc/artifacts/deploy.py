@@ -29,8 +29,8 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from catanc.artifacts.runtime_table import PARAMS_FILE, RATE_DIGITS, ProcessEntry, ms
-from catanc.core.priorities import static_policy
 from catanc.errors import Diagnostic, SpecError
+from catanc.model.priorities import static_policy
 from catanc.spec.deploy_checks import PERIOD_NS, RESERVED_PREFIX, process_keys, qualified, split_command
 from catanc.spec.language import Spec
 
@@ -316,7 +316,7 @@ class CallbackGroup:
     id: str  # with the timer period filled in
     nodes: tuple[str, ...]  # DAG nodes whose callbacks it runs, in spec order
     cpus: tuple[int, ...]
-    policy: str  # SCHED_FIFO or SCHED_OTHER (catanc.core.priorities.static_policy)
+    policy: str  # SCHED_FIFO or SCHED_OTHER (catanc.model.priorities.static_policy)
     priority: int  # SCHED_FIFO priority; 0 under SCHED_OTHER
 
 
@@ -361,7 +361,7 @@ class NonRosThread:
 
     id: str  # the DAG node's name: the name its catanc client registers, and spawn_non_ros2_thread's
     cpus: tuple[int, ...]
-    policy: str  # SCHED_FIFO or SCHED_OTHER (catanc.core.priorities.static_policy)
+    policy: str  # SCHED_FIFO or SCHED_OTHER (catanc.model.priorities.static_policy)
     priority: int  # SCHED_FIFO priority; 0 under SCHED_OTHER
 
 

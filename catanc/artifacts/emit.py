@@ -29,7 +29,7 @@ from catanc.explain.analysis import explain_plan
 from catanc.explain.markdown import render_markdown
 
 if TYPE_CHECKING:
-    from catanc.core.problem import Problem
+    from catanc.model.problem import Problem
     from catanc.planning.types import Plan
     from catanc.spec.language import Spec
     from catanc.spec.machine import MachineUse

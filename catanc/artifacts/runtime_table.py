@@ -17,7 +17,7 @@ as written:
   what ``catanc report`` holds the measured rate to;
 - each chain's metrics are section 2 of docs/explanation/model.md over the rounded
   subchain timings and the rounded ``clocks`` (unscheduled nodes' periods);
-- ``objective`` is :func:`catanc.core.metrics.objective` over those same numbers.
+- ``objective`` is :func:`catanc.model.metrics.objective` over those same numbers.
 
 :func:`plan_json` dumps it with sorted keys, two-space indents and a final
 newline: the same plan gives the same bytes.  :func:`runtime_json` is the
@@ -38,10 +38,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, NotRequired, TypedDict, cast
 
 from catanc.artifacts.provenance import Provenance
-from catanc.core.build import build_problem
-from catanc.core.metrics import Timing, evaluate_chain, objective
-from catanc.core.problem import Chain, Problem, Stage
 from catanc.errors import Diagnostic, FieldPath, Location, SpecError
+from catanc.model.build import build_problem
+from catanc.model.metrics import Timing, evaluate_chain, objective
+from catanc.model.problem import Chain, Problem, Stage
 from catanc.spec.language import Spec
 from catanc.spec.parse import validate_data
 from catanc.spec.source import SourceMap, parse_yaml, read_input

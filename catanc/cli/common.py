@@ -26,7 +26,7 @@ from catanc.errors import CatancError, Diagnostic, ExitCode, SpecError, UsageErr
 if TYPE_CHECKING:
     from rich.console import Console
 
-    from catanc.core.problem import Problem
+    from catanc.model.problem import Problem
     from catanc.runtime.compiled.ready import LoopChoice
     from catanc.spec.language import Spec
 
@@ -130,7 +130,7 @@ def print_diagnostics(diagnostics: Sequence[Diagnostic], *, warning: bool = Fals
 
 def load_problem(spec_path: Path) -> tuple[Spec, Problem]:
     """The spec and its planning problem, with the problem's warnings printed."""
-    from catanc.core.load import read_spec
+    from catanc.model.load import read_spec
 
     loaded = read_spec(spec_path)
     print_diagnostics(loaded.problem.warnings, warning=True)

@@ -125,8 +125,8 @@ def compile_(
     from catanc.artifacts.compile import Options, check_enough_cpus, compile_checked, parse_cpus
     from catanc.artifacts.output import compare, ensure_comparable, write
     from catanc.cli.progress import tracked
-    from catanc.core.load import read_spec
     from catanc.errors import UsageError
+    from catanc.model.load import read_spec
 
     if check and dry_run:
         raise UsageError("--check and --dry-run both write nothing: pick one")

@@ -54,8 +54,8 @@ def run_(
         observe_(table_path, launch=launch, attach=attach or [], demo=demo, duration=duration, log=log, quiet=quiet)
         return
     from catanc.artifacts.runtime_table import load_table
-    from catanc.core.priorities import ENFORCER_FIFO
     from catanc.errors import UsageError
+    from catanc.model.priorities import ENFORCER_FIFO
     from catanc.runtime.enforcer.processes import (
         MIDDLEWARE_CHECK_S,
         Children,
@@ -252,7 +252,7 @@ def calibrate(
     """Measure the enforcer's own costs on this machine (a few seconds of a synthetic app) into a machine profile."""
     from catanc.artifacts.output import replace_file
     from catanc.cli.progress import progress
-    from catanc.core.priorities import ENFORCER_FIFO
+    from catanc.model.priorities import ENFORCER_FIFO
     from catanc.runtime.linux.sched import Restorer, check_fifo_allowed
     from catanc.runtime.linux.watchdog import Watchdog
     from catanc.runtime.profile.calibrate import calibrate as measure

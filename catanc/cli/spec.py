@@ -25,7 +25,7 @@ def validate(
     specs: Annotated[list[Path], typer.Argument(metavar="SPEC...", help="Spec files.", show_default=False)],
 ) -> None:
     """Check specs: YAML, fields, names, the DAG, subchains, objective and constraints."""
-    from catanc.core.load import read_spec
+    from catanc.model.load import read_spec
 
     failed = False
     for path in specs:
@@ -53,8 +53,8 @@ def chains(
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
 ) -> None:
     """List the app's chains, their subchain sequences and the terms that use them."""
-    from catanc.core.load import read_spec
     from catanc.explain.listings import chain_listing, chains_table
+    from catanc.model.load import read_spec
 
     loaded = read_spec(spec_path)
     spec, problem = loaded.spec, loaded.problem

@@ -49,7 +49,7 @@ if TYPE_CHECKING:
 
 MIN_PLANNING_MS = 1e-3
 """Floor of :meth:`Measurements.estimates` (1 us): the planner takes only positive times
-(:meth:`catanc.core.problem.Problem.with_compute`), but a node may well measure 0 ms."""
+(:meth:`catanc.model.problem.Problem.with_compute`), but a node may well measure 0 ms."""
 
 RECONCILE_REL_TOL = 0.10
 """:func:`reconcile` keeps a client's figure within 10% of the kernel's ..."""

@@ -27,8 +27,8 @@ from dataclasses import dataclass
 from functools import cached_property
 from typing import TYPE_CHECKING
 
-from catanc.core.priorities import resting_fifo
-from catanc.core.problem import Problem
+from catanc.model.priorities import resting_fifo
+from catanc.model.problem import Problem
 from catanc.planning.order import slot_starts
 from catanc.spec.language import Schedule
 from catanc.spec.speedup import threads_and_speedup

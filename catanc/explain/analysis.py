@@ -8,7 +8,7 @@ GitHub Markdown for a committed ``PLAN.md`` (deterministic, independent of any
 terminal width).  It reads the plan only through
 ``plan.subchains`` (cores, shared, fraction, ...), ``plan.shared_cores``
 (each shared core's ``T`` and order) and ``plan.chains``, and recomputes
-every derived number with :mod:`catanc.core.metrics`:
+every derived number with :mod:`catanc.model.metrics`:
 
 1. per core, one schedule period: switch, slice ``f * c(S)`` and idle slack
    of each subchain in order, and how often each completes a run (every
@@ -31,14 +31,14 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
 
-from catanc.core.metrics import Timing, evaluate_chain
-from catanc.core.problem import Executor, Problem, Subchain
 from catanc.errors import Diagnostic
 from catanc.explain.enforceable import short_slots
 from catanc.explain.executor_caps import cap_offer
 from catanc.explain.executors import objective_as_run, plan_turns, rate_warnings
 from catanc.explain.headroom import NEAR_SATURATION, Headroom, plan_headrooms
 from catanc.explain.processes import ProcessView, process_views
+from catanc.model.metrics import Timing, evaluate_chain
+from catanc.model.problem import Executor, Problem, Subchain
 from catanc.planning.baseline import BaselineEvaluation, BaselineGap, TermValue, evaluate_baseline, objective_terms
 from catanc.planning.order import slot_starts
 from catanc.planning.stage1.estimate import Allocation

@@ -13,7 +13,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
 
-from catanc.core.priorities import ENFORCER_FIFO, RUNNING_FIFO, UNSCHEDULED_FIFO, resting_fifo
 from catanc.explain.analysis import (
     BINDING_TOLERANCE,
     EXECUTOR_SPACING,
@@ -23,6 +22,7 @@ from catanc.explain.analysis import (
     cores_text,
     runs_per_period,
 )
+from catanc.model.priorities import ENFORCER_FIFO, RUNNING_FIFO, UNSCHEDULED_FIFO, resting_fifo
 from catanc.planning.baseline import BaselineGap
 from catanc.text import plural
 

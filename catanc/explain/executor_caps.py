@@ -18,11 +18,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
-from catanc.core.build import build_problem
-from catanc.core.executor_thread import as_run_objective
-from catanc.core.problem import Executor, Problem
 from catanc.errors import CatancError
 from catanc.explain.executors import core_groups, objective_as_run, plan_timings, plan_turns
+from catanc.model.build import build_problem
+from catanc.model.executor_thread import as_run_objective
+from catanc.model.problem import Executor, Problem
 from catanc.planning.planner import plan_problem
 from catanc.planning.types import Plan
 from catanc.spec.language import RateConstraint, Spec

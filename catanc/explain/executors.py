@@ -4,7 +4,7 @@ Nodes of one single-threaded executor never run at once (docs/explanation/model.
 finds the thread busy waits for the run on it to end, and once late it steals the slots of the
 subchains its own outranks, for the thread to run in.  The slot model plans each subchain as if
 its threads were its own, so neither the wait, nor the triggers lost meanwhile, nor the stolen
-slots are in its latencies or rates.  :mod:`catanc.core.executor_thread` predicts them; this module
+slots are in its latencies or rates.  :mod:`catanc.model.executor_thread` predicts them; this module
 feeds it a plan's timings, core groups and slack.  nav2d is the example: on one core GM's 150 ms run
 holds the thread ~210 ms, so GL, planned at 50 Hz, runs at about 39 Hz, and NC, whose slots GL takes
 meanwhile, at about 105 Hz of 134 (simulated: 38 and 103.6 Hz).
@@ -14,9 +14,9 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from catanc.core.executor_thread import CoreGroup, ExecutorTurns, MemberRate, as_run_objective, executor_turns
-from catanc.core.metrics import Timing
-from catanc.core.problem import Executor, Problem
+from catanc.model.executor_thread import CoreGroup, ExecutorTurns, MemberRate, as_run_objective, executor_turns
+from catanc.model.metrics import Timing
+from catanc.model.problem import Executor, Problem
 from catanc.spec.language import Schedule
 
 if TYPE_CHECKING:

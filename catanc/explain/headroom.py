@@ -12,8 +12,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from catanc.core.metrics import Timing, evaluate_chain
-from catanc.core.problem import Chain, Problem
+from catanc.model.metrics import Timing, evaluate_chain
+from catanc.model.problem import Chain, Problem
 from catanc.spec.language import Schedule
 from catanc.text import hz
 

@@ -10,10 +10,10 @@ from typing import Any
 
 from rich.table import Table
 
-from catanc.core import graph
-from catanc.core.build import collapse, spec_dag
-from catanc.core.problem import Chain, Problem
 from catanc.errors import Diagnostic, format_path
+from catanc.model import graph
+from catanc.model.build import collapse, spec_dag
+from catanc.model.problem import Chain, Problem
 from catanc.planning.stage1 import Stage1Result
 from catanc.planning.stage1.estimate import option_table
 from catanc.spec.language import Spec

@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from catanc.core.problem import Problem
+from catanc.model.problem import Problem
 from catanc.spec.executors import spec_processes
 from catanc.spec.language import Spec
 

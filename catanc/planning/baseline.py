@@ -45,10 +45,10 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-from catanc.core.build import spec_dag
-from catanc.core.metrics import ChainMetrics, Timing, chain_metrics, fixed_timing
-from catanc.core.problem import Chain, PeriodTerm, Problem
 from catanc.errors import format_path
+from catanc.model.build import spec_dag
+from catanc.model.metrics import ChainMetrics, Timing, chain_metrics, fixed_timing
+from catanc.model.problem import Chain, PeriodTerm, Problem
 from catanc.spec.language import Spec
 
 FAIR_SHARE_CAP = 0.95

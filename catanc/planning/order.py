@@ -22,7 +22,7 @@ import itertools
 import math
 from collections.abc import Mapping, Sequence
 
-from catanc.core.problem import Problem
+from catanc.model.problem import Problem
 from catanc.spec.language import Schedule
 
 ENUMERATE_UP_TO = 7

@@ -13,7 +13,7 @@
   first.  The plain two-stage result is kept for comparison.
 
 Every number in the plan is re-derived from the schedule itself and the
-objective re-evaluated by :mod:`catanc.core.metrics`, so the plan reports what it
+objective re-evaluated by :mod:`catanc.model.metrics`, so the plan reports what it
 would do.  :class:`catanc.planning.replan.Replanner` re-plans with new compute times.
 """
 
@@ -24,10 +24,10 @@ from collections.abc import Mapping
 from dataclasses import replace
 from typing import Literal
 
-from catanc.core.build import build_problem
-from catanc.core.metrics import chain_metrics_of
-from catanc.core.problem import Problem
 from catanc.errors import InfeasibleError, UsageError
+from catanc.model.build import build_problem
+from catanc.model.metrics import chain_metrics_of
+from catanc.model.problem import Problem
 from catanc.planning.order import data_flow_order, flow_weights, priorities
 from catanc.planning.stage1 import Allocation, Stage1Result, allocate, next_best
 from catanc.planning.stage1.exhaustive import every_allocation

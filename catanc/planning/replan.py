@@ -23,9 +23,9 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import replace
 
-from catanc.core.build import build_problem
-from catanc.core.problem import Problem
 from catanc.errors import UsageError
+from catanc.model.build import build_problem
+from catanc.model.problem import Problem
 from catanc.planning.planner import STAGE2_RELAXATIONS, assemble, conic_model, plan_problem
 from catanc.planning.stage2.base import Layout, SharedCore, Stage2Model
 from catanc.planning.stage2.solve import solve_layout

@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from catanc.core.priorities import resting_fifo
+from catanc.model.priorities import resting_fifo
 from catanc.planning.stage1.estimate import Allocation
 from catanc.planning.stage1.result import Stage1Result
 

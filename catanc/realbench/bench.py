@@ -41,11 +41,11 @@ from typing import Any
 
 from catanc.control.schedule import RuntimeSchedule
 from catanc.control.timers import trigger_rules
-from catanc.core.build import build_problem
-from catanc.core.priorities import ENFORCER_FIFO
-from catanc.core.problem import Problem
 from catanc.errors import PrivilegeError, UsageError
 from catanc.files import write_files
+from catanc.model.build import build_problem
+from catanc.model.priorities import ENFORCER_FIFO
+from catanc.model.problem import Problem
 from catanc.planning.baseline import static_priorities
 from catanc.planning.types import Plan
 from catanc.realbench.driver import BenchError, Driver, DriverSocket

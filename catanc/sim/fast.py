@@ -23,7 +23,7 @@ from catanc.control.policy import slot_rules
 from catanc.control.schedule import RuntimeSchedule
 from catanc.control.slot_table import ACTIONS, NONE, empty_rules, lay_out_rules
 from catanc.control.timers import trigger_rules
-from catanc.core.workload import ComputeSampler, NodeStream
+from catanc.model.workload import ComputeSampler, NodeStream
 from catanc.sim import kernel as k
 from catanc.sim.policies import Reoptimiser, Replan
 from catanc.sim.records import Records

@@ -130,7 +130,7 @@ class SimProxy(structref.StructRefProxy):  # type: ignore[misc]
     are those of its slots under the subchains of the version in force, as the Python policy asks
     :func:`~catanc.control.policy.slot_rules` at a switch).
 
-    The draws (:class:`catanc.core.workload.NodeStream` values, drawn ahead):
+    The draws (:class:`catanc.model.workload.NodeStream` values, drawn ahead):
     ``mode``/``factor`` ``[N, width]`` (rings: run ``j`` of a node at ``j % width``), ``used``, ``filled`` (runs
     taken and drawn, ever), ``spike_at``
     (padded with inf), ``spike_next``, ``spike_ms``, ``has_growth``, ``growth``.
@@ -637,7 +637,7 @@ def tick(sim: Sim, node: int) -> None:
 
 @compiled
 def sample(sim: Sim, node: int, at_s: float) -> float:
-    """:meth:`catanc.core.workload.NodeStream.draw` from the values drawn in advance."""
+    """:meth:`catanc.model.workload.NodeStream.draw` from the values drawn in advance."""
     i = sim.spike_next[node]
     if at_s >= sim.spike_at[node, i]:
         while sim.spike_at[node, i] <= at_s:

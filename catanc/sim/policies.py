@@ -27,7 +27,7 @@ from catanc.control.measure import Measurements
 from catanc.control.policy import Cadence, SlotRule, boundary_ms, decide, hand_over, replanned, slot_rules
 from catanc.control.schedule import CoreSchedule, RuntimeSchedule, SubchainRun, is_late, runtime_schedule
 from catanc.control.timers import Triggers, trigger_rules
-from catanc.core.priorities import RUNNING_FIFO, SHARED_FIFO
+from catanc.model.priorities import RUNNING_FIFO, SHARED_FIFO
 from catanc.planning.replan import Replanner
 from catanc.sim.cpu import Discipline, Job, Pool
 from catanc.sim.dataflow import Dataflow, Origins

@@ -29,12 +29,12 @@ import numpy.typing as npt
 
 from catanc.control.measure import estimate, mode_times
 from catanc.control.schedule import RuntimeSchedule, runtime_schedule
-from catanc.core.build import build_problem, spec_dag
-from catanc.core.graph import all_chains
-from catanc.core.problem import Problem
-from catanc.core.workload import ComputeSampler, NodeStream
 from catanc.errors import UsageError
 from catanc.extras import require
+from catanc.model.build import build_problem, spec_dag
+from catanc.model.graph import all_chains
+from catanc.model.problem import Problem
+from catanc.model.workload import ComputeSampler, NodeStream
 from catanc.planning.baseline import static_priorities
 from catanc.planning.planner import plan_problem
 from catanc.planning.replan import Replanner
@@ -148,7 +148,7 @@ def policy_spec(spec: Spec, policy: str) -> Spec:
 
 
 def workload_sampler(spec: Spec, seed: int) -> Sampler:
-    """The spec's workload model (:mod:`catanc.core.workload`), seeded."""
+    """The spec's workload model (:mod:`catanc.model.workload`), seeded."""
     return ComputeSampler(spec, seed).compute_ms
 
 

@@ -6,7 +6,7 @@ ROS node and parameter names, commands a POSIX shell can split, one
 command, package and executable per ROS node, rate parameters that do not
 clash, callback group IDs cie_thread_configurator can match.
 :func:`deploy_problems` yields every problem as ``(field path, message)``;
-:func:`catanc.core.problem.build_problem` reports them with the spec's other
+:func:`catanc.model.problem.build_problem` reports them with the spec's other
 problems.
 """
 

@@ -16,7 +16,7 @@ as one executor (docs/explanation/executor-planning.md), when
 The nodes of any other process (a non-Python one whose nodes name callback groups) may run at once
 and are planned as the spec's ``executors:`` say.  :func:`executor_groups` joins the two sources:
 an ``executors:`` entry inside a one-thread process is that process's executor (named by the
-entry when it lists all of the process's scheduled nodes).  :func:`catanc.core.build.build_problem`
+entry when it lists all of the process's scheduled nodes).  :func:`catanc.model.build.build_problem`
 rejects the specs where the two disagree (an entry joining two processes, or two entries splitting
 one thread).
 """
@@ -139,7 +139,7 @@ def executor_groups(spec: Spec, explicit: Mapping[str, Sequence[str]] | None = N
     lists all of the process's scheduled nodes, else it is left out (the process's group holds it).  The
     rest keep their place; the processes' groups no entry names come after them, in spec order.  Where
     an entry reaches outside the process of one of its nodes the spec is wrong and the groups overlap:
-    :func:`catanc.core.build.build_problem` reports it.
+    :func:`catanc.model.build.build_problem` reports it.
     """
     entries = spec.executors if explicit is None else explicit
     processes = [process for process in spec_processes(spec) if process.one_thread]

@@ -3,7 +3,7 @@
 These pydantic models are the schema of record: ``catanc schema`` exports them
 as JSON Schema.  They check the *shape* of a spec (types, ranges, unknown
 keys).  Checks that need the whole spec (names, the DAG, subchain paths) live
-in :mod:`catanc.core.problem`, which turns a valid ``Spec`` into the solver's view.
+in :mod:`catanc.model.problem`, which turns a valid ``Spec`` into the solver's view.
 
 Units: milliseconds for times, hertz for rates.
 """

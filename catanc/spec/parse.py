@@ -3,8 +3,8 @@
 Loading a spec has three passes, each reporting every problem it finds as a
 compiler-style diagnostic: YAML syntax (:mod:`catanc.spec.source`), shape
 (the pydantic models, here, with pydantic's errors mapped onto the YAML's
-lines and fields) and meaning (:func:`catanc.core.build.build_problem`:
-names, the DAG, paths).  :mod:`catanc.core.load` runs all three.
+lines and fields) and meaning (:func:`catanc.model.build.build_problem`:
+names, the DAG, paths).  :mod:`catanc.model.load` runs all three.
 """
 
 from __future__ import annotations

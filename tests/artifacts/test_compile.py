@@ -31,9 +31,9 @@ from catanc.artifacts.deploy import processes
 from catanc.artifacts.emit import FILES
 from catanc.artifacts.runtime_table import RUNTIME_FORMAT
 from catanc.cli import app
-from catanc.core.build import build_problem
-from catanc.core.load import load_spec
 from catanc.errors import ExitCode
+from catanc.model.build import build_problem
+from catanc.model.load import load_spec
 from catanc.planning.planner import plan
 from catanc.spec.language import Spec
 

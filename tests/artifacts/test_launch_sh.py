@@ -41,10 +41,10 @@ from catanc.artifacts.compile import compile_spec
 from catanc.artifacts.deploy import Process, processes
 from catanc.artifacts.emit import emit
 from catanc.artifacts.provenance import Provenance
-from catanc.core.build import build_problem
-from catanc.core.load import parse_spec
-from catanc.core.priorities import RUNNING_FIFO, SHARED_FIFO, UNSCHEDULED_FIFO
 from catanc.errors import ExitCode
+from catanc.model.build import build_problem
+from catanc.model.load import parse_spec
+from catanc.model.priorities import RUNNING_FIFO, SHARED_FIFO, UNSCHEDULED_FIFO
 from catanc.planning.planner import plan
 from catanc.planning.types import Plan
 from catanc.spec.language import Spec

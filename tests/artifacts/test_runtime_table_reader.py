@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 
 from catanc.artifacts.runtime_table import load_table
-from catanc.core.build import build_problem
-from catanc.core.load import load_spec
 from catanc.errors import SpecError
+from catanc.model.build import build_problem
+from catanc.model.load import load_spec
 
 ROOT = Path(__file__).parents[2]
 TABLES = sorted((ROOT / "out").glob("*/cores-*/runtime.json"))

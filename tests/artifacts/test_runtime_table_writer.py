@@ -14,9 +14,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from catanc.artifacts.runtime_table import plan_json, plan_payload
-from catanc.core.build import build_problem
-from catanc.core.load import load_spec
-from catanc.core.problem import Problem
+from catanc.model.build import build_problem
+from catanc.model.load import load_spec
+from catanc.model.problem import Problem
 from catanc.planning.planner import plan
 from catanc.planning.types import Plan
 from catanc.spec.language import ChainsTerm, ChainTerm, NodeTerm, Spec

@@ -23,8 +23,8 @@ from catanc.artifacts.compile import Options, compile_spec
 from catanc.artifacts.deploy import timer_ns
 from catanc.artifacts.emit import FILES, THREAD_CONFIGURATOR
 from catanc.cli.main import app
-from catanc.core.load import load_spec, parse_spec
 from catanc.errors import ExitCode, SpecError
+from catanc.model.load import load_spec, parse_spec
 from catanc.planning.planner import plan
 
 runner = CliRunner()

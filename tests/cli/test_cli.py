@@ -118,12 +118,12 @@ def test_missing_file_is_a_bad_input(tmp_path: Path) -> None:
 
 
 def test_bugs_get_their_own_exit_code(good: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    import catanc.core.load
+    import catanc.model.load
 
     def broken(path: object) -> None:
         raise RuntimeError("boom")
 
-    monkeypatch.setattr(catanc.core.load, "read_spec", broken)
+    monkeypatch.setattr(catanc.model.load, "read_spec", broken)
     monkeypatch.delenv("CATANC_DEBUG", raising=False)
     result = runner.invoke(app, ["chains", str(good)])
     assert result.exit_code == ExitCode.INTERNAL
@@ -195,8 +195,8 @@ def test_compile_reads_checks_and_builds_each_spec_once(
     good: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     # One spec for two core counts: one read, one pass of each kind, one problem (issue 33: parse once).
-    import catanc.core.build
-    import catanc.core.load
+    import catanc.model.build
+    import catanc.model.load
     import catanc.spec.parse
 
     calls: dict[str, int] = {}
@@ -212,8 +212,8 @@ def test_compile_reads_checks_and_builds_each_spec_once(
 
     counting(catanc.spec.parse, "parse_yaml")
     counting(catanc.spec.parse, "validate_data")
-    counting(catanc.core.load, "read_spec_text")
-    counting(catanc.core.build._Builder, "build")  # whoever builds a problem, wherever from
+    counting(catanc.model.load, "read_spec_text")
+    counting(catanc.model.build._Builder, "build")  # whoever builds a problem, wherever from
     monkeypatch.chdir(tmp_path)
     result = runner.invoke(app, ["compile", "--dry-run", str(good), "-k", "1", "-k", "2"])
     assert result.exit_code == 0, result.output

@@ -12,9 +12,9 @@ import pytest
 import yaml
 from pydantic import BaseModel
 
-from catanc.core.build import build_problem
-from catanc.core.load import parse_spec
 from catanc.errors import ExitCode
+from catanc.model.build import build_problem
+from catanc.model.load import parse_spec
 from catanc.spec import language
 from catanc.spec.starter import starter_spec
 

@@ -18,8 +18,8 @@ from catanc.control.schedule import (
     slot_owner,
     triggers_at_slot,
 )
-from catanc.core.build import build_problem
-from catanc.core.load import load_spec
+from catanc.model.build import build_problem
+from catanc.model.load import load_spec
 from catanc.planning.planner import plan
 
 ROOT = Path(__file__).parents[2]

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import pytest
 
-from catanc.core.build import build_problem
-from catanc.core.load import load_spec, parse_spec
 from catanc.explain.analysis import explain_plan
 from catanc.explain.enforceable import short_slots
+from catanc.model.build import build_problem
+from catanc.model.load import load_spec, parse_spec
 from catanc.planning.planner import plan
 from catanc.spec.machine import MachineFile, MachineProfile, apply_machine
 

@@ -15,11 +15,11 @@ from typing import Any
 import pytest
 import yaml
 
-from catanc.core.build import build_problem
-from catanc.core.executor_thread import ExecutorTurns, MemberRate
-from catanc.core.problem import Problem
 from catanc.explain.analysis import explain_plan
 from catanc.explain.executors import core_groups, member_warning, objective_as_run, plan_turns, rate_warnings
+from catanc.model.build import build_problem
+from catanc.model.executor_thread import ExecutorTurns, MemberRate
+from catanc.model.problem import Problem
 from catanc.planning.planner import plan_problem
 from catanc.planning.types import Plan
 from catanc.sim.simulate import Setup, simulate

@@ -19,9 +19,6 @@ from rich.console import Console
 from typer.testing import CliRunner
 
 from catanc.cli import app
-from catanc.core.build import build_problem
-from catanc.core.load import load_spec, parse_spec
-from catanc.core.problem import Problem
 from catanc.errors import ExitCode, InfeasibleError
 from catanc.explain.analysis import Explanation, SharedCoreView, explain_plan
 from catanc.explain.blocks import (
@@ -38,6 +35,9 @@ from catanc.explain.blocks import (
 )
 from catanc.explain.markdown import blocks_markdown, render_markdown
 from catanc.explain.terminal import render
+from catanc.model.build import build_problem
+from catanc.model.load import load_spec, parse_spec
+from catanc.model.problem import Problem
 from catanc.planning.planner import plan
 from catanc.planning.types import Plan
 from tests.support.strategies import spec_of

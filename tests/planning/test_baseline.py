@@ -9,8 +9,8 @@ from typing import Any
 import pytest
 from hypothesis import given
 
-from catanc.core.build import build_problem
-from catanc.core.load import load_spec, parse_spec
+from catanc.model.build import build_problem
+from catanc.model.load import load_spec, parse_spec
 from catanc.planning.baseline import BaselineEvaluation, BaselineGap, evaluate_baseline, static_priorities
 from tests.support.strategies import spec_documents, spec_of
 

@@ -18,11 +18,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from catanc.artifacts.runtime_table import plan_payload
-from catanc.core.build import build_problem
-from catanc.core.executor_thread import as_run_objective, periods_as_run
-from catanc.core.metrics import Timing, bound_scale
-from catanc.core.problem import Problem
 from catanc.explain.executors import objective_as_run
+from catanc.model.build import build_problem
+from catanc.model.executor_thread import as_run_objective, periods_as_run
+from catanc.model.metrics import Timing, bound_scale
+from catanc.model.problem import Problem
 from catanc.planning.planner import plan_problem
 from catanc.planning.stage2 import turns as turns_module
 from catanc.planning.stage2.base import Layout, SharedCore

@@ -16,11 +16,11 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from typer.testing import CliRunner
 
-from catanc.core.build import build_problem
-from catanc.core.load import parse_spec
-from catanc.core.metrics import capped_dedicated, dedicated_timing
-from catanc.core.problem import Problem
 from catanc.errors import ExitCode, InfeasibleError, SpecError
+from catanc.model.build import build_problem
+from catanc.model.load import parse_spec
+from catanc.model.metrics import capped_dedicated, dedicated_timing
+from catanc.model.problem import Problem
 from catanc.planning.stage1 import Option, allocate, next_best
 from catanc.planning.stage1.estimate import evaluate, option_table
 from catanc.planning.stage1.exhaustive import set_partitions
@@ -211,7 +211,7 @@ def test_executor_overload_is_a_spec_error() -> None:
 
 
 def test_nav2d_mapper_shares_a_core() -> None:
-    from catanc.core.load import load_spec
+    from catanc.model.load import load_spec
     from catanc.planning.planner import plan
 
     spec = load_spec("specs/nav2d.yaml")

@@ -9,8 +9,8 @@ from __future__ import annotations
 import pytest
 
 from catanc.control.schedule import RuntimeSchedule, runtime_schedule
-from catanc.core.build import build_problem
-from catanc.core.load import parse_spec
+from catanc.model.build import build_problem
+from catanc.model.load import parse_spec
 from catanc.planning.planner import plan
 from catanc.runtime.enforcer.runs import RunBook
 

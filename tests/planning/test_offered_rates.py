@@ -16,10 +16,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from catanc.core.build import build_problem
-from catanc.core.load import load_spec, parse_spec
-from catanc.core.metrics import Timing, bound_scale, objective
-from catanc.core.problem import Problem
+from catanc.model.build import build_problem
+from catanc.model.load import load_spec, parse_spec
+from catanc.model.metrics import Timing, bound_scale, objective
+from catanc.model.problem import Problem
 from catanc.planning.planner import plan
 from catanc.planning.replan import Replanner
 from catanc.planning.stage2.base import Layout, SharedCore

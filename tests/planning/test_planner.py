@@ -10,10 +10,10 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from catanc.core.build import build_problem
-from catanc.core.load import load_spec, parse_spec
-from catanc.core.metrics import Timing, bound_scale, objective
-from catanc.core.problem import Problem
+from catanc.model.build import build_problem
+from catanc.model.load import load_spec, parse_spec
+from catanc.model.metrics import Timing, bound_scale, objective
+from catanc.model.problem import Problem
 from catanc.planning.planner import plan
 from catanc.planning.stage2.relaxed import Layout, SharedCore
 from catanc.planning.types import Plan
@@ -29,7 +29,7 @@ def example(name: str, cores: int) -> Plan:
     return plan(load_spec(SPECS / f"{name}.yaml"), cores)
 
 
-# Face tracking (paper 7.1): one subchain of 25 + 58 + 1 ms. Worked in tests/core/test_metrics.py:
+# Face tracking (paper 7.1): one subchain of 25 + 58 + 1 ms. Worked in tests/model/test_metrics.py:
 # 1 core: Eq. 1's period 84 ms; 2 cores: 58 ms. Each core keeps the spec's 5% slack idle, so the
 # periods are 84 / 0.95 and 58 / 0.95, and the response adds the latency of 84 ms. The paper's
 # camera rate is free; the spec's camera offers 15 or 30 fps (tests/planning/test_offered_rates.py).
@@ -82,7 +82,7 @@ subchains: {A: [a], B: [b]}
 objective: [{chain: [a, b, out], weight: 1}]
 constraints: [{chain: [a, b, out], max_response_ms: 1}]
 """
-    from catanc.core.load import parse_spec
+    from catanc.model.load import parse_spec
 
     result = plan(parse_spec(text), 1)
     assert result.constraint_scale > 1
@@ -233,8 +233,8 @@ def test_same_plan_in_fresh_processes() -> None:
     import sys
 
     script = (
-        "import json, sys; from catanc.core.load import load_spec; from catanc.planning.planner import plan; "
-        "from catanc.core.build import build_problem; from catanc.artifacts.runtime_table import plan_payload; "
+        "import json, sys; from catanc.model.load import load_spec; from catanc.planning.planner import plan; "
+        "from catanc.model.build import build_problem; from catanc.artifacts.runtime_table import plan_payload; "
         "spec = load_spec(sys.argv[1]); "
         "print(json.dumps(plan_payload(plan(spec, 2), build_problem(spec)), sort_keys=True))"
     )
@@ -279,7 +279,7 @@ def test_a_plan_from_the_closed_form_leaves_cvxpy_unloaded() -> None:
 
     script = (
         "import sys\n"
-        "from catanc.core.load import load_spec\n"
+        "from catanc.model.load import load_spec\n"
         "from catanc.planning.planner import plan\n"
         f"plan(load_spec({str(SPECS / 'nav2d.yaml')!r}), 2)\n"
         "print('cvxpy' in sys.modules)\n"

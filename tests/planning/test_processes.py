@@ -17,8 +17,8 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from catanc.core.build import build_problem
 from catanc.errors import InfeasibleError
+from catanc.model.build import build_problem
 from catanc.planning.planner import plan_problem
 from catanc.planning.stage1 import allocate
 from catanc.sim.simulate import Setup, simulate

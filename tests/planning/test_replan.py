@@ -9,11 +9,11 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from catanc.core.build import build_problem
-from catanc.core.load import load_spec
-from catanc.core.metrics import Timing, bound_scale, objective
-from catanc.core.problem import Problem
 from catanc.errors import UsageError
+from catanc.model.build import build_problem
+from catanc.model.load import load_spec
+from catanc.model.metrics import Timing, bound_scale, objective
+from catanc.model.problem import Problem
 from catanc.planning.planner import plan, plan_problem
 from catanc.planning.replan import RUNTIME_GAP, Replanner
 from catanc.planning.stage2.base import Layout, SharedCore

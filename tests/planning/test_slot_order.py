@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from catanc.core.load import parse_spec
+from catanc.model.load import parse_spec
 from catanc.planning.order import data_flow_order, flow_cost
 from catanc.planning.planner import plan
 

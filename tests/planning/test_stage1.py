@@ -10,9 +10,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from catanc.core.build import build_problem
-from catanc.core.load import parse_spec
-from catanc.core.problem import Problem
+from catanc.model.build import build_problem
+from catanc.model.load import parse_spec
+from catanc.model.problem import Problem
 from catanc.planning.stage1 import Allocation, Option, allocate, milp
 from catanc.planning.stage1.estimate import option_timing
 from catanc.planning.stage1.exhaustive import allocations, set_partitions

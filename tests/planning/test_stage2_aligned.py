@@ -21,10 +21,10 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from catanc.control.schedule import runtime_schedule
-from catanc.core.build import build_problem
-from catanc.core.load import load_spec, parse_spec
-from catanc.core.metrics import Timing, bound_scale, capped_dedicated, objective
-from catanc.core.problem import Problem
+from catanc.model.build import build_problem
+from catanc.model.load import load_spec, parse_spec
+from catanc.model.metrics import Timing, bound_scale, capped_dedicated, objective
+from catanc.model.problem import Problem
 from catanc.planning.planner import plan
 from catanc.planning.stage2.base import Layout
 from catanc.planning.stage2.conic import ConicStage2

@@ -17,11 +17,11 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from catanc.core.build import build_problem
-from catanc.core.load import parse_spec
-from catanc.core.metrics import Timing
-from catanc.core.problem import Problem
 from catanc.errors import InfeasibleError
+from catanc.model.build import build_problem
+from catanc.model.load import parse_spec
+from catanc.model.metrics import Timing
+from catanc.model.problem import Problem
 from catanc.planning.planner import conic_model, ordered_layout
 from catanc.planning.stage1.exhaustive import every_allocation
 from catanc.planning.stage2.base import Layout, SharedCore, Stage2Model

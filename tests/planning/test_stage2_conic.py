@@ -16,9 +16,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from catanc.core.build import build_problem
-from catanc.core.load import load_spec
-from catanc.core.problem import Problem
+from catanc.model.build import build_problem
+from catanc.model.load import load_spec
+from catanc.model.problem import Problem
 from catanc.planning.stage1 import allocate
 from catanc.planning.stage2.base import Layout, RelaxedSolution, SharedCore, Stage2Model
 from catanc.planning.stage2.conic import ConicStage2
@@ -270,7 +270,7 @@ def test_runtime_path_imports_neither_cvxpy_nor_scipy() -> None:
     """The re-optimiser's first plans (nav2d on 1 and 2 cores) load neither: each costs every run
     start-up time (scipy.sparse ~0.15 s of CPU)."""
     code = (
-        "import sys; from catanc.core.load import load_spec; from catanc.planning.replan import Replanner; "
+        "import sys; from catanc.model.load import load_spec; from catanc.planning.replan import Replanner; "
         f"spec = load_spec({str(SPECS / 'nav2d.yaml')!r}); Replanner(spec, 1); Replanner(spec, 2); "
         "print(sorted(name for name in ('cvxpy', 'scipy') if name in sys.modules))"
     )

@@ -24,9 +24,9 @@ import yaml
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from catanc.core.build import build_problem
-from catanc.core.metrics import Timing, bound_scale, capped_dedicated, evaluate_chain, objective
-from catanc.core.problem import Problem
+from catanc.model.build import build_problem
+from catanc.model.metrics import Timing, bound_scale, capped_dedicated, evaluate_chain, objective
+from catanc.model.problem import Problem
 from catanc.planning.stage1 import allocate
 from catanc.planning.stage2.conic import ConicStage2
 from catanc.planning.stage2.integer import most_runs, solve_integer
@@ -241,7 +241,7 @@ def check_against_enumeration(document: dict[str, Any], cores: int, *, loose: bo
 # Over those, r = 3/4 and 2/3 both give 6 + 3 + 8/3 and 6 + 8/3 + 3 = 11.6667; r = 5/7 (n_a 5) is
 # out of range, so the integer optimum is 11.6667 against the relaxed 6 + 4 sqrt(2) = 11.6569.
 def test_integer_optimum_by_hand() -> None:
-    from catanc.core.load import parse_spec
+    from catanc.model.load import parse_spec
     from catanc.planning.stage2.relaxed import SharedCore
 
     spec = parse_spec(

@@ -8,10 +8,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from catanc.core.build import build_problem
-from catanc.core.load import parse_spec
-from catanc.core.metrics import Timing, capped_dedicated, objective
-from catanc.core.problem import Problem
+from catanc.model.build import build_problem
+from catanc.model.load import parse_spec
+from catanc.model.metrics import Timing, capped_dedicated, objective
+from catanc.model.problem import Problem
 from catanc.planning.stage1 import allocate
 from catanc.planning.stage2.relaxed import Layout, RelaxedStage2, SharedCore
 from catanc.spec.language import Schedule

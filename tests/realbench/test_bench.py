@@ -27,9 +27,9 @@ import pytest
 
 from catanc.control.run_summary import summarise
 from catanc.control.timers import TICK, TIMER, Clock, Triggers, trigger_rules
-from catanc.core.build import build_problem
-from catanc.core.load import load_spec, parse_spec
 from catanc.errors import ExitCode, UsageError
+from catanc.model.build import build_problem
+from catanc.model.load import load_spec, parse_spec
 from catanc.planning.planner import plan
 from catanc.realbench import bench as bench_run
 from catanc.realbench.bench import fifo_levels

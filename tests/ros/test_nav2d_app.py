@@ -20,7 +20,7 @@ import pytest
 import yaml
 
 from benchmarks.ros_nav2d import EXAMPLE, all_records, read_records, running
-from catanc.core.load import load_spec
+from catanc.model.load import load_spec
 from catanc.runtime.logs.writer import read_log
 from tests.support.linux import require_fifo
 

@@ -38,8 +38,8 @@ from typing import Any
 
 import pytest
 
-from catanc.core.priorities import ENFORCER_FIFO, RUNNING_FIFO, SHARED_FIFO, UNSCHEDULED_FIFO
 from catanc.errors import ExitCode
+from catanc.model.priorities import ENFORCER_FIFO, RUNNING_FIFO, SHARED_FIFO, UNSCHEDULED_FIFO
 from catanc.runtime.linux.watchdog import WATCHDOG_PRIORITY
 from catanc.runtime.logs.writer import read_log
 from catanc.runtime.worker.command import worker_command

@@ -42,8 +42,8 @@ from typing import Any
 
 import pytest
 
-from catanc.core.priorities import RUNNING_FIFO, SHARED_FIFO, UNSCHEDULED_FIFO
 from catanc.errors import ExitCode
+from catanc.model.priorities import RUNNING_FIFO, SHARED_FIFO, UNSCHEDULED_FIFO
 from catanc.runtime.linux.watchdog import WATCHDOG_PRIORITY
 from catanc.runtime.protocol.messages import SOCKET_ENV
 from catanc.runtime.worker.command import worker_command

@@ -32,8 +32,8 @@ from catanc.control.measure import (
     split_modes,
     valid_sample,
 )
-from catanc.core.load import load_spec, parse_spec
 from catanc.errors import UsageError
+from catanc.model.load import load_spec, parse_spec
 from catanc.planning.replan import Replanner
 from catanc.runtime.linux.cpu_clocks import CpuClock, OpenCpuClocks, cpu_ms, parse_schedstat, schedstat_path
 from catanc.spec.language import Spec

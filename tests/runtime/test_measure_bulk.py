@@ -17,8 +17,8 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from catanc.control.measure import ComputeWindow, Measurements
-from catanc.core.load import load_spec
 from catanc.errors import UsageError
+from catanc.model.load import load_spec
 
 untimed = settings(deadline=None)  # tests never time things
 

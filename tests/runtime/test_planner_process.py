@@ -5,7 +5,7 @@ from __future__ import annotations
 import threading
 from pathlib import Path
 
-from catanc.core.load import load_spec, parse_spec
+from catanc.model.load import load_spec, parse_spec
 from catanc.runtime.enforcer.reoptimiser import PlannerProcess, Request
 from tests.support.enforcer_runs import cmdline, process_name
 

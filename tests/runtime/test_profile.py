@@ -13,8 +13,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from catanc.core.load import parse_spec
 from catanc.errors import ExitCode
+from catanc.model.load import parse_spec
 from catanc.runtime.logs.samples import MeasurementsError, read_samples
 from catanc.runtime.profile.propose import (
     MIN_SAMPLES,

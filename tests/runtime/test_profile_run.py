@@ -21,8 +21,8 @@ import pytest
 from typer.testing import CliRunner
 
 from catanc.cli import app
-from catanc.core.load import load_spec
 from catanc.errors import ExitCode
+from catanc.model.load import load_spec
 from catanc.runtime.linux.watchdog import WATCHDOG_PRIORITY
 from catanc.runtime.profile.propose import MIN_SAMPLES, profile_spec
 from catanc.spec.language import ModalCompute

@@ -14,8 +14,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from catanc.core.load import load_spec
-from catanc.core.workload import ComputeSampler
+from catanc.model.load import load_spec
+from catanc.model.workload import ComputeSampler
 from catanc.sim.simulate import (
     STATIC_20S,
     profile_times,

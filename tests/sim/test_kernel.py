@@ -17,8 +17,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from catanc.core.load import load_spec
 from catanc.errors import CatancError
+from catanc.model.load import load_spec
 from catanc.sim import fast
 from catanc.sim import kernel as k
 from catanc.sim.comparison import comparison_payload

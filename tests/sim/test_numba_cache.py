@@ -73,7 +73,7 @@ def test_importing_the_kernel_drops_its_stale_cache_files() -> None:
 
 BUILD_A_SIM = """
 import catanc.sim.kernel as k
-from catanc.core.load import load_spec
+from catanc.model.load import load_spec
 from catanc.sim.simulate import Setup, simulate
 
 simulate(Setup(load_spec("specs/nav2d.yaml"), 1, 0.1, 0), "baseline")

@@ -19,8 +19,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from catanc.control.measure import percentile
-from catanc.core.load import load_spec
 from catanc.errors import CatancError, UsageError
+from catanc.model.load import load_spec
 from catanc.sim.comparison import comparison_payload
 from catanc.sim.cpu import Job, Pool
 from catanc.sim.engine import Engine

@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 
 from catanc.control.schedule import CoreSchedule, RuntimeSchedule, Slot, SubchainRun
-from catanc.core.load import load_spec
+from catanc.model.load import load_spec
 from catanc.realbench.bench import BenchSetup, planned_spec
 from catanc.sim.dataflow import Dataflow
 from catanc.sim.engine import Engine

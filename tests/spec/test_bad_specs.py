@@ -30,8 +30,8 @@ from typing import Any
 
 import pytest
 
-from catanc.core.load import load_spec
 from catanc.errors import Diagnostic, SpecError
+from catanc.model.load import load_spec
 
 CASES_DIR = Path(__file__).parent / "bad_specs"
 

@@ -10,8 +10,8 @@ from typer.testing import CliRunner
 
 from catanc.artifacts.output import replace_file
 from catanc.cli import app
-from catanc.core.load import load_spec
 from catanc.errors import ExitCode
+from catanc.model.load import load_spec
 from catanc.planning.planner import plan
 from catanc.spec.language import Schedule
 from catanc.spec.machine import (

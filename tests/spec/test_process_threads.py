@@ -10,8 +10,8 @@ from typing import Any
 
 import pytest
 
-from catanc.core.build import build_problem
 from catanc.errors import SpecError
+from catanc.model.build import build_problem
 from catanc.spec.executors import executor_groups, python_program, spec_processes
 from tests.support.strategies import spec_of
 

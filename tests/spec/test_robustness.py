@@ -10,8 +10,8 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from catanc.core.load import parse_spec
 from catanc.errors import SpecError
+from catanc.model.load import parse_spec
 from catanc.spec.language import Spec
 
 SPECS = sorted((Path(__file__).parents[2] / "specs").glob("*.yaml"))

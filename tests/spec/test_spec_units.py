@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from catanc.core.load import parse_spec
 from catanc.errors import ExitCode
+from catanc.model.load import parse_spec
 from catanc.spec.language import JITTER_DISTS, RATE_UNITS, json_schema
 
 # One dedicated node of 5 ms on one core with the default 5% slack (docs/explanation/model.md section 4):

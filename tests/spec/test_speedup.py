@@ -6,8 +6,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from catanc.control.schedule import runtime_schedule
-from catanc.core.build import build_problem
-from catanc.core.load import parse_spec
+from catanc.model.build import build_problem
+from catanc.model.load import parse_spec
 from catanc.planning.planner import plan
 from catanc.spec.speedup import best_speedup, threads_used
 

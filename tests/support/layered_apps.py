@@ -14,7 +14,7 @@ from typing import Any
 
 import yaml
 
-from catanc.core.load import parse_spec
+from catanc.model.load import parse_spec
 from catanc.spec.language import Spec
 
 

@@ -7,9 +7,9 @@ from typing import Any
 
 from hypothesis import strategies as st
 
-from catanc.core.build import build_problem
-from catanc.core.load import parse_spec
-from catanc.core.problem import Problem
+from catanc.model.build import build_problem
+from catanc.model.load import parse_spec
+from catanc.model.problem import Problem
 from catanc.spec.language import Spec
 
 

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from catanc.core.load import load_spec
+from catanc.model.load import load_spec
 from tests.support.scenario_specs import (
     DATASET,
     bucket_medians,

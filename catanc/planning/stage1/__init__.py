@@ -12,8 +12,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from catanc.core.problem import Problem
 from catanc.errors import UsageError
+from catanc.model.problem import Problem
 from catanc.planning.stage1.estimate import Allocation, Option
 from catanc.planning.stage1.exhaustive import solve_exhaustive
 from catanc.planning.stage1.result import Stage1Result

@@ -20,8 +20,8 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from catanc.core.metrics import Timing, bound_scale, capped_dedicated, objective
-from catanc.core.problem import Problem, Subchain
+from catanc.model.metrics import Timing, bound_scale, capped_dedicated, objective
+from catanc.model.problem import Problem, Subchain
 from catanc.planning.stage1.together import pack_groups
 
 SCALE_SLACK = 1e-6

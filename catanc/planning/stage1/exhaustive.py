@@ -12,8 +12,8 @@ from __future__ import annotations
 import itertools
 from collections.abc import Iterator, Sequence
 
-from catanc.core.problem import Problem
 from catanc.errors import UsageError
+from catanc.model.problem import Problem
 from catanc.planning.stage1.estimate import (
     SCALE_SLACK,
     Allocation,

@@ -41,9 +41,9 @@ from typing import Any
 import highspy
 import pulp
 
-from catanc.core.metrics import chain_form
-from catanc.core.problem import Problem
 from catanc.errors import UsageError
+from catanc.model.metrics import chain_form
+from catanc.model.problem import Problem
 from catanc.planning.stage1 import SOLVERS
 from catanc.planning.stage1.estimate import (
     SCALE_SLACK,

@@ -17,7 +17,7 @@ import math
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 
-from catanc.core.problem import Problem
+from catanc.model.problem import Problem
 from catanc.planning.stage1.estimate import Option, OptionTable, evaluate
 from catanc.planning.stage1.together import respects
 

@@ -2,7 +2,7 @@
 
 Nodes of one single-threaded executor run in one thread, so they get one
 core set and never overlap.  Where an executor's nodes span several
-subchains, those subchains (a *unit*, :attr:`catanc.core.problem.Problem.together`)
+subchains, those subchains (a *unit*, :attr:`catanc.model.problem.Problem.together`)
 must sit in one shared group: the group's slots run one after the other.
 Stage I's estimate depends only on each subchain's option, so an allocation
 is valid when its groups can be formed with every unit inside one group;
@@ -15,8 +15,8 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Protocol
 
-from catanc.core.problem import Problem
 from catanc.errors import InfeasibleError
+from catanc.model.problem import Problem
 
 
 class Option(Protocol):

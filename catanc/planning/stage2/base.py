@@ -13,7 +13,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Protocol
 
-from catanc.core.problem import Problem, Subchain
+from catanc.model.problem import Problem, Subchain
 from catanc.planning.stage1.estimate import Allocation
 from catanc.spec.language import Schedule
 

@@ -48,8 +48,8 @@ import clarabel
 import numpy as np
 import numpy.typing as npt
 
-from catanc.core.metrics import ChainForm, capped_dedicated, chain_form
-from catanc.core.problem import Problem, Subchain
+from catanc.model.metrics import ChainForm, capped_dedicated, chain_form
+from catanc.model.problem import Problem, Subchain
 from catanc.planning.stage2.base import Layout, LayoutModel, RelaxedSolution, Stage2Model
 from catanc.planning.stage2.sparse import CscMatrix
 from catanc.spec.language import Schedule

@@ -29,7 +29,7 @@ import itertools
 import math
 from dataclasses import dataclass
 
-from catanc.core.problem import Problem
+from catanc.model.problem import Problem
 from catanc.planning.stage2.base import RelaxedSolution, Stage2Model
 from catanc.planning.stage2.convex import OPEN, Open
 from catanc.planning.stage2.onebatch import OneBatchRuns

@@ -36,7 +36,7 @@ import math
 import weakref
 from dataclasses import dataclass
 
-from catanc.core.problem import ChainForm, Problem
+from catanc.model.problem import ChainForm, Problem
 from catanc.planning.stage2.base import RelaxedSolution, Stage2Model, aligned_every, length_candidates
 from catanc.planning.stage2.convex import OPEN, Convex, Open, Piece, least_scale_point, optimum_point
 from catanc.planning.stage2.whole import FEASIBILITY, WholeRuns

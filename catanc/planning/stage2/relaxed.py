@@ -10,7 +10,7 @@ latency is ``T / f_i``.  Constraints (all posynomial <= monomial):
 - ``T / f_i <= p_i``; ``min(min_slice, c_i) <= f_i c_i``; ``f_i <= 1`` unless batch
 - rate bounds ``p_min <= p_i <= s * p_max``; chain bounds ``R_t <= s * B_t``
 
-Dedicated subchains enter as constants (:func:`catanc.core.metrics.capped_dedicated`).
+Dedicated subchains enter as constants (:func:`catanc.model.metrics.capped_dedicated`).
 Every number that changes at runtime is a cvxpy Parameter, and the problem
 is DPP, so a re-solve with new compute times reuses the compiled problem.
 The relaxation drops the integrality of ``1/f_i``; restoring it is a
@@ -27,8 +27,8 @@ from collections.abc import Mapping
 import cvxpy as cp
 import numpy as np
 
-from catanc.core.metrics import capped_dedicated, chain_form
-from catanc.core.problem import Problem
+from catanc.model.metrics import capped_dedicated, chain_form
+from catanc.model.problem import Problem
 from catanc.planning.stage2.base import Layout, LayoutModel, RelaxedSolution, SharedCore
 from catanc.spec.language import Schedule
 

@@ -1,7 +1,7 @@
 """Stage II for one allocation: dedicated timings, then the shared cores' integer schedule.
 
 - Dedicated subchains: Eq. 1's period and threads, then their rate cap
-  (:func:`catanc.core.metrics.capped_dedicated`); no solver.
+  (:func:`catanc.model.metrics.capped_dedicated`); no solver.
 - Shared cores: the exact integer optimum over whole runs ``n_i = 1/f_i``
   (:func:`catanc.planning.stage2.integer.solve_integer`) with soft bounds: at scale 1
   if any integer plan meets them, else at the smallest scale one can meet.
@@ -14,7 +14,7 @@ Every number of the result is re-derived from the schedule itself (``T``
 from the fractions, or the breakpoint ``p_min / k`` the search chose above
 it; ``p = k T`` with ``k = max(n, ceil(p_min / T))`` for a non-batch shared
 subchain, triggered at its slot every ``k`` periods; ``p = max(T/f, p_min)``
-for a batch one) and the objective re-evaluated by :mod:`catanc.core.metrics`, so
+for a batch one) and the objective re-evaluated by :mod:`catanc.model.metrics`, so
 a result reports what its schedule would do.
 
 A fixed rate is a rate cap and a rate floor at once: when the bounds are
@@ -36,9 +36,9 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-from catanc.core.metrics import Timing, bound_scale, capped_dedicated, objective
-from catanc.core.problem import Problem
 from catanc.errors import InfeasibleError
+from catanc.model.metrics import Timing, bound_scale, capped_dedicated, objective
+from catanc.model.problem import Problem
 from catanc.planning.stage2.base import Layout, Stage2Model, aligned_every, schedule_length
 from catanc.planning.stage2.convex import OPEN, Open
 from catanc.planning.stage2.integer import Effort, IntegerSolution, closed_form, solve_integer

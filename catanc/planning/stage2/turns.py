@@ -1,8 +1,8 @@
 """An executor's thread on a shared core: its members' trigger spacing ``k`` traded, searched exactly.
 
 Where an executor's nodes head subchains on one shared core, a run of one member holds the
-thread while the others' triggers come and go (:mod:`catanc.core.executor_thread`): the plan's
-objective as run (:func:`~catanc.core.executor_thread.as_run_objective`) is its objective with the
+thread while the others' triggers come and go (:mod:`catanc.model.executor_thread`): the plan's
+objective as run (:func:`~catanc.model.executor_thread.as_run_objective`) is its objective with the
 periods the thread's turns leave.  Triggering a member less often (a longer ``k``, so ``p = k T``)
 lengthens its own period and shortens every other member's losses: the trade made here, once
 Stage II has chosen the runs and schedule lengths (docs/explanation/executor-planning.md: those are still
@@ -44,9 +44,9 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from catanc.core.executor_thread import CoreGroup, as_run_objective, periods_as_run
-from catanc.core.metrics import Timing, bound_scale, objective
-from catanc.core.problem import Problem
+from catanc.model.executor_thread import CoreGroup, as_run_objective, periods_as_run
+from catanc.model.metrics import Timing, bound_scale, objective
+from catanc.model.problem import Problem
 from catanc.planning.order import priorities
 from catanc.planning.stage2.base import Layout
 from catanc.spec.language import Schedule

@@ -32,8 +32,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from catanc.core.metrics import QUICK_MARGIN, Timing, WeightedSums, bound_scale, capped_dedicated, objective
-from catanc.core.problem import Problem
+from catanc.model.metrics import QUICK_MARGIN, Timing, WeightedSums, bound_scale, capped_dedicated, objective
+from catanc.model.problem import Problem
 from catanc.planning.stage2.base import (
     RelaxedSolution,
     SharedCore,
@@ -96,7 +96,7 @@ class WholeRuns:
     ) -> RelaxedSolution | None:
         """The plan with these runs at these schedule lengths (None: it misses the scaled bounds).
 
-        Its objective is :func:`~catanc.core.metrics.objective`'s, or where :class:`WeightedSums` puts it
+        Its objective is :func:`~catanc.model.metrics.objective`'s, or where :class:`WeightedSums` puts it
         clearly above ``above`` that estimate (within rounding of it): the caller only rejects it then.
 
         ``batch`` gives each batch subchain's fraction, chosen by the caller

@@ -17,6 +17,6 @@ SOURCES = (
     _PACKAGE / "control" / "measure.py",  # constants compiled in
     _PACKAGE / "runtime" / "protocol" / "ring.py",
     _PACKAGE / "runtime" / "enforcer" / "runs.py",
-    _PACKAGE / "core" / "priorities.py",
+    _PACKAGE / "model" / "priorities.py",
 )
 """The walk's own module first; then what its compiled code calls or takes constants from."""

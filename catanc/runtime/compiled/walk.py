@@ -43,7 +43,7 @@ from catanc.control.compiled_policy import boundary_ms as slot_boundary_ms
 from catanc.control.compiled_policy import decide, hand_over, thieves, triggers
 from catanc.control.measure import CLIENT_WORK_MS, RECONCILE_ABS_TOL_MS, RECONCILE_REL_TOL
 from catanc.control.slot_table import HANDOVER, RAISE, STEAL, TRIGGER
-from catanc.core import priorities
+from catanc.model import priorities
 from catanc.numba_cache import drop_stale_cache
 from catanc.runtime.compiled import sources as compiled_sources
 from catanc.runtime.compiled.arrays import (

@@ -30,7 +30,7 @@ from catanc.control.policy import (
     slot_rules,
 )
 from catanc.control.schedule import CoreSchedule, RuntimeSchedule, SubchainRun
-from catanc.core.priorities import RUNNING_FIFO
+from catanc.model.priorities import RUNNING_FIFO
 from catanc.runtime.enforcer.costs import SAMPLES, Costs
 from catanc.runtime.enforcer.nodes import Wiring
 from catanc.runtime.enforcer.runs import RunBook, Seen

@@ -26,7 +26,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 from catanc.control.schedule import RuntimeSchedule, SubchainRun, node_priority
-from catanc.core.priorities import APP_FIFO_LEVELS, UNSCHEDULED_FIFO
+from catanc.model.priorities import APP_FIFO_LEVELS, UNSCHEDULED_FIFO
 from catanc.runtime.linux.levels import Levels
 from catanc.runtime.linux.sched import (
     COMPANION_PREFIX,

@@ -2,7 +2,7 @@
 
 Two threads: the main thread (it waits, and handles signals) and the loop
 (:mod:`catanc.runtime.enforcer.run`).  Both are remembered by the restorer (the watchdog puts them
-back too) and run at SCHED_FIFO :data:`~catanc.core.priorities.ENFORCER_FIFO` with real-time
+back too) and run at SCHED_FIFO :data:`~catanc.model.priorities.ENFORCER_FIFO` with real-time
 scheduling on, reset on fork (processes they start, ``--demo`` workers, must not inherit it).
 The loop is pinned to the plan core with the most switches a second: its wake-ups are that
 core's slot switches, and a wake-up on another CPU would cost an inter-processor interrupt each.
@@ -17,7 +17,7 @@ import threading
 from collections.abc import Callable, Iterable
 
 from catanc.control.schedule import RuntimeSchedule
-from catanc.core.priorities import ENFORCER_FIFO
+from catanc.model.priorities import ENFORCER_FIFO
 from catanc.runtime.linux.sched import Restorer
 
 

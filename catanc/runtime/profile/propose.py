@@ -68,8 +68,8 @@ from dataclasses import dataclass, field
 
 from catanc.control.measure import MIN_PLANNING_MS, percentile, split_modes
 from catanc.control.run_summary import chain_response
-from catanc.core.problem import Problem
 from catanc.errors import CatancError, FieldPath, format_path
+from catanc.model.problem import Problem
 from catanc.runtime.enforcer.costs import edge_key
 from catanc.runtime.logs.samples import LogSamples, MeasurementsError, Sample, read_samples
 from catanc.runtime.logs.writer import BATCHED
@@ -545,7 +545,7 @@ def profile_spec(spec_text: str, spec_file: str, log_text: str, log_file: str, *
     """
     import difflib  # noqa: PLC0415 - only the command needs it
 
-    from catanc.core.load import check_text  # noqa: PLC0415 - the spec's meaning pass, as validate runs it
+    from catanc.model.load import check_text  # noqa: PLC0415 - the spec's meaning pass, as validate runs it
     from catanc.spec.profile_edit import add_entries, apply_edits  # noqa: PLC0415
 
     spec, problem = check_text(spec_text, spec_file)

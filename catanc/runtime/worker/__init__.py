@@ -18,7 +18,7 @@ compute time by 3 for every run that starts 5 s (wall time) or more after
 its node registered.  The socket defaults to ``$CATANC_SOCKET``.
 
 ``--workload SPEC`` draws every run's compute time from the spec's workload
-model instead (:class:`catanc.core.workload.ComputeSampler`, seeded with
+model instead (:class:`catanc.model.workload.ComputeSampler`, seeded with
 ``--seed``: jitter, growth over time, spikes; each node must be a scheduled
 node of SPEC), at ``at_s`` = seconds since ``--clock-start-ns``, an instant
 on ``CLOCK_MONOTONIC`` (``time.monotonic_ns()``), which every process of a

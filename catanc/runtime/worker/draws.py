@@ -70,8 +70,8 @@ def workload_draws(spec_path: Path, nodes: Iterable[str], seed: int) -> dict[str
     Raises :class:`~catanc.errors.CatancError` (a bad spec) or ValueError (a node the spec does
     not schedule).
     """
-    from catanc.core.load import load_spec  # noqa: PLC0415 - only --workload needs the spec language
-    from catanc.core.workload import ComputeSampler  # noqa: PLC0415
+    from catanc.model.load import load_spec  # noqa: PLC0415 - only --workload needs the spec language
+    from catanc.model.workload import ComputeSampler  # noqa: PLC0415
 
     spec = load_spec(spec_path)
     for name in nodes:

@@ -12,9 +12,9 @@ import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import replace
 
-from catanc.core import graph
-from catanc.core.problem import Chain, Executor, PeriodTerm, Problem, ResponseBound, ResponseTerm, Stage, Subchain
 from catanc.errors import Diagnostic, FieldPath, SpecError, close_matches, did_you_mean, format_path
+from catanc.model import graph
+from catanc.model.problem import Chain, Executor, PeriodTerm, Problem, ResponseBound, ResponseTerm, Stage, Subchain
 from catanc.spec.deploy_checks import deploy_problems
 from catanc.spec.executors import ProcessThreads, executor_groups, spec_processes
 from catanc.spec.language import (

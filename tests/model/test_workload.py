@@ -20,9 +20,9 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from catanc.core.load import parse_spec
-from catanc.core.workload import ComputeSampler, growth_factor
 from catanc.errors import SpecError
+from catanc.model.load import parse_spec
+from catanc.model.workload import ComputeSampler, growth_factor
 from catanc.planning.planner import plan
 from catanc.spec.language import Growth, Spec, Workload
 
@@ -107,8 +107,8 @@ def test_seeds_and_names_give_different_streams() -> None:
 
 SUBPROCESS = """
 import json, sys
-from catanc.core.load import parse_spec
-from catanc.core.workload import ComputeSampler
+from catanc.model.load import parse_spec
+from catanc.model.workload import ComputeSampler
 spec = parse_spec(sys.stdin.read(), "workload.yaml")
 sampler = ComputeSampler(spec, 7)
 print(json.dumps([sampler.compute_ms(node, t / 10) for t in range(50) for node in ("w", "o")]))

@@ -19,7 +19,7 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 
-from catanc.core.problem import Chain, ChainForm, PeriodTerm, Problem, ResponseTerm, Stage, Subchain, chain_form
+from catanc.model.problem import Chain, ChainForm, PeriodTerm, Problem, ResponseTerm, Stage, Subchain, chain_form
 
 __all__ = ["ChainForm", "chain_form"]  # re-exported: the solvers' view of a chain lives with the problem
 

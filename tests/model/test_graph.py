@@ -1,4 +1,4 @@
-"""DAG paths, selectors, cycles and orders against brute force on small random graphs (catanc.core.graph is
+"""DAG paths, selectors, cycles and orders against brute force on small random graphs (catanc.model.graph is
 networkx, so networkx is no oracle here)."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import itertools
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from catanc.core import graph
+from catanc.model import graph
 
 Edges = list[tuple[str, str]]
 

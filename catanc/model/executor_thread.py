@@ -36,8 +36,8 @@ import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
-from catanc.core.metrics import Timing, objective
-from catanc.core.problem import Executor, Problem
+from catanc.model.metrics import Timing, objective
+from catanc.model.problem import Executor, Problem
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""The executor-thread model (catanc.core.executor_thread): cases worked by hand, the expected count of lost
+"""The executor-thread model (catanc.model.executor_thread): cases worked by hand, the expected count of lost
 triggers against an enumeration of phases, and properties.  The simulator judges the model on whole plans in
 tests/explain/test_executors.py."""
 
@@ -10,10 +10,10 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from catanc.core.build import build_problem
-from catanc.core.executor_thread import CoreGroup, Member, held_ms, member_rates, periods_as_run, thread_share
-from catanc.core.metrics import Timing
-from catanc.core.problem import Problem
+from catanc.model.build import build_problem
+from catanc.model.executor_thread import CoreGroup, Member, held_ms, member_rates, periods_as_run, thread_share
+from catanc.model.metrics import Timing
+from catanc.model.problem import Problem
 from tests.support.strategies import spec_of
 
 GL = Member("GL", period_ms=20.0, compute_ms=3.2, latency_ms=20.0, share=0.5)

@@ -7,10 +7,10 @@ import math
 
 import pytest
 
-from catanc.core.build import build_problem
-from catanc.core.load import parse_spec
-from catanc.core.problem import Stage
 from catanc.errors import SpecError
+from catanc.model.build import build_problem
+from catanc.model.load import parse_spec
+from catanc.model.problem import Stage
 
 NAV = """
 catan: 1

@@ -2,7 +2,7 @@
 
 A :class:`Problem` is what the solver stages and the analytic model read:
 chains are already collapsed into stages (docs/explanation/model.md section 2).
-:func:`catanc.core.build.build_problem` makes one from a spec.
+:func:`catanc.model.build.build_problem` makes one from a spec.
 """
 
 from __future__ import annotations

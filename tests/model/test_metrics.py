@@ -13,9 +13,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from catanc.core.build import build_problem
-from catanc.core.load import load_spec, parse_spec
-from catanc.core.metrics import (
+from catanc.model.build import build_problem
+from catanc.model.load import load_spec, parse_spec
+from catanc.model.metrics import (
     QUICK_MARGIN,
     Timing,
     WeightedSums,
@@ -25,7 +25,7 @@ from catanc.core.metrics import (
     evaluate_chain,
     objective,
 )
-from catanc.core.problem import Problem, Subchain
+from catanc.model.problem import Problem, Subchain
 from catanc.spec.language import Node
 from tests.support.strategies import problems
 

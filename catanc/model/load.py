@@ -1,7 +1,7 @@
 """Loading a spec: a file or text -> its checked :class:`Spec` and its :class:`Problem`, built once.
 
 The three passes (syntax, shape: :mod:`catanc.spec.parse`; meaning:
-:func:`catanc.core.build.build_problem`) report every problem they find
+:func:`catanc.model.build.build_problem`) report every problem they find
 together.  The meaning pass builds the planning problem, so a command that
 needs both takes them from one :class:`SpecFile` instead of building the
 problem again.
@@ -13,9 +13,9 @@ import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 
-from catanc.core.build import build_problem
-from catanc.core.problem import Problem
 from catanc.errors import SpecError
+from catanc.model.build import build_problem
+from catanc.model.problem import Problem
 from catanc.spec.language import Spec
 from catanc.spec.parse import parse_shape, read_spec_text
 
