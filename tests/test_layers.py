@@ -30,18 +30,29 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         "base",
         ("catanc.errors", "catanc.extras", "catanc.files", "catanc.numba_cache", "catanc.text"),
     ),  # errors, extras, atomic writes, numba's cache, words
+    # The node's end of the protocol: standard library only (copyable), and catanc.ros beside it (rclpy).
+    ("client", ("catanc.client", "catanc.ros")),
     ("spec", ("catanc.spec",)),  # the language, YAML positions, syntax and shape, the deploy section's checks
-    ("core", ("catanc.model",)),  # the problem, its building (meaning checks), the analytic model, loading a spec
+    ("model", ("catanc.model",)),  # the problem, its building (meaning checks), the analytic model, loading a spec
     ("planning", ("catanc.planning",)),  # the plan's types, Stage I, Stage II, the planner, re-planning, baseline
     ("explain", ("catanc.explain",)),
     ("artifacts", ("catanc.artifacts",)),  # the runtime table, deployment, emit, output, compile
-    ("control", ("catanc.control",)),  # the runtime decisions shared by the enforcer and the simulator
-    # The enforcer and its node client. catanc.client still imports runtime.protocol and errors; once it is
-    # standard-library only it moves to the bottom layer.
-    ("runtime", ("catanc.runtime", "catanc.client", "catanc.doctor")),  # doctor: what the enforcer needs here
-    # The simulator sits above the runtime: it replays the enforcer's own measurement code (runtime.measure)
-    # and the run-log summary's rate bins; the runtime never imports the simulator.
+    # The runtime decisions and measurements shared by the enforcer and the simulator.
+    ("control", ("catanc.control",)),
+    # The simulator replays control's decisions and measurements; it imports no runtime module.
     ("sim", ("catanc.sim",)),
+    # The runtime, lowest first: the enforcer's end of the wire protocol, Linux calls, run logs, the
+    # synthetic worker, the enforcer's state (nodes, cores, runs, costs, processes, re-plans), the compiled
+    # loop that walks that state, the enforcer's loop that runs the compiled one, and the commands that
+    # run the enforcer to measure (profile, calibrate, doctor).
+    ("runtime protocol", ("catanc.runtime", "catanc.runtime.protocol")),
+    ("runtime linux", ("catanc.runtime.linux",)),
+    ("runtime logs", ("catanc.runtime.logs",)),
+    ("runtime worker", ("catanc.runtime.worker",)),
+    ("enforcer state", ("catanc.runtime.enforcer",)),
+    ("compiled loop", ("catanc.runtime.compiled",)),
+    ("enforcer loop", ("catanc.runtime.enforcer.run",)),
+    ("measuring", ("catanc.runtime.profile", "catanc.doctor")),
     ("realbench", ("catanc.realbench",)),  # `catanc bench`: the real enforcer and workers, the simulator's metrics
     ("cli", ("catanc.cli", "catanc.__main__")),
     ("api", ("catanc",)),  # the lazy public API (catanc/__init__.py)
@@ -143,8 +154,30 @@ def test_every_module_has_a_layer_and_no_layer_imports_a_higher_one() -> None:
     assert not upward, "\n".join(upward)
 
 
+def test_the_simulator_imports_no_runtime_module() -> None:
+    # Stated apart from the layers: the simulator must stay runnable where the enforcer's parts are not.
+    found = sorted(
+        f"{module} imports {target}"
+        for module, targets in graph().items()
+        if module.startswith("catanc.sim")
+        for target in targets
+        if target.startswith("catanc.runtime")
+    )
+    assert not found, found
+
+
+def test_no_folder_holds_more_than_fifteen_modules() -> None:
+    # A folder that grows past this holds more than one idea: split it by what its modules hold.
+    crowded = {
+        str(folder.relative_to(PACKAGE.parent)): count
+        for folder in [PACKAGE, *(p for p in PACKAGE.rglob("*") if p.is_dir() and p.name != "__pycache__")]
+        if (count := len([m for m in folder.glob("*.py") if m.name != "__init__.py"])) > 15
+    }
+    assert not crowded, crowded
+
+
 def test_the_plans_types_name_no_planner_and_no_solver() -> None:
-    allowed_layers = {"base", "spec", "core"}
+    allowed_layers = {"base", "spec", "model"}
     stage1_answer = {"catanc.planning.stage1.estimate", "catanc.planning.stage1.result"}
     found = graph()["catanc.planning.types"]
     assert all(LAYERS[layer_of(t)][0] in allowed_layers or t in stage1_answer for t in found), sorted(found)

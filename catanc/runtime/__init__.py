@@ -1,1 +1,2 @@
-"""The runtime side of catanc: reading the runtime table, and (issue 6) the enforcer ``catanc run``."""
+"""``catanc run`` and what measures with it: the protocol's enforcer end, Linux calls, run logs, the synthetic
+worker, the enforcer, its compiled loop, and ``catanc profile``/``calibrate`` (docs/development.md, "Layout")."""
