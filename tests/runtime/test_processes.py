@@ -11,7 +11,8 @@ from pathlib import Path
 import pytest
 
 from catanc.errors import UsageError
-from catanc.runtime.enforcer.processes import Children
+from catanc.model.load import load_spec
+from catanc.runtime.enforcer.processes import Children, start_demo
 from tests.support.linux import poll
 
 THREADED = (
@@ -70,3 +71,27 @@ def test_stop_names_what_it_killed_and_what_failed_and_nothing_that_stopped_clea
         f"failing (pid {started['failing'].pid}) exited with status 3 on SIGTERM",
         f"stubborn (pid {started['stubborn'].pid}) still ran 2 s after SIGTERM: SIGKILL",
     ]
+
+
+class RecordingChildren:
+    """Stands in for :class:`Children`: what start_demo would start, by label and argv."""
+
+    def __init__(self) -> None:
+        self.started: dict[str, list[str]] = {}
+
+    def start(self, label: str, argv: list[str], socket_path: str) -> None:  # noqa: ARG002 - Children's signature
+        self.started[label] = argv
+
+
+def test_demo_workers_serialise_the_nodes_a_process_makes_one_executor() -> None:
+    # nav2d's Operator (LM, LP) and Navigator (GP, NC) run in one `ros2 run` process each, with no callback
+    # groups: the plan takes each as one executor (docs/explanation/executor-planning.md, "Processes"), though
+    # only the Mapper is written under `executors:`. The demo must run them as planned: one worker each,
+    # taking turns. By hand from specs/nav2d.yaml's deploy section.
+    spec = load_spec(Path(__file__).parents[2] / "specs" / "nav2d.yaml")
+    children = RecordingChildren()
+    start_demo(children, spec, "/tmp/unused.sock")  # type: ignore[arg-type]
+    assert sorted(children.started) == sorted(["GL, GM", "GP, NC", "LM, LP", "scan"])
+    for label, argv in children.started.items():
+        if ", " in label:
+            assert label.replace(", ", ",") in " ".join(argv)  # one --executor for the group

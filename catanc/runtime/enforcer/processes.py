@@ -33,6 +33,7 @@ from catanc.runtime.linux.sched import MIDDLEWARE_THREADS, format_cpus, threads_
 from catanc.runtime.protocol.messages import SOCKET_ENV
 from catanc.runtime.worker.command import worker_command, worker_groups
 from catanc.runtime.worker.draws import Profile
+from catanc.spec.executors import executor_nodes
 from catanc.spec.language import ModalCompute, Spec
 from catanc.text import plural
 
@@ -139,9 +140,10 @@ def demo_profiles(spec: Spec) -> dict[str, Profile]:
 
 def start_demo(children: Children, spec: Spec, socket_path: str, *, seed: int = 0) -> None:
     """One worker process per scheduled node (Python threads of one process would share one interpreter lock),
-    except that the nodes of one executor share a worker whose runs take turns (the spec's ``executors``)."""
+    except that the nodes of one executor share a worker whose runs take turns: the spec's ``executors`` and those
+    its processes imply (:func:`~catanc.spec.executors.executor_nodes`), as the plan assumed."""
     profiles = demo_profiles(spec)
-    for group in worker_groups(list(profiles), spec.executors):
+    for group in worker_groups(list(profiles), executor_nodes(spec)):
         speedups = {name: spec.nodes[name].threads.speedups for name in group}  # burns on the threads given
         executors = [group] if len(group) > 1 else []
         argv = worker_command(
