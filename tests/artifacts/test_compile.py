@@ -481,9 +481,9 @@ def test_usage_errors(robot: Path, arguments: list[str], message: str) -> None:
 
 @pytest.mark.slow
 def test_committed_output_passes_the_documented_check_and_hook(monkeypatch: pytest.MonkeyPatch) -> None:
-    """The deploying guide's CI command and the pre-commit hook's entry, run on this repository's own out/."""
+    """The CI guide's command and the pre-commit hook's entry, run on this repository's own out/."""
     monkeypatch.chdir(ROOT)
-    guide = (ROOT / "docs" / "guide" / "deploying.md").read_text()
+    guide = (ROOT / "docs" / "guide" / "ci.md").read_text()
     documented = re.search(r"- run: (catanc compile --check[^\n]*)", guide)
     assert documented is not None
     words = shlex.split(documented.group(1))
