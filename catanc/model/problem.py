@@ -282,6 +282,10 @@ class Problem:
             else sub
             for sub in self.subchains
         )
+        return self._with_subchains(subchains)
+
+    def _with_subchains(self, subchains: tuple[Subchain, ...]) -> Problem:
+        """The same problem over new subchain records of the same subchains (the chains' forms kept)."""
         updated = replace(self, subchains=subchains)
         if "chain_forms" in self.__dict__:  # the same chains: keep their forms
             updated.__dict__["chain_forms"] = self.__dict__["chain_forms"]
@@ -312,7 +316,4 @@ class Problem:
             else sub
             for sub in self.subchains
         )
-        updated = replace(self, subchains=subchains)
-        if "chain_forms" in self.__dict__:  # the same chains: keep their forms
-            updated.__dict__["chain_forms"] = self.__dict__["chain_forms"]
-        return updated
+        return self._with_subchains(subchains)
