@@ -84,8 +84,10 @@ def test_commands_output_is_the_same_bytes_with_or_without_a_bar(args: list[str]
     quiet = catanc([*args, "--quiet"], "1", tmp_path)  # a terminal, but told to be quiet
     piped = catanc(args, None, tmp_path)  # not a terminal
     shown = catanc(args, "1", tmp_path)  # rich told stdout and stderr are terminals
-    assert quiet.stderr == b""
-    assert piped.stderr == b""
+    # Told quiet or not a terminal: no bar; what stderr keeps is the command's own warnings, the same either way
+    # (face tracking on 1 core warns that none of the camera's offered rates fits).
+    assert bar not in quiet.stderr.decode()
+    assert quiet.stderr == piped.stderr
     assert bar in shown.stderr.decode()
     assert piped.stdout == quiet.stdout
     assert shown.stdout == quiet.stdout  # the bar never reaches stdout
