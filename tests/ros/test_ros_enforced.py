@@ -57,9 +57,12 @@ def test_a_triggered_timer_runs_in_the_executor_thread_at_the_planned_rate(run: 
     messages = det.wait_for("message", 100)
     assert {message["tid"] for message in messages} == {det_spinning["main"]}
     run.wait(30.0)
-    # det registered before its first message: every cam run's message came back as a det run.
+    # det registered before its first message: every cam run's message, once DDS had matched cam's publisher
+    # with det's subscription (from the cam run that made det's first run on; before that, on a busy machine,
+    # a few of cam's first messages had no reader yet: 10 of 383 in a full suite run), came back as a det run.
     cam_runs, det_runs = run.computes("cam"), run.computes("det")
-    assert len(det_runs) >= len(cam_runs) - 2, (len(cam_runs), len(det_runs))
+    matched = [run_ for run_ in cam_runs if run_["t"] >= det_runs[0]["t"] - 0.5 / PLANNED_HZ]
+    assert len(det_runs) >= len(matched) - 2, (len(cam_runs), len(matched), len(det_runs))
     # Ages: cam's is its own run (no origin: from its start, at least its 1 ms of CPU); det's from cam's
     # stamp (taken as cam's run starts), which det's own clock puts at least the message's arrival plus
     # det's 1 ms of CPU before its end.
