@@ -136,15 +136,10 @@ def processes(spec: Spec, plan: Plan, cpus: Sequence[int] | None = None) -> tupl
     for key in sorted(grouped):
         nodes = tuple(grouped[key])
         entries = [spec.deploy[n] for n in nodes]
-        used: set[int] = set()
-        priority = 0
-        for node in nodes:
-            node_cpus, level = _placement(plan, node, on)
-            used.update(node_cpus)
-            priority = max(priority, level)
+        cores, priority = plan.process_placement(nodes)
         shared = any(node in membership and plan.subchains[membership[node]].shared for node in nodes)
         command = _first(entry.command for entry in entries)
-        process_cpus = tuple(sorted(used))
+        process_cpus = tuple(sorted(on[core] for core in cores))
         by_ros: dict[str, list[str]] = {}
         for node in nodes:
             ros_node = spec.deploy[node].ros_node

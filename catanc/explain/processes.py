@@ -35,12 +35,7 @@ def process_views(spec: Spec, problem: Problem, plan: Plan) -> tuple[ProcessView
     """The deploy section's processes (none without one), sorted by name as runtime.json lists them."""
     views = []
     for process in sorted(spec_processes(spec), key=lambda found: found.key):
-        cores: set[int] = set()
-        level = 0
-        for node in process.nodes:
-            node_cores, node_level = plan.placement(node)
-            cores.update(node_cores)
-            level = max(level, node_level)
+        cores, level = plan.process_placement(process.nodes)
         executor = next((e for e in problem.executors if e.process == process.key), None)
         inside = [e.name for e in problem.executors if e.process is None and set(e.nodes) & set(process.nodes)]
         if executor is not None:
@@ -55,7 +50,7 @@ def process_views(spec: Spec, problem: Problem, plan: Plan) -> tuple[ProcessView
             ProcessView(
                 process.key,
                 process.nodes,
-                tuple(sorted(cores)),
+                cores,
                 level,
                 executor.name if executor is not None else None,
                 threads,

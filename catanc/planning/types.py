@@ -9,6 +9,7 @@ and Stage I's answer only.  :func:`catanc.planning.planner.plan` makes them.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 from catanc.model.priorities import resting_fifo
@@ -110,3 +111,14 @@ class Plan:
         if sub is None:
             return tuple(range(self.cores)), resting_fifo(None)
         return tuple(sorted(sub.cores)), resting_fifo(sub.shared)
+
+    def process_placement(self, nodes: Iterable[str]) -> tuple[tuple[int, ...], int]:
+        """A process's plan cores and SCHED_FIFO level at launch: the union of its ``nodes``' cores and the highest
+        of their resting levels (:meth:`placement`)."""
+        cores: set[int] = set()
+        level = 0
+        for node in nodes:
+            node_cores, node_level = self.placement(node)
+            cores.update(node_cores)
+            level = max(level, node_level)
+        return tuple(sorted(cores)), level
