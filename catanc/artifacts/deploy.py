@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any
 from catanc.artifacts.runtime_table import PARAMS_FILE, RATE_DIGITS, ProcessEntry, ms
 from catanc.errors import Diagnostic, SpecError
 from catanc.model.priorities import static_policy
-from catanc.spec.deploy_checks import PERIOD_NS, RESERVED_PREFIX, process_keys, qualified, split_command
+from catanc.spec.deploy_checks import PERIOD_NS, RESERVED_PREFIX, process_members, qualified, split_command
 from catanc.spec.language import Spec
 
 if TYPE_CHECKING:
@@ -126,11 +126,7 @@ def processes(spec: Spec, plan: Plan, cpus: Sequence[int] | None = None) -> tupl
     ``cpus``: the CPUs plan cores run on (core ``i`` on ``cpus[i]``); default CPU ``i``.
     """
     on = machine_cpus(plan, cpus)
-    keys = process_keys(spec)
-    grouped: dict[str, list[str]] = {}
-    for name in spec.nodes:
-        if name in spec.deploy:
-            grouped.setdefault(keys[name], []).append(name)
+    grouped = process_members(spec)
     membership = {node: sub.name for sub in plan.subchains.values() for node in sub.nodes}
     found = []
     for key in sorted(grouped):

@@ -63,6 +63,16 @@ def process_keys(spec: Spec) -> dict[str, str]:
     return keys
 
 
+def process_members(spec: Spec) -> dict[str, list[str]]:
+    """Each process's deployed DAG nodes (:func:`process_keys`), processes and nodes in spec order of the nodes."""
+    keys = process_keys(spec)
+    members: dict[str, list[str]] = {}
+    for name in spec.nodes:
+        if name in spec.deploy:
+            members.setdefault(keys[name], []).append(name)
+    return members
+
+
 def split_command(command: str) -> list[str]:
     """``command`` split into arguments as a POSIX shell would, without running a shell; ValueError if it cannot."""
     argv = shlex.split(command, comments=False, posix=True)

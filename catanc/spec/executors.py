@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from pathlib import PurePosixPath
 
 from catanc.errors import FieldPath
-from catanc.spec.deploy_checks import process_keys, split_command
+from catanc.spec.deploy_checks import process_members, split_command
 from catanc.spec.language import Spec
 
 PYTHON_PROGRAM = re.compile(r"(python|pypy)[0-9.]*|.+\.py")
@@ -97,13 +97,8 @@ class ProcessThreads:
 
 def spec_processes(spec: Spec) -> tuple[ProcessThreads, ...]:
     """The processes of the deploy section (its nodes the spec knows), in spec order of their first node."""
-    keys = process_keys(spec)
-    members: dict[str, list[str]] = {}
-    for name in spec.nodes:
-        if name in spec.deploy:
-            members.setdefault(keys[name], []).append(name)
     found = []
-    for key, nodes in members.items():
+    for key, nodes in process_members(spec).items():
         scheduled = tuple(node for node in nodes if spec.nodes[node].scheduled)
         command = next((spec.deploy[node].command for node in nodes if spec.deploy[node].command is not None), None)
         first = spec.deploy[(scheduled or nodes)[0]]
