@@ -163,6 +163,52 @@ def trade_inputs(
     return problem, turns, core.period_ms, least, timings, allowed
 
 
+def assert_spacing_a_member_lengthens_no_other_period(
+    problem: Problem,
+    turns: LayoutTurns,
+    timings: dict[str, Timing],
+    *,
+    length: float,
+    least: dict[str, int],
+    steps: int,
+) -> None:
+    """The premise of the search's floor (``LayoutTurns._floor_periods``): one member's ``k`` longer by
+    ``steps``, every other subchain's period as run is as long or shorter (fewer holds, later stealing)."""
+    before = periods_as_run(problem, timings, turns.groups)
+    for name in turns.members:
+        spaced = {**timings, name: Timing((least[name] + steps) * length, timings[name].latency_ms)}
+        after = periods_as_run(problem, spaced, turns.groups)
+        for other, period in before.items():
+            if other != name:
+                assert after[other] <= period * (1 + 1e-12), (name, other, period, after[other])
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(document=executor_apps(), steps=st.integers(1, MOST_STEPS))
+def test_spacing_a_member_out_lengthens_no_other_subchain_as_run(document: dict[str, Any], steps: int) -> None:
+    problem, turns, length, least, timings, _ = trade_inputs(document)
+    assert_spacing_a_member_lengthens_no_other_period(problem, turns, timings, length=length, least=least, steps=steps)
+
+
+@pytest.mark.parametrize("steps", [1, 7, 60, MOST_STEPS])
+def test_spacing_out_one_process_thread_lengthens_nothing_in_the_other(steps: int) -> None:
+    # nav2d on 1 core with its deploy section: the Mapper's and the Navigator's threads share the core, so
+    # one's spacing reaches the other's members through the core's load.
+    spec = nav2d(executor=True, processes=True)
+    plan, problem = planned(spec, 1)
+    (core,) = plan.shared_cores
+    turns = LayoutTurns.of(problem, Layout((), (SharedCore(core.core, core.order),)), spec.schedule)
+    assert turns is not None
+    assert len(turns_module.member_blocks(problem, turns.members)) == 2
+    least = least_spacing(plan, problem, turns.members)
+    timings = {name: Timing(sub.period_ms, sub.latency_ms) for name, sub in plan.subchains.items()}
+    for name in turns.members:
+        timings[name] = Timing(least[name] * core.period_ms, timings[name].latency_ms)
+    assert_spacing_a_member_lengthens_no_other_period(
+        problem, turns, timings, length=core.period_ms, least=least, steps=steps
+    )
+
+
 @st.composite
 def apps_with_a_member_nothing_weighs(draw: st.DrawFn) -> dict[str, Any]:
     """:func:`executor_apps` of two members, one of them weighted 0 (its own rate is worth nothing)."""

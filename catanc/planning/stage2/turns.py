@@ -10,10 +10,15 @@ chosen for the slot model's objective, so the plan is the best over ``k`` at the
 every plan).
 
 The members' ``k`` are searched upward from the least that fits
-(:func:`~catanc.planning.stage2.base.aligned_every`), depth first.  The planned objective only
-grows with each ``k`` and the objective as run is never below it, so a ``k`` whose planned
-objective (the deeper members at their least) reaches the best found as run ends that member's
-search; so does one where a bound no longer holds (bounds only tighten with periods).  Only the
+(:func:`~catanc.planning.stage2.base.aligned_every`), depth first.  A floor ends each member's
+search: the objective with the members at their planned periods (the deeper ones at their least)
+and every other subchain at its period as run with the members spaced out the most.  A member's
+period as run is never below its planned one, and another subchain's only shortens as the members
+space out (fewer holds of the thread, later stealing, less load on the core), so no longer ``k``
+beats the best found as run once the floor reaches it.  (The planned objective alone is a floor
+too, but far lower where another thread's losses weigh: nav2d's Navigator walked ~230 ``k`` per
+re-solve, 9 with this one.)  So does a ``k`` where a bound no longer holds (bounds only tighten
+with periods).  Only the
 members' ``k`` are searched: every other subchain keeps the least, whose own period a longer ``k``
 only lengthens.  A member whose period nothing weighs could be spaced out for ever:
 :data:`MOST_STEPS` ends it.  Its objective as run only falls with its ``k`` (the others lose less, and
@@ -166,6 +171,23 @@ class LayoutTurns:
                 break
         return best
 
+    def _floor_periods(
+        self,
+        problem: Problem,
+        timings: Mapping[str, Timing],
+        lengths: Mapping[str, float],
+        least: Mapping[str, int],
+        names: tuple[str, ...],
+    ) -> dict[str, float]:
+        """Each subchain's period as run with ``names`` at the longest ``k`` searched: a floor, for every other
+        subchain, of its period as run at any ``k`` of theirs searched.  A longer member period means fewer holds
+        of the thread, a later start of a waiting member's stealing and less load on the core, so another
+        subchain only loses less (:mod:`catanc.model.executor_thread`)."""
+        spaced = dict(timings)
+        for name in names:
+            spaced[name] = Timing((least[name] + MOST_STEPS) * lengths[name], timings[name].latency_ms)
+        return periods_as_run(problem, spaced, self.groups)
+
     def _exact(
         self,
         problem: Problem,
@@ -183,6 +205,18 @@ class LayoutTurns:
         spacing = dict(least)
         importance = problem.importance()
         weightless = {name for name in names if importance[name] == 0.0}
+        floor = self._floor_periods(problem, timings, lengths, least, names)
+
+        def lower_bound() -> float:
+            """No objective as run over ``k`` at least the placed ones is below this: ``names`` at their planned
+            periods, every other subchain at its period as run with ``names`` spaced out the most."""
+            return objective(
+                problem,
+                {
+                    key: t if key in names else Timing(max(t.period_ms, floor[key]), t.latency_ms)
+                    for key, t in trial.items()
+                },
+            )
 
         def place(name: str, every: int) -> None:
             spacing[name] = every
@@ -266,7 +300,7 @@ class LayoutTurns:
                 return exact_below(level)
 
             low, high = least[name], least[name] + MOST_STEPS
-            if not fits(low) or (best is not None and objective(problem, trial) >= best[0]):
+            if not fits(low) or (best is not None and lower_bound() >= best[0]):
                 place(name, low)  # no k meets the bounds; or none beats the best (its planned objective is flat)
                 return
             while low < high:  # the longest k that meets the bounds (they only tighten with periods)
@@ -299,14 +333,14 @@ class LayoutTurns:
                 if bound_scale(problem, trial) > allowed_scale:
                     break  # and every longer k: bounds only tighten with periods
                 if not last:
-                    if best is not None and objective(problem, trial) >= best[0]:
+                    if best is not None and lower_bound() >= best[0]:
                         break  # and every longer k: the planned objective grows, the one as run is above it
                     visit(level + 1)
                     continue
                 value, periods = as_run_now()
                 if best is None or value < best[0]:
                     offer(value)  # its planned objective is below it: no need to look
-                elif objective(problem, trial) >= best[0]:
+                elif lower_bound() >= best[0]:
                     break  # as above
                 if value >= previous and periods[name] <= trial[name].period_ms:
                     break  # convex from here on (the module's docstring): past its least
