@@ -252,3 +252,34 @@ def test_a_cutoff_keeps_exactly_the_plans_below_it(
         assert cut == full
     else:
         assert cut is None
+
+
+# --------------------------------------------------------------------------- every vector of a box at once
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
+@given(app=capped_whole_apps(), scale=st.sampled_from([1.0, 1e6]), least_scale=st.booleans())
+def test_a_box_scored_at_once_is_the_best_of_its_vectors_searched_one_by_one(
+    app: tuple[Spec, Layout, dict[str, int]], scale: float, least_scale: bool
+) -> None:
+    # WholeRuns.best scores every vector's exact value as arrays and searches only the best one by one;
+    # the oracle searches each vector alone (fixed_runs: the scalar search over its candidate lengths)
+    # and keeps the least, ties to the first vector in the box's order.
+    spec, layout, runs = app
+    problem = build_problem(spec)
+    closed = WholeRuns(ConicStage2(problem, layout, spec.schedule), problem)
+    box = {name: (1, min(most_runs(problem.subchain(name).compute_ms, spec.schedule), 3)) for name in runs}
+    assume(closed.size(box) <= 81)
+    best: tuple[float, dict[str, int]] | None = None
+    for combo in itertools.product(*(range(low, high + 1) for low, high in (box[n] for n in closed.shared))):
+        vector = dict(zip(closed.shared, combo, strict=True))
+        found = closed.fixed_runs(vector, scale, least_scale=least_scale)
+        if found is not None and (best is None or found.objective < best[0]):
+            best = (found.objective, vector)
+    at_once = closed.best(box, scale, least_scale=least_scale)
+    if best is None:
+        assert at_once is None
+        return
+    assert at_once is not None
+    assert at_once.solution.objective == best[0]
+    assert at_once.runs == best[1]

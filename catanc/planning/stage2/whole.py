@@ -35,6 +35,7 @@ import numpy.typing as npt
 from catanc.model.metrics import QUICK_MARGIN, Timing, WeightedSums, bound_scale, capped_dedicated, objective
 from catanc.model.problem import Problem
 from catanc.planning.stage2.base import (
+    EVERY_TOLERANCE,
     RelaxedSolution,
     SharedCore,
     Stage2Model,
@@ -48,6 +49,12 @@ ENUMERATE_UP_TO = 4096
 
 FEASIBILITY = 1e-9
 """Relative slack on the bounds when fixed runs are checked (rounding only)."""
+
+ALIGNED_AT_ONCE = 65536
+"""Score vectors times candidate lengths at once as arrays up to this many (a few ms at most)."""
+
+NEAR_TIE = 1e-9
+"""Relative: a vector whose exact value as arrays is this close to the best is searched one by one (rounding)."""
 
 Floats = npt.NDArray[np.float64]
 
@@ -263,19 +270,50 @@ class WholeRuns:
         ranges = [range(box[name][0], box[name][1] + 1) for name in self.shared]
         grid = np.array(list(itertools.product(*ranges)), dtype=np.float64).reshape(-1, len(self.shared))
         column = {name: grid[:, index] for index, name in enumerate(self.shared)}
-        usable = 1.0 - self.schedule.slack
-        count = len(grid)
+        fits = {core.core: self._fit(core, column) for core in self.layout.shared}
+        value = self._values(column, fits, scale, least_scale=least_scale, aligned=False)
+        if self.aligned_matters:  # ``value`` is the relaxation: evaluate exactly, the most promising first
+            return self._best_aligned(grid, column, fits, value, scale, least_scale=least_scale)
+        chosen = int(np.argmin(value))
+        if not math.isfinite(float(value[chosen])):
+            return None
+        runs = {name: int(grid[chosen, index]) for index, name in enumerate(self.shared)}
+        solution = self.solve(runs, scale, least_scale=least_scale)
+        if solution is None:  # pragma: no cover - the vector was feasible above
+            return None
+        return Enumerated(runs, solution, len(grid))
+
+    def _fit(self, core: SharedCore, column: Mapping[str, Floats]) -> Floats:
+        """Per vector, the shortest ``T`` that fits one core (:meth:`length` over arrays of runs)."""
+        members = [self.by_name[name] for name in core.subchains]
+        load = sum((sub.compute_ms / column[sub.name] for sub in members), np.zeros(len(column[members[0].name])))
+        return (load + len(members) * self.schedule.switch_ms) / (1.0 - self.schedule.slack)
+
+    def _values(
+        self,
+        column: Mapping[str, Floats],
+        lengths: Mapping[int, Floats],
+        scale: float,
+        *,
+        least_scale: bool,
+        aligned: bool,
+        feasibility: float = FEASIBILITY,
+    ) -> Floats:
+        """:meth:`solve`'s value of each vector at each core's ``T`` in ``lengths``, as arrays (+inf where
+        it misses the bounds scaled by ``scale``, within ``feasibility``); ``aligned=False`` the relaxation's."""
+        count = len(next(iter(lengths.values())))
         latency: dict[str, Floats] = {name: np.full(count, t.latency_ms) for name, t in self.dedicated.items()}
         period: dict[str, Floats] = {name: np.full(count, t.period_ms) for name, t in self.dedicated.items()}
-        lengths: list[Floats] = []
         for core in self.layout.shared:
-            members = [self.problem.subchain(name) for name in core.subchains]
-            load = sum((sub.compute_ms / column[sub.name] for sub in members), np.zeros(count))
-            length = (load + len(members) * self.schedule.switch_ms) / usable
-            lengths.append(length)
-            for sub in members:
-                latency[sub.name] = length * column[sub.name]
-                period[sub.name] = np.maximum(latency[sub.name], sub.min_period_ms)
+            length = lengths[core.core]
+            for name in core.subchains:
+                sub = self.by_name[name]
+                latency[name] = length * column[name]
+                if aligned and sub.min_period_ms > 0:  # k = max(n, ceil(p_min / T)): aligned_every's
+                    every = np.ceil(sub.min_period_ms / length * (1 - EVERY_TOLERANCE))
+                    period[name] = np.maximum(column[name], every) * length
+                else:
+                    period[name] = np.maximum(latency[name], sub.min_period_ms) if not aligned else latency[name]
         responses = {}
         needed: Floats = np.ones(count)
         for index in {term.chain for term in self.problem.response_terms} | {
@@ -294,39 +332,84 @@ class WholeRuns:
             if sub.max_period_ms < math.inf:
                 needed = np.maximum(needed, period[sub.name] / sub.max_period_ms)
         if least_scale:
-            value = needed
+            return needed
+        if self.problem.weighted:
+            value = sum((term.weight * responses[term.chain] for term in self.problem.response_terms), np.zeros(count))
+            value = sum((term.weight * period[term.subchain] for term in self.problem.period_terms), value)
         else:
-            if self.problem.weighted:
-                value = sum(
-                    (term.weight * responses[term.chain] for term in self.problem.response_terms), np.zeros(count)
-                )
-                value = sum((term.weight * period[term.subchain] for term in self.problem.period_terms), value)
-            else:
-                value = sum(lengths, np.zeros(count))
-            value = np.where(needed <= scale * (1 + FEASIBILITY), value, np.inf)
-        if self.aligned_matters:  # ``value`` is the relaxation: evaluate exactly, the most promising first
-            return self._best_aligned(grid, value, scale, least_scale=least_scale)
-        chosen = int(np.argmin(value))
-        if not math.isfinite(float(value[chosen])):
-            return None
-        runs = {name: int(grid[chosen, index]) for index, name in enumerate(self.shared)}
-        solution = self.solve(runs, scale, least_scale=least_scale)
-        if solution is None:  # pragma: no cover - the vector was feasible above
-            return None
-        return Enumerated(runs, solution, len(grid))
+            value = sum(lengths.values(), np.zeros(count))
+        return np.where(needed <= scale * (1 + feasibility), value, np.inf)
 
-    def _best_aligned(self, grid: Floats, relaxed: Floats, scale: float, *, least_scale: bool) -> Enumerated | None:
-        """The best vector by :meth:`exact`, tried in order of its relaxed value until that reaches the best."""
+    def _best_aligned(
+        self,
+        grid: Floats,
+        column: Mapping[str, Floats],
+        fits: Mapping[int, Floats],
+        relaxed: Floats,
+        scale: float,
+        *,
+        least_scale: bool,
+    ) -> Enumerated | None:
+        """The best vector by :meth:`exact`, tried in order of a lower bound until that reaches the best.
+
+        The bound is each vector's exact value computed at once as arrays, where the vectors times their
+        candidate lengths are few (:data:`ALIGNED_AT_ONCE`): only the vectors within rounding of the best are
+        then searched one by one, so the answer and its ties are :meth:`exact`'s.  Else the relaxed value.
+        """
+        bounds, margin = relaxed, 0.0
+        exact = self._exact_values(column, fits, scale, least_scale=least_scale)
+        if exact is not None:
+            bounds, margin = exact, NEAR_TIE
         best: tuple[float, int, dict[str, int], RelaxedSolution] | None = None
-        for row in np.argsort(relaxed, kind="stable"):
-            bound = float(relaxed[row])
-            if not math.isfinite(bound) or (best is not None and bound > best[0]):
+        for row in np.argsort(bounds, kind="stable"):
+            bound = float(bounds[row])
+            if not math.isfinite(bound) or (best is not None and bound > best[0] + abs(best[0]) * margin):
                 break
             runs = {name: int(grid[row, index]) for index, name in enumerate(self.shared)}
-            found = self.exact(runs, scale, least_scale=least_scale)
+            # Only a plan as good as the best found is of interest (an equal one may win the tie on its row).
+            cutoff = math.inf if best is None else math.nextafter(best[0], math.inf)
+            found = self.exact(runs, scale, least_scale=least_scale, cutoff=cutoff)
             if found is not None and (best is None or (found.objective, int(row)) < (best[0], best[1])):
                 best = (found.objective, int(row), runs, found)
         return None if best is None else Enumerated(best[2], best[3], len(grid))
+
+    def _exact_values(
+        self, column: Mapping[str, Floats], fits: Mapping[int, Floats], scale: float, *, least_scale: bool
+    ) -> Floats | None:
+        """Each vector's exact value, the least over its cores' candidate lengths
+        (:func:`~catanc.planning.stage2.base.length_candidates`) as arrays; None where they are too many."""
+        count = len(next(iter(fits.values())))
+        rows = np.arange(count)
+        lengths = dict(fits)
+        for core in self.layout.shared:
+            capped = self.capped(core)
+            if not capped:
+                continue
+            fit = fits[core.core]
+            options = [fit]  # the shortest T that fits, then each p_min / j above it that some k >= n allows
+            for name in capped:
+                min_period = self.by_name[name].min_period_ms
+                most = np.floor(min_period / fit * (1 + EVERY_TOLERANCE))
+                for j in range(1, int(np.max(most)) + 1):
+                    length = np.full(count, min_period / j)
+                    usable = (j >= np.maximum(column[name], 1)) & (j <= most) & (length > fit)
+                    options.append(np.where(usable, length, np.nan))
+            width = len(options)
+            if len(rows) * width > ALIGNED_AT_ONCE:
+                return None
+            table = np.stack(options, axis=1)  # per vector, its candidate lengths of this core
+            lengths = {key: np.repeat(value, width) for key, value in lengths.items()}
+            lengths[core.core] = table[rows].reshape(-1)
+            rows = np.repeat(rows, width)
+        usable = ~np.isnan(sum(lengths.values(), np.zeros(len(rows))))
+        spread = {name: values[rows] for name, values in column.items()}
+        filled = {key: np.where(usable, value, 1.0) for key, value in lengths.items()}
+        # Bounds met within rounding count as met here: :meth:`exact` decides (a bound, never a verdict).
+        scored = self._values(
+            spread, filled, scale, least_scale=least_scale, aligned=True, feasibility=FEASIBILITY + NEAR_TIE
+        )
+        values: Floats = np.where(usable, scored, np.inf).reshape(count, -1).min(axis=1)
+        return values
 
     @staticmethod
     def size(box: dict[str, tuple[int, int]]) -> int:
