@@ -160,73 +160,135 @@ class ExecutorTurns:
         return next(member for member in self.members if member.node == node)
 
 
-def executor_turns(
-    problem: Problem, executor: Executor, timings: Mapping[str, Timing], groups: Iterable[CoreGroup]
-) -> ExecutorTurns | None:
-    """The thread's turns at ``timings`` (per subchain); None unless the executor's nodes span two or more
-    subchains of one core group in ``groups``."""
+@dataclass(frozen=True)
+class MemberShape:
+    """What of a member does not change with the timings: its node, subchain, compute and the others it ranks
+    below and above on its core group."""
+
+    node: str
+    subchain: str
+    compute_ms: float
+    above: tuple[str, ...]  # the group's other subchains outranking it (their load is what it keeps out)
+    outranked: tuple[str, ...]  # those its late run steals from (none without stealing)
+
+
+@dataclass(frozen=True)
+class ThreadShape:
+    """One executor's thread on its core group, as far as the timings do not change it: built once, evaluated at
+    many timings (Stage II scores thousands of trigger spacings with one problem and one layout)."""
+
+    executor: Executor
+    group: CoreGroup
+    others: tuple[str, ...]  # the group's subchains outside the executor, in group order
+    members: tuple[MemberShape, ...]  # in the executor's node order
+    others_compute_ms: tuple[float, ...]  # per other subchain, its compute per run
+
+
+def thread_shape(problem: Problem, executor: Executor, groups: Iterable[CoreGroup]) -> ThreadShape | None:
+    """The executor's thread on the core group in ``groups`` holding all its subchains; None unless its nodes
+    span two or more subchains of one such group."""
     subs = executor.subchains
     if len(subs) < 2:
         return None
     group = next((group for group in groups if subs[0] in group.subchains), None)
     if group is None or not set(subs) <= set(group.subchains):
         return None
-    others = [name for name in group.subchains if name not in subs]
-    load = {name: utilisation(problem.subchain(name).compute_ms, timings[name].period_ms) for name in others}
-    members: dict[str, Member] = {}
-    outranked: dict[str, list[str]] = {}  # per member: the other subchains its late run steals from
+    others = tuple(name for name in group.subchains if name not in subs)
+    members: dict[str, MemberShape] = {}
     for name in subs:
         sub = problem.subchain(name)
         rank = group.priorities[name]
-        above = [other for other in others if group.priorities[other] > rank]
-        outranked_here = [other for other in others if group.priorities[other] < rank] if group.stealing else []
+        above = tuple(other for other in others if group.priorities[other] > rank)
+        outranked = tuple(other for other in others if group.priorities[other] < rank) if group.stealing else ()
         for node, compute in zip(sub.nodes, sub.node_compute_ms, strict=True):
             if node in executor.nodes:
-                members[node] = Member(
-                    node,
-                    timings[name].period_ms,
-                    compute,
-                    timings[name].latency_ms,
-                    share=thread_share(math.fsum(load.values()), group.cores, group.slack),
-                    stealing_share=thread_share(math.fsum(load[other] for other in above), group.cores, group.slack)
-                    if outranked_here
-                    else None,
-                )
-                outranked[node] = outranked_here
-    ordered = tuple(members[node] for node in executor.nodes)
+                members[node] = MemberShape(node, name, compute, above, outranked)
+    return ThreadShape(
+        executor,
+        group,
+        others,
+        tuple(members[node] for node in executor.nodes),
+        tuple(problem.subchain(name).compute_ms for name in others),
+    )
+
+
+def thread_shapes(problem: Problem, groups: Iterable[CoreGroup]) -> tuple[ThreadShape, ...]:
+    """Every executor's :func:`thread_shape` that has one, in the problem's executor order."""
+    groups = list(groups)
+    return tuple(shape for e in problem.executors if (shape := thread_shape(problem, e, groups)) is not None)
+
+
+def turns_of(shape: ThreadShape, timings: Mapping[str, Timing]) -> ExecutorTurns:
+    """The thread's turns at ``timings`` (per subchain)."""
+    group = shape.group
+    load = {
+        name: utilisation(compute, timings[name].period_ms)
+        for name, compute in zip(shape.others, shape.others_compute_ms, strict=True)
+    }
+    share = thread_share(math.fsum(load.values()), group.cores, group.slack)
+    ordered = tuple(
+        Member(
+            member.node,
+            timings[member.subchain].period_ms,
+            member.compute_ms,
+            timings[member.subchain].latency_ms,
+            share=share,
+            stealing_share=thread_share(math.fsum(load[other] for other in member.above), group.cores, group.slack)
+            if member.outranked
+            else None,
+        )
+        for member in shape.members
+    )
     stolen_hz: dict[str, float] = {}
     stolen_share: dict[str, float] = {}
-    for waiter in ordered:
+    for waiter, waiter_shape in zip(ordered, shape.members, strict=True):
+        if not waiter_shape.outranked:
+            continue
         for blocker in ordered:
             if blocker is waiter:
                 continue
             steal = stealing_ms(blocker, waiter)
             runs = 1000.0 / blocker.period_ms
-            for name in outranked[waiter.node]:
+            for name in waiter_shape.outranked:
                 lost = runs * lost_per_hold(steal, timings[name].period_ms)
                 stolen_hz[name] = stolen_hz.get(name, 0.0) + lost
                 stolen_share[name] = stolen_share.get(name, 0.0) + runs * steal / 1000.0
-    return ExecutorTurns(executor, ordered, tuple(member_rates(ordered)), stolen_hz, stolen_share)
+    return ExecutorTurns(shape.executor, ordered, tuple(member_rates(ordered)), stolen_hz, stolen_share)
 
 
-def periods_as_run(problem: Problem, timings: Mapping[str, Timing], groups: Iterable[CoreGroup]) -> dict[str, float]:
+def executor_turns(
+    problem: Problem, executor: Executor, timings: Mapping[str, Timing], groups: Iterable[CoreGroup]
+) -> ExecutorTurns | None:
+    """The thread's turns at ``timings`` (per subchain); None unless the executor's nodes span two or more
+    subchains of one core group in ``groups``."""
+    shape = thread_shape(problem, executor, groups)
+    return None if shape is None else turns_of(shape, timings)
+
+
+def periods_as_run(
+    problem: Problem,
+    timings: Mapping[str, Timing],
+    groups: Iterable[CoreGroup],
+    *,
+    shapes: tuple[ThreadShape, ...] | None = None,
+) -> dict[str, float]:
     """Each subchain's period as it runs: where an executor's node heads a subchain, one over its predicted
     rate; where an executor's late run steals a subchain's slots, one over what it keeps; else as planned.
 
     A node that does not head its subchain waits instead (its head loses the triggers, which the
     model does not count): its subchain keeps its planned period.  Where several executors' threads
     take from one subchain (two processes' executors on one core), their losses add up, as the
-    losses to two members of one executor do.
+    losses to two members of one executor do.  ``shapes``: :func:`thread_shapes` of ``groups``, where the
+    caller evaluates many timings.
     """
-    groups = list(groups)
+    if shapes is None:
+        shapes = thread_shapes(problem, groups)
     lost_hz: dict[str, float] = {}  # triggers a second lost, per subchain
     lost_share: dict[str, float] = {}  # per batch subchain: the share of its time its slots are stolen
-    for executor in problem.executors:
-        turns = executor_turns(problem, executor, timings, groups)
-        if turns is None:
-            continue
-        for rate in turns.rates:
-            sub = problem.subchain_of(rate.node)
+    for shape in shapes:
+        turns = turns_of(shape, timings)
+        for rate, member in zip(turns.rates, shape.members, strict=True):
+            sub = problem.subchain(member.subchain)
             if sub.nodes[0] == rate.node and rate.rate_hz < rate.planned_hz:
                 lost_hz[sub.name] = lost_hz.get(sub.name, 0.0) + rate.planned_hz - rate.rate_hz
         for name, lost in turns.stolen_hz.items():
@@ -242,9 +304,15 @@ def periods_as_run(problem: Problem, timings: Mapping[str, Timing], groups: Iter
     return result
 
 
-def as_run_objective(problem: Problem, timings: Mapping[str, Timing], groups: Iterable[CoreGroup]) -> float:
+def as_run_objective(
+    problem: Problem,
+    timings: Mapping[str, Timing],
+    groups: Iterable[CoreGroup],
+    *,
+    shapes: tuple[ThreadShape, ...] | None = None,
+) -> float:
     """The objective at ``timings`` with each period as it runs (:func:`periods_as_run`), latencies as planned."""
-    as_run = periods_as_run(problem, timings, groups)
+    as_run = periods_as_run(problem, timings, groups, shapes=shapes)
     return objective(problem, {name: Timing(as_run[name], timing.latency_ms) for name, timing in timings.items()})
 
 

@@ -49,7 +49,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from catanc.model.executor_thread import CoreGroup, as_run_objective, periods_as_run
+from catanc.model.executor_thread import CoreGroup, ThreadShape, as_run_objective, periods_as_run, thread_shapes
 from catanc.model.metrics import Timing, bound_scale, objective
 from catanc.model.problem import Problem
 from catanc.planning.order import priorities
@@ -87,6 +87,7 @@ class LayoutTurns:
 
     groups: tuple[CoreGroup, ...]
     members: tuple[str, ...]  # non-batch shared subchains holding an executor's node, in problem order
+    shapes: tuple[ThreadShape, ...]  # the threads on these groups (built once: scored thousands of times)
 
     @staticmethod
     def of(problem: Problem, layout: Layout, schedule: Schedule) -> LayoutTurns | None:
@@ -114,14 +115,15 @@ class LayoutTurns:
             )
             for core in layout.shared
         )
-        return LayoutTurns(groups, tuple(sub.name for sub in problem.subchains if sub.name in members))
+        members_in_order = tuple(sub.name for sub in problem.subchains if sub.name in members)
+        return LayoutTurns(groups, members_in_order, thread_shapes(problem, groups))
 
     def as_run(self, problem: Problem, timings: Mapping[str, Timing]) -> float:
-        return as_run_objective(problem, timings, self.groups)
+        return as_run_objective(problem, timings, self.groups, shapes=self.shapes)
 
     def periods(self, problem: Problem, timings: Mapping[str, Timing]) -> dict[str, float]:
         """Each subchain's period as run at ``timings`` (:func:`periods_as_run` over these core groups)."""
-        return periods_as_run(problem, timings, self.groups)
+        return periods_as_run(problem, timings, self.groups, shapes=self.shapes)
 
     def best_spacing(
         self,
@@ -186,7 +188,7 @@ class LayoutTurns:
         spaced = dict(timings)
         for name in names:
             spaced[name] = Timing((least[name] + MOST_STEPS) * lengths[name], timings[name].latency_ms)
-        return periods_as_run(problem, spaced, self.groups)
+        return self.periods(problem, spaced)
 
     def _exact(
         self,
@@ -224,7 +226,7 @@ class LayoutTurns:
 
         def as_run_now() -> tuple[float, dict[str, float]]:
             """The objective as run at ``trial``, and the periods as run it scores."""
-            periods = periods_as_run(problem, trial, self.groups)
+            periods = self.periods(problem, trial)
             return objective(problem, {key: Timing(periods[key], t.latency_ms) for key, t in trial.items()}), periods
 
         def as_run_at(name: str, every: int) -> tuple[float, bool] | None:
