@@ -224,10 +224,16 @@ class LayoutTurns:
             spacing[name] = every
             trial[name] = Timing(every * lengths[name], trial[name].latency_ms)
 
+        scored: dict[tuple[int, ...], tuple[float, dict[str, float]]] = {}  # by ``names``' k: walks meet again
+
         def as_run_now() -> tuple[float, dict[str, float]]:
             """The objective as run at ``trial``, and the periods as run it scores."""
-            periods = self.periods(problem, trial)
-            return objective(problem, {key: Timing(periods[key], t.latency_ms) for key, t in trial.items()}), periods
+            key = tuple(spacing[name] for name in names)
+            if key not in scored:
+                periods = self.periods(problem, trial)
+                value = objective(problem, {name: Timing(periods[name], t.latency_ms) for name, t in trial.items()})
+                scored[key] = value, periods
+            return scored[key]
 
         def as_run_at(name: str, every: int) -> tuple[float, bool] | None:
             """The objective as run with ``name`` at ``every`` and whether ``name`` loses no trigger there
