@@ -207,11 +207,13 @@ class LayoutTurns:
         spacing = dict(least)
         importance = problem.importance()
         weightless = {name for name in names if importance[name] == 0.0}
-        floor = self._floor_periods(problem, timings, lengths, least, names)
+        floor: dict[str, float] = {}  # built at its first use: a hint's downhill walk needs none
 
         def lower_bound() -> float:
             """No objective as run over ``k`` at least the placed ones is below this: ``names`` at their planned
             periods, every other subchain at its period as run with ``names`` spaced out the most."""
+            if not floor:
+                floor.update(self._floor_periods(problem, timings, lengths, least, names))
             return objective(
                 problem,
                 {
