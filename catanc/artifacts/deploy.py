@@ -178,6 +178,14 @@ def node_period_ms(spec: Spec, plan: Plan, node: str, membership: dict[str, str]
     return ms(1000.0 / rate) if rate is not None else None
 
 
+def rate_period_ms(spec: Spec, plan: Plan, node: str, membership: dict[str, str]) -> float | None:
+    """The period ``node``'s rate parameter says: the offered rate the plan picked where its driver offers
+    rates (one of them, even where none fits and its subchain runs slower: the driver takes no other),
+    else :func:`node_period_ms`."""
+    picked = next((choice.picked_hz for choice in plan.offered if choice.node == node), None)
+    return ms(1000.0 / picked) if picked is not None else node_period_ms(spec, plan, node, membership)
+
+
 def rate_value(period_ms: float, unit: str, kind: str = "float") -> float:
     """A node's rate parameter: in hertz, or its period in seconds or milliseconds.
 
@@ -224,7 +232,7 @@ def _params(
     flat: dict[str, ParamValue] = {}
     for node in nodes:
         entry = spec.deploy[node]
-        period = node_period_ms(spec, plan, node, membership)
+        period = rate_period_ms(spec, plan, node, membership)
         if entry.rate_param is not None and period is not None:
             flat[entry.rate_param] = _rate_parameter(spec, node, period)
     groups = {membership.get(node, node) for node in nodes}
@@ -390,7 +398,7 @@ def timer_period_ns(spec: Spec, plan: Plan, node: str, membership: dict[str, str
     (``std::chrono::duration_cast``, ``rclcpp::Duration::from_seconds``).
     """
     entry = spec.deploy[node]
-    period = node_period_ms(spec, plan, node, membership)
+    period = rate_period_ms(spec, plan, node, membership)
     if entry.rate_param is not None and period is not None:
         return timer_ns(_rate_parameter(spec, node, period), entry.rate_unit)
     rate = spec.nodes[node].rate_hz

@@ -35,7 +35,7 @@ from catanc.errors import ExitCode
 from catanc.model.build import build_problem
 from catanc.model.load import load_spec
 from catanc.planning.planner import plan
-from catanc.spec.language import Spec
+from catanc.spec.language import RateConstraint, Spec
 
 ROOT = Path(__file__).parents[2]
 SPECS = sorted((ROOT / "specs").glob("*.yaml"))
@@ -268,7 +268,22 @@ def test_params_follow_rcl_rules_with_the_planned_rates(compiled: dict[tuple[str
             if entry.ros_node is None:
                 continue
             values = params[entry.ros_node]
-            if entry.rate_param is not None:
+            offered = [
+                constraint.rate_hz
+                for constraint in spec.constraints
+                if isinstance(constraint, RateConstraint)
+                and constraint.node == node
+                and isinstance(constraint.rate_hz, list)
+            ]
+            if entry.rate_param is not None and offered:  # its driver takes one of these, however slow the plan
+                assert entry.rate_unit == "hz"
+                planned_hz = 1000.0 / periods[node]
+                given = values[entry.rate_param]
+                assert given in offered[0], (node, cores)
+                assert given >= planned_hz * (1 - 1e-6), (node, cores)
+                if any(math.isclose(rate, planned_hz, rel_tol=1e-6) for rate in offered[0]):
+                    assert math.isclose(given, planned_hz, rel_tol=1e-6), (node, cores)
+            elif entry.rate_param is not None:
                 expected = {"hz": 1000.0 / periods[node], "s": periods[node] / 1000.0, "ms": periods[node]}
                 assert isinstance(values[entry.rate_param], float)
                 assert math.isclose(values[entry.rate_param], expected[entry.rate_unit], rel_tol=1e-6), (node, cores)

@@ -165,3 +165,29 @@ def test_the_rounding_rule_by_hand(period_ms: float, unit: str, whole: int) -> N
 def test_rounding_that_would_more_than_halve_the_rate_is_refused(period_ms: float, unit: str) -> None:
     with pytest.raises(ValueError, match="rounds"):
         rate_value(period_ms, unit, "int")
+
+
+OFFERED = """catan: 1
+app: slow_camera
+nodes:
+  cam: {compute_ms: 10}
+  det: {compute_ms: 90}
+  motor: {scheduled: false}
+edges: [[cam, det], [det, motor]]
+subchains: {front: [cam, det]}
+objective: [{chain: [cam, det, motor], weight: 1.0}]
+constraints: [{node: cam, rate_hz: [15, 30]}]
+deploy:
+  cam: {ros_node: /camera, rate_param: fps}
+"""
+
+
+def test_a_driver_that_offers_rates_is_given_the_one_picked_even_where_none_fits(tmp_path: Path) -> None:
+    # By hand: cam and det take 100 ms a run on one core, so the subchain runs below 10 Hz; neither 15 nor
+    # 30 Hz fits, the plan picks 15 (the slowest) and scales the bounds. The camera's driver takes only
+    # 15 or 30: it is given 15, while catanc's own period for the subchain is the plan's, above 100 ms.
+    path = tmp_path / "slow_camera.yaml"
+    path.write_text(OFFERED)
+    camera = yaml.safe_load(compile_spec(path, 1).files["params.yaml"])["/camera"]["ros__parameters"]
+    assert camera["fps"] == 15.0
+    assert camera["catan"]["period_ms"] > 100.0
