@@ -420,7 +420,9 @@ def lower_middleware(pids: Sequence[int], cpus: Sequence[int]) -> int:
     return lowered
 
 
-def measure_case(mode: str, cores: int, duration_s: float, warmup_s: float, dds_other: bool = False) -> Case:
+def measure_case(
+    mode: str, cores: int, duration_s: float, warmup_s: float, dds_other: bool = False, *, keep: Path | None = None
+) -> Case:
     load_before = load()
     with tempfile.TemporaryDirectory(prefix=f"ros-nav2d-{mode}-{cores}-") as scratch_name:
         scratch = Path(scratch_name)
@@ -442,6 +444,9 @@ def measure_case(mode: str, cores: int, duration_s: float, warmup_s: float, dds_
         window = within(rows, start_ns, end_ns)
         window_s = (end_ns - start_ns) / 1e9
         log_summary = summarise(read_log(app.log)) if mode != "plain" and app.log.exists() else None
+        if keep is not None and log_summary is not None:  # for `catanc report` and `catanc profile`
+            keep.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(app.log, keep / f"{mode}-cores-{cores}.jsonl")
     planned: dict[str, float | None]
     counters: dict[str, tuple[int | None, int | None]] = {}
     if log_summary is None:
@@ -548,6 +553,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         action="store_true",
         help="an experiment: put the app's middleware threads back to SCHED_OTHER once it runs (catanc mode)",
     )
+    parser.add_argument(
+        "--keep-logs", type=Path, metavar="DIR", help="copy each catanc case's run log to DIR/<mode>-cores-<K>.jsonl"
+    )
     args = parser.parse_args(argv)
     os.environ.setdefault("ROS_DOMAIN_ID", str(101 + os.getpid() % 100))  # apart from the tests' 1..100
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
@@ -556,7 +564,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     for cores in args.cores or [1, 2]:
         for mode in args.mode or BENCHMARK_MODES:
             print(f"# {mode}, {cores} core(s) ...", file=sys.stderr, flush=True)
-            cases.append(measure_case(mode, cores, args.duration, args.warmup, args.dds_other))
+            cases.append(measure_case(mode, cores, args.duration, args.warmup, args.dds_other, keep=args.keep_logs))
     print(json.dumps([asdict(case) for case in cases], indent=2) if args.json else render(cases))
 
 

@@ -134,6 +134,7 @@ class CostsSummary:
     share: float | None  # the enforcer's CPU share of the core its loop runs on
     cpu_per_wake_ms: float | None
     hop_by_edge: tuple[tuple[str, Quantiles], ...] = ()  # per edge inside a subchain ("a -> b"), sorted
+    dispatch_by_head: tuple[tuple[str, Quantiles], ...] = ()  # a head's trigger to its start, per head, sorted
 
 
 @dataclass(frozen=True)
@@ -328,6 +329,11 @@ def _costs(row: Mapping[str, Any]) -> CostsSummary | None:
         hop_by_edge=tuple(
             (str(edge), quantiles)
             for edge, figures in sorted(_mapping(row.get("hop_by_edge")).items())
+            if (quantiles := _quantiles(_mapping(figures))) is not None
+        ),
+        dispatch_by_head=tuple(
+            (str(head), quantiles)
+            for head, figures in sorted(_mapping(row.get("dispatch_by_head")).items())
             if (quantiles := _quantiles(_mapping(figures))) is not None
         ),
     )

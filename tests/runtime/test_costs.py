@@ -43,6 +43,22 @@ def test_hops_inside_are_kept_per_edge_too() -> None:
     assert list(by_edge) == sorted(by_edge)
 
 
+def test_a_heads_trigger_to_its_start_is_kept_per_head_as_its_dispatch() -> None:
+    costs = Costs()
+    for delay in (0.2, 0.4, 2.4):
+        costs.hop(delay, False, None, "scan")
+    costs.hop(1.0, False, None, "GL")
+    costs.hop(0.3, True, ("scan", "LM"), "LM")  # inside a subchain: an edge's hop, never a dispatch
+    summary = costs.summary(1)
+    # scan: 0.2 0.4 2.4, p50 the middle one, p95 at rank 1.9: 0.4 + 0.9 * 2.0.
+    assert summary["dispatch_by_head"] == {
+        "GL": {"p50_ms": 1.0, "p95_ms": 1.0, "max_ms": 1.0, "count": 1},
+        "scan": {"p50_ms": 0.4, "p95_ms": 2.2, "max_ms": 2.4, "count": 3},
+    }
+    # All four triggers are heads' hops still, together.
+    assert summary["hop_head"] == {"p50_ms": 0.7, "p95_ms": 2.19, "max_ms": 2.4, "count": 4}
+
+
 def test_a_subchain_of_one_node_has_no_hop_inside() -> None:
     costs = Costs()
     costs.hop(0.05, False)
@@ -93,6 +109,24 @@ def test_report_gives_each_edges_hop(tmp_path: Path) -> None:
     Console(file=out, width=160).print(*render_summary(summary))
     (row,) = [line for line in out.getvalue().splitlines() if "LM -> LP" in line]
     assert [cell.strip() for cell in row.split("│")[1:6]] == ["LM -> LP", "40", "1.200", "4.900", "7.500"]
+
+
+def test_report_gives_each_heads_dispatch(tmp_path: Path) -> None:
+    head = {"p50_ms": 0.36, "p95_ms": 2.4, "max_ms": 7.8, "count": 900}
+    log = _log(
+        tmp_path,
+        {"switch": None, "hop": head, "hop_inside": None, "hop_head": head, "dispatch_by_head": {"scan": head}},
+    )
+    summary = summarise(json.loads(line) for line in log.read_text().splitlines())
+    assert summary_payload(summary)["costs"]["dispatch_by_head_ms"] == {
+        "scan": {"count": 900, "p50": 0.36, "p95": 2.4, "max": 7.8}
+    }
+    out = io.StringIO()
+    Console(file=out, width=160).print(*render_summary(summary))
+    lines = out.getvalue().splitlines()
+    (row,) = [line for line in lines if "│     scan" in line]
+    assert [cell.strip() for cell in row.split("│")[1:6]] == ["scan", "900", "0.360", "2.400", "7.800"]
+    assert lines.index(row) == 1 + next(i for i, line in enumerate(lines) if "trigger to head" in line)
 
 
 def test_an_older_log_without_the_split_still_reports(tmp_path: Path) -> None:

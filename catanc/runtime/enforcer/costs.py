@@ -4,7 +4,9 @@
   (the enforcer waking late, then its own CPU), per shared core.
 - **Hop**: from a trigger to the head's start, and from a node's end to the next node's start
   (read from the nodes' rings); the latter per edge too, ``producer -> consumer``, which
-  ``catanc profile --write`` writes into the spec's ``hops_ms`` (docs/explanation/model.md section 5).
+  ``catanc profile --write`` writes into the spec's ``hops_ms`` (docs/explanation/model.md section 5),
+  the former per head too (its *dispatch*: a ROS 2 head's trigger crosses catanc.ros's watcher
+  thread and the executor's wake-up), which it writes into ``dispatch_ms``.
 - **Overhead**: the enforcer's CPU share of the core its loop is pinned to, and its CPU per
   wake-up, from its thread's CPU clock between two readings.
 
@@ -21,7 +23,7 @@ from collections import deque
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from catanc.control.measure import percentile
 from catanc.spec.machine import MACHINE_FORMAT, MachineProfile, MeasuredOn, RtLimit
@@ -56,6 +58,7 @@ class Costs:
     inside: deque[float] = field(default_factory=lambda: deque(maxlen=SAMPLES))  # node to node in a subchain
     heads: deque[float] = field(default_factory=lambda: deque(maxlen=SAMPLES))  # a head's trigger to its start
     edges: dict[tuple[str, str], deque[float]] = field(default_factory=dict)  # (producer, consumer) -> its hops
+    dispatches: dict[str, deque[float]] = field(default_factory=dict)  # head -> its triggers' delays to its starts
     wakes: int = 0
     cpu_ns: int = 0  # the loop thread's CPU time at the last reading
     wall_ns: int = 0  # when it was read
@@ -68,16 +71,15 @@ class Costs:
             samples = self.switches[core] = deque(maxlen=SAMPLES)
         samples.append(latency_ms)
 
-    def hop(self, delay_ms: float, inside: bool, edge: tuple[str, str] | None = None) -> None:
+    def hop(self, delay_ms: float, inside: bool, edge: tuple[str, str] | None = None, head: str | None = None) -> None:
         """A node's end to the next node's start in its subchain (``inside``, over ``edge``), or a head's trigger
-        to its start."""
+        to its start (``head``: which one)."""
         self.hops.append(delay_ms)
         (self.inside if inside else self.heads).append(delay_ms)
         if edge is not None:
-            samples = self.edges.get(edge)
-            if samples is None:
-                samples = self.edges[edge] = deque(maxlen=SAMPLES)
-            samples.append(delay_ms)
+            _kept(self.edges, edge).append(delay_ms)
+        if head is not None and not inside:
+            _kept(self.dispatches, head).append(delay_ms)
 
     def cpu(self, wall_ns: int, cpu_ns: int) -> None:
         """A reading of the loop thread's CPU clock (once a second or so)."""
@@ -106,11 +108,23 @@ class Costs:
             "hop_inside": quantiles(self.inside),
             "hop_head": quantiles(self.heads),
             "hop_by_edge": {edge_key(*edge): quantiles(samples) for edge, samples in sorted(self.edges.items())},
+            "dispatch_by_head": {head: quantiles(samples) for head, samples in sorted(self.dispatches.items())},
             "overhead": overhead,
             "cpu_per_wake_ms": None if per_wake is None else round(per_wake, 5),
             "wakes": self.wakes,
             "loop_core": self.core,
         }
+
+
+K = TypeVar("K")
+
+
+def _kept(by_key: dict[K, deque[float]], key: K) -> deque[float]:
+    """``key``'s latest samples (a new deque the first time)."""
+    samples = by_key.get(key)
+    if samples is None:
+        samples = by_key[key] = deque(maxlen=SAMPLES)
+    return samples
 
 
 def edge_key(producer: str, consumer: str) -> str:

@@ -343,7 +343,8 @@ def _head_again(state: SubchainRuns, seq: int) -> bool:
 
 class Reader:
     """Reads the rings of a subchain's nodes and hands what it finds on: compute times to the measurements,
-    runs and compute samples to the log, hop delays (per edge inside a subchain) to the cost figures."""
+    runs and compute samples to the log, hop delays (per edge inside a subchain, per head for its trigger) to the
+    cost figures."""
 
     def __init__(
         self,
@@ -352,7 +353,7 @@ class Reader:
         readers: Callable[[str], tuple[tuple[int, Endpoint, RingReader], ...]],
         record: Callable[[str, float], object],
         measured: tuple[str, ...],
-        hop: Callable[[float, bool, tuple[str, str] | None], None],
+        hop: Callable[[float, bool, tuple[str, str] | None, str | None], None],
         sample: Callable[[str, float, str, tuple[object, ...]], None],
     ) -> None:
         self.book, self.readers, self.record, self.hop, self.sample = book, readers, record, hop, sample
@@ -368,7 +369,7 @@ class Reader:
         seen = self.seen
         if seen.hops:
             for hop in seen.hops:
-                self.hop(hop.delay_ms, hop.inside, hop.edge)
+                self.hop(hop.delay_ms, hop.inside, hop.edge, None if hop.inside else hop.node)
             seen.hops.clear()
         if seen.computes:
             for compute in seen.computes:

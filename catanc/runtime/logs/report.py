@@ -144,6 +144,7 @@ def _costs_json(costs: CostsSummary | None) -> dict[str, Any] | None:
         "hop_inside_ms": quantiles(costs.hop_inside),
         "hop_head_ms": quantiles(costs.hop_head),
         "hop_by_edge_ms": {edge: quantiles(value) for edge, value in costs.hop_by_edge},
+        "dispatch_by_head_ms": {head: quantiles(value) for head, value in costs.dispatch_by_head},
         "core_share": _round(costs.share, 5),
         "cpu_per_wake_ms": _round(costs.cpu_per_wake_ms, 5),
     }
@@ -281,7 +282,7 @@ def _chains_table(chains: Sequence[ChainSummary]) -> Table:
 
 def _costs_table(costs: CostsSummary) -> Table:
     """The enforcer's own costs: switch latency, hop delay (a node's end, or a head's trigger, to the next start;
-    then the two apart where the log has them), its CPU."""
+    then the two apart where the log has them, per edge and per head: a head's dispatch), its CPU."""
     share = "-" if costs.share is None else f"{costs.share:.2%} of its core"
     per_wake = "-" if costs.cpu_per_wake_ms is None else f"{1000 * costs.cpu_per_wake_ms:.0f} us per wake-up"
     table = Table(title=f"the enforcer's own costs: {share}, {per_wake}", title_justify="left")
@@ -292,6 +293,7 @@ def _costs_table(costs: CostsSummary) -> Table:
         rows += [("  node to node", costs.hop_inside)]
         rows += [(f"    {edge}", value) for edge, value in costs.hop_by_edge]
         rows += [("  trigger to head", costs.hop_head)]
+        rows += [(f"    {head}", value) for head, value in costs.dispatch_by_head]
     for label, value in rows:
         if value is None:
             table.add_row(label, "0", "-", "-", "-")
