@@ -70,6 +70,12 @@ def inside_hops_ms(spec: Spec, nodes: Iterable[str]) -> float:
     return math.fsum(hops.get(pair, 0.0) for pair in itertools.pairwise(nodes))
 
 
+def runtime_delays_ms(spec: Spec, nodes: Sequence[str]) -> float:
+    """What a run of a subchain of ``nodes`` waits for the runtime, beyond its nodes' compute: its head's
+    dispatch (the spec's ``dispatch_ms``) and one hop per edge inside it (``hops_ms``)."""
+    return math.fsum((spec.dispatch_ms.get(nodes[0], 0.0) if nodes else 0.0, inside_hops_ms(spec, nodes)))
+
+
 class _Builder:
     """Accumulates diagnostics while building; one instance per call."""
 
@@ -118,6 +124,7 @@ class _Builder:
     def build(self) -> Problem:
         self.check_edges()
         self.check_hops()
+        self.check_dispatch()
         self.check_subchains()
         self.check_settings()
         subchains = self.subchain_bounds()
@@ -187,6 +194,27 @@ class _Builder:
                 hint = f"the edge runs {b} -> {a}" if (b, a) in edges else "edges name the hops a spec may give"
                 self.error(path, f"no edge {a} -> {b} in edges ({hint})", at_key=True)
             first.setdefault((a, b), key)
+
+    def check_dispatch(self) -> None:
+        """Every measured dispatch names the head of a subchain: only heads are triggered."""
+        heads = {nodes[0]: name for name, nodes in self.spec.subchains.items() if nodes}
+        for node in self.spec.dispatch_ms:
+            path: FieldPath = ("dispatch_ms", node)
+            if node not in self.spec.nodes:
+                self.error(path, f"unknown node {node!r}{did_you_mean(node, self.node_names)}", at_key=True)
+            elif node not in heads:
+                within = [name for name, nodes in self.spec.subchains.items() if node in nodes]
+                where = (
+                    f"subchain {within[0]!r} is headed by {self.spec.subchains[within[0]][0]!r}"
+                    if within
+                    else ("it is in no subchain")
+                )
+                self.error(
+                    path,
+                    f"{node!r} heads no subchain ({where}): a dispatch is the delay of catanc's trigger to a head; "
+                    "a later node's delay is its edge's hop (hops_ms)",
+                    at_key=True,
+                )
 
     def check_subchains(self) -> None:
         spec = self.spec
@@ -321,7 +349,7 @@ class _Builder:
                     nodes=tuple(nodes),
                     node_compute_ms=tuple(spec.nodes[n].mean_compute_ms for n in nodes),
                     node_speedups=tuple(spec.nodes[n].threads.speedups for n in nodes),
-                    hops_ms=inside_hops_ms(spec, nodes),
+                    hops_ms=runtime_delays_ms(spec, nodes),
                     batch=head.is_batch,
                     min_period_ms=1000.0 / high if high < math.inf else 0.0,
                     max_period_ms=1000.0 / low if low > 0 else math.inf,

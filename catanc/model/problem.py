@@ -28,7 +28,8 @@ class Subchain:
     min_period_ms: float = 0.0  # from max_rate_hz / rate_hz
     max_period_ms: float = math.inf  # from min_rate_hz / rate_hz
     serial: tuple[tuple[int, ...], ...] = ()  # positions of nodes that share one executor thread (2+ each)
-    # one hop per edge inside it, summed: the spec's measured ``hops_ms`` (docs/explanation/model.md section 5)
+    # What a run waits for the runtime, summed: its head's measured ``dispatch_ms`` and one hop per edge inside
+    # it, the spec's measured ``hops_ms`` (docs/explanation/model.md section 5)
     hops_ms: float = 0.0
     # The rates its driver offers (2+, ascending; docs/reference/spec.md): the plan picks one. While
     # not chosen, ``min/max_period_ms`` span them; once chosen (:meth:`Problem.choosing`), both are that one.
@@ -49,8 +50,8 @@ class Subchain:
 
     @cached_property
     def compute_ms(self) -> float:
-        """``c(S)``: the subchain's total time per run, its nodes' compute plus its inside hops (summed once: the
-        planner asks thousands of times)."""
+        """``c(S)``: the subchain's total time per run, its nodes' compute plus its head's dispatch and its inside hops
+        (summed once: the planner asks thousands of times)."""
         return math.fsum((*self.node_compute_ms, self.hops_ms))
 
     def compute_by_threads(self, cores: int) -> list[list[float]]:

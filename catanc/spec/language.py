@@ -692,6 +692,17 @@ class Spec(_Model):
             "of receiving (an executor's take and deserialisation) is no hop: it is part of its compute_ms."
         ),
     )
+    dispatch_ms: dict[Name, HopMs] = Field(
+        default_factory=dict,
+        # Written out only when given, as hops_ms.
+        exclude_if=lambda dispatch: not dispatch,
+        description=(
+            "Measured delay from catanc's trigger of a subchain's head to the head's start (ms, as `catanc profile "
+            "--write` writes it), e.g. scan: 0.7 for a ROS 2 head under catanc.ros (its trigger crosses a watcher "
+            "thread and the executor's wake-up). The head's subchain adds it to its c(S), like a hop; a head not "
+            "given has none (a shared core's switch_ms covers the enforcer's own switch)."
+        ),
+    )
     executors: dict[Name, Annotated[list[Name], Field(min_length=2)]] = Field(
         default_factory=dict,
         description=(

@@ -95,3 +95,47 @@ def test_a_run_is_late_only_against_the_latency_with_its_hops(hops: str, late: b
     book = RunBook(["tracking"], {}, lambda _: None)
     assert book.trigger(run, 1000.0, None) is not None
     assert book.late("tracking", 1000.0 + 85.0, run) is late
+
+
+DISPATCH = """dispatch_ms:
+  camera: 2.0                   # a ROS 2 head's trigger -> its callback (catanc.ros)
+"""
+
+
+@pytest.mark.parametrize(
+    ("extra", "cores", "period", "response"),
+    [
+        # 1 core, Eq. 1 with q = 1: c(S) = 84 ms of compute + 2 ms of the head's dispatch = 86 ms.
+        (DISPATCH, 1, 86 / 0.95, 86 + 86 / 0.95),
+        # With the inside hops too: 84 + 2 + 1.75 = 87.75 ms.
+        (DISPATCH + HOPS, 1, 87.75 / 0.95, 87.75 + 87.75 / 0.95),
+        # 2 cores, q = 1: period max(58, 87.75 / 2) / 0.95 = 58 / 0.95; the latency holds the dispatch.
+        (DISPATCH + HOPS, 2, 58 / 0.95, 87.75 + 58 / 0.95),
+    ],
+)
+def test_a_dedicated_subchain_counts_its_heads_dispatch(extra: str, cores: int, period: float, response: float) -> None:
+    result = plan(parse_spec(FACE + extra), cores)
+    tracking = result.subchains["tracking"]
+    assert tracking.period_ms == pytest.approx(period)
+    assert tracking.latency_ms == pytest.approx(response - period)
+    assert result.chains[0].response_ms == pytest.approx(response)
+
+
+def test_a_shared_subchains_slice_holds_its_heads_dispatch() -> None:
+    # SHARED with b's dispatch 0.5 ms: c(B) = 4.5, T = (6 + 4.5 + 2 * 0.12) / 0.95, both once a period (the
+    # alternatives worked in the test above stay worse: each adds a whole slice of the other per period).
+    result = plan(parse_spec(SHARED + "dispatch_ms: {b: 0.5}\n"), 1)
+    period = (6 + 4.5 + 2 * 0.12) / 0.95
+    assert result.subchains["B"].period_ms == pytest.approx(period)
+    slots = {slot.subchain: slot.length_ms for slot in _schedule(SHARED + "dispatch_ms: {b: 0.5}\n", 1).shared[0].slots}
+    assert slots == pytest.approx({"A": 6.0, "B": 4.5})
+
+
+@pytest.mark.parametrize(("extra", "late"), [(HOPS, True), (HOPS + DISPATCH, False)])
+def test_a_run_is_late_only_against_the_latency_with_its_dispatch(extra: str, late: bool) -> None:
+    # c(S) = 85.75 ms with the hops, 87.75 ms with the head's dispatch too: a run in flight 87 ms after its
+    # trigger is late without the dispatch in the spec, in time with it.
+    run = _schedule(FACE + extra, 1).subchains["tracking"]
+    book = RunBook(["tracking"], {}, lambda _: None)
+    assert book.trigger(run, 1000.0, None) is not None
+    assert book.late("tracking", 1000.0 + 87.0, run) is late

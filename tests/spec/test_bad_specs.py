@@ -94,6 +94,9 @@ REQUIRED_CATEGORIES = [
     "hops_negative",
     "hops_not_finite",
     "hops_unknown_edge",
+    # measured dispatches of heads (docs/explanation/model.md section 5)
+    "dispatch_negative_or_not_finite",
+    "dispatch_not_a_head",
     # meaning
     "unknown_node_edge",
     "unknown_node_subchain",
