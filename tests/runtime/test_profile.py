@@ -311,3 +311,55 @@ def test_too_few_hops_are_not_proposed_and_check_flags_a_hop_off_by_more_than_bo
     # A spec without hops against catanc's own trigger hop of 0.06 ms: within 0.1 ms, no drift.
     small = log_text(*every_node(), hops={"cam -> det": (0.06, 40)})
     assert not any("hops_ms" in line for line in profile_spec(SPEC, "d.yaml", small, "r", tolerance=0.15).off)
+
+
+# --------------------------------------------------------------------------- dispatches
+
+
+# cam (main's head) measured at p95 2.41234 ms over 900 triggers (4 digits: 2.412); det is no head (never
+# proposed, though a log said so).
+DISPATCHES = {"cam": (2.41234, 900), "det": (5.0, 50)}
+
+
+@pytest.mark.parametrize(
+    ("written", "expected"),
+    [
+        # none yet: a block at the end of the file
+        ("", "dispatch_ms:\n  cam: 2.412\n"),
+        # given: rewritten where it is, its comment kept
+        ("dispatch_ms: {cam: 0.12}   # measured\n", "dispatch_ms: {cam: 2.412}  # measured\n"),
+        ("dispatch_ms: {}\n", "dispatch_ms: {cam: 2.412}\n"),
+    ],
+)
+def test_profile_writes_each_heads_measured_dispatch(written: str, expected: str) -> None:
+    spec = _hop_spec(written)
+    log = log_text(*every_node(), dispatches=DISPATCHES)
+    result = profile_spec(spec, "demo.yaml", log, "run.jsonl", tolerance=0.15)
+    assert result.dispatches == {"cam": 2.412}
+    want = spec.replace(written, "") + expected if not written else spec.replace(written, expected)
+    assert result.text == want
+    assert parse_spec(result.text).dispatch_ms == {"cam": 2.412}
+    assert "  dispatch cam: 900 samples; spec " in "\n".join(result.summary)
+    again = profile_spec(result.text, "demo.yaml", log, "run.jsonl", tolerance=0.0)
+    assert again.text == result.text
+    assert again.off == ()
+
+
+def test_too_few_dispatches_are_not_proposed_and_check_flags_one_off_by_more_than_both_tolerances() -> None:
+    few = log_text(*every_node(), dispatches={"cam": (2.0, MIN_SAMPLES - 1)})
+    assert profile_spec(SPEC, "d.yaml", few, "r", tolerance=0.15).dispatches == {}
+    log = log_text(*every_node(), dispatches={"cam": (0.7, 40)})
+    # 0.5 planned against 0.7 measured: 40% and 0.2 ms off, over both 15% and 0.1 ms.
+    result = profile_spec(_hop_spec("dispatch_ms: {cam: 0.5}\n"), "demo.yaml", log, "run.jsonl", tolerance=0.15)
+    assert [line for line in result.off if "dispatch_ms" in line] == [
+        "demo.yaml:10:15: dispatch_ms.cam: 0.5 ms planned, 0.7 ms measured (more than 15% and 0.1 ms off)"
+    ]
+    # 0.65 against 0.7: 7.7% and 0.05 ms off: within both.
+    near = _hop_spec("dispatch_ms: {cam: 0.65}\n")
+    assert not any("dispatch_ms" in line for line in profile_spec(near, "d.yaml", log, "r", tolerance=0.15).off)
+    # None in the spec against a plain client's 0.06 ms: within 0.1 ms, no drift; against 0.7 ms, off.
+    small = log_text(*every_node(), dispatches={"cam": (0.06, 40)})
+    assert not any("dispatch_ms" in line for line in profile_spec(SPEC, "d.yaml", small, "r", tolerance=0.15).off)
+    assert any(
+        "dispatch_ms.cam: 0 ms planned" in line for line in profile_spec(SPEC, "d.yaml", log, "r", tolerance=0.15).off
+    )

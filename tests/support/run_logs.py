@@ -32,11 +32,13 @@ def log_text(
     kernels: Mapping[str, Sequence[float | None]] = {},
     hops: Mapping[str, tuple[float, int]] = {},
     ages: Mapping[str, Sequence[float]] = {},
+    dispatches: Mapping[str, tuple[float, int]] = {},
 ) -> str:
     """A log as the enforcer writes it: a start, one compute batch per (node, ms, threads, own figures), a stop.
 
     ``kernels``: per node, the kernel's counts of its batch's runs (None where unchecked; default all None).
     ``hops``: per edge ``"a -> b"``, the p95 and count of its hops in the stop's costs (``hop_by_edge``).
+    ``dispatches``: per head, the p95 and count of its triggers' delays to its starts (``dispatch_by_head``).
     ``ages``: per node, runs' ages (end less origin, ms), one ``compute`` event each (of 1 ms) after the batches.
     """
     start = {"t": 0.0, "event": "start", "cores": 1, "plan": {}}
@@ -63,11 +65,15 @@ def log_text(
             for age in values
         ]
     if stop:
-        by_edge = {
-            edge: {"p50_ms": p95 / 2, "p95_ms": p95, "max_ms": p95 * 2, "count": count}
-            for edge, (p95, count) in hops.items()
+        costs = {
+            field_name: {
+                key: {"p50_ms": p95 / 2, "p95_ms": p95, "max_ms": p95 * 2, "count": count}
+                for key, (p95, count) in figures.items()
+            }
+            for field_name, figures in (("hop_by_edge", hops), ("dispatch_by_head", dispatches))
+            if figures
         }
-        lines.append({"t": 9.0, "event": "stop", "summary": {"costs": {"hop_by_edge": by_edge}} if hops else {}})
+        lines.append({"t": 9.0, "event": "stop", "summary": {"costs": costs} if costs else {}})
     return "".join(json.dumps(line, sort_keys=True) + "\n" for line in lines)
 
 

@@ -41,7 +41,8 @@ class Sample:
 
 @dataclass(frozen=True)
 class HopFigures:
-    """An edge's hops as the enforcer measured them (its last ``status`` or ``stop`` event's ``hop_by_edge``)."""
+    """An edge's hops (or a head's dispatches) as the enforcer measured them (its last ``status`` or ``stop`` event's
+    ``hop_by_edge``, ``dispatch_by_head``)."""
 
     p95_ms: float
     count: int
@@ -58,6 +59,7 @@ class LogSamples:
     observed: bool = False  # a ``catanc run --observe`` log: the nodes ran on their own timers
     hops: Mapping[tuple[str, str], HopFigures] = field(default_factory=dict)  # (producer, consumer) -> its hops
     ages: Mapping[str, tuple[float, ...]] = field(default_factory=dict)  # node -> its runs' ends less their origins
+    dispatches: Mapping[str, HopFigures] = field(default_factory=dict)  # head -> its triggers' delays to its starts
 
 
 def read_samples(text: str, file: str) -> LogSamples:
@@ -67,6 +69,7 @@ def read_samples(text: str, file: str) -> LogSamples:
     started = stopped = observed = False
     length = 0.0
     hops: dict[tuple[str, str], HopFigures] = {}
+    dispatches: dict[str, HopFigures] = {}
     ages: dict[str, list[float]] = {}
     lines = text.splitlines()
     if not any(line.strip() for line in lines):
@@ -92,6 +95,7 @@ def read_samples(text: str, file: str) -> LogSamples:
             stopped = True
         if event["event"] in ("status", "stop"):
             hops = _hops(event) or hops
+            dispatches = _dispatches(event) or dispatches
         for single in expand(event):
             if not isinstance(single, dict) or single.get("event") != "compute":
                 continue
@@ -124,24 +128,37 @@ def read_samples(text: str, file: str) -> LogSamples:
         observed,
         hops,
         {k: tuple(v) for k, v in ages.items()},
+        dispatches,
     )
 
 
 def _hops(event: dict[str, Any]) -> dict[tuple[str, str], HopFigures]:
     """The ``hop_by_edge`` figures of a ``status`` (its own) or ``stop`` event (its summary's); readable ones only."""
-    row = event.get("summary") if event["event"] == "stop" else event
-    costs = row.get("costs") if isinstance(row, dict) else None
-    by_edge = costs.get("hop_by_edge") if isinstance(costs, dict) else None
     found: dict[tuple[str, str], HopFigures] = {}
-    for key, figures in by_edge.items() if isinstance(by_edge, dict) else ():
+    for key, figures in _cost_figures(event, "hop_by_edge").items():
         try:
-            edge = parse_arrow(str(key))
+            found[parse_arrow(key)] = figures
         except ValueError:
             continue
+    return found
+
+
+def _dispatches(event: dict[str, Any]) -> dict[str, HopFigures]:
+    """The ``dispatch_by_head`` figures of a ``status`` or ``stop`` event; readable ones only."""
+    return _cost_figures(event, "dispatch_by_head")
+
+
+def _cost_figures(event: dict[str, Any], field_name: str) -> dict[str, HopFigures]:
+    """The readable figures (p95 and a positive count) by key of the event's ``costs.<field_name>``."""
+    row = event.get("summary") if event["event"] == "stop" else event
+    costs = row.get("costs") if isinstance(row, dict) else None
+    by_key = costs.get(field_name) if isinstance(costs, dict) else None
+    found: dict[str, HopFigures] = {}
+    for key, figures in by_key.items() if isinstance(by_key, dict) else ():
         p95 = _number(figures.get("p95_ms")) if isinstance(figures, dict) else None
         count = figures.get("count") if isinstance(figures, dict) else None
         if p95 is not None and isinstance(count, int) and not isinstance(count, bool) and count > 0:
-            found[edge] = HopFigures(p95, count)
+            found[str(key)] = HopFigures(p95, count)
     return found
 
 

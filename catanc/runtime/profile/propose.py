@@ -45,6 +45,10 @@ that is off by more than the tolerance *and* :data:`HOP_TOLERANCE_MS` (a spec wi
 reads as 0 ms each: catanc's own trigger hop, ~0.05 ms, is no drift).  Edges between
 subchains are not proposed: no plan counts them.
 
+And per subchain head, its **dispatch** (``dispatch_ms``): the p95 of the delays from the enforcer's
+trigger to the head's start (its last ``dispatch_by_head`` figures), where it measured at least
+:data:`MIN_SAMPLES`, written and checked as a hop is (a head not in the spec reads as 0 ms).
+
 ``--check`` also fails where a chain with a bound (``max_response_ms``) was measured slower than
 it: the p95 of its response from origins (:func:`~catanc.control.run_summary.chain_response`,
 what ``catanc report`` shows), over at least :data:`MIN_SAMPLES` runs, above the bound.  The p95,
@@ -238,6 +242,50 @@ def propose_hops(spec: Spec, measured: LogSamples) -> dict[tuple[str, str], floa
         for edge, figures in sorted(measured.hops.items())
         if edge in inside and figures.count >= MIN_SAMPLES
     }
+
+
+def propose_dispatches(spec: Spec, measured: LogSamples) -> dict[str, float]:
+    """Per subchain head of ``spec`` with :data:`MIN_SAMPLES` dispatches measured: their p95, as written."""
+    heads = {nodes[0] for nodes in spec.subchains.values() if nodes}
+    return {
+        head: float(format_hop(figures.p95_ms))
+        for head, figures in sorted(measured.dispatches.items())
+        if head in heads and figures.count >= MIN_SAMPLES
+    }
+
+
+def dispatch_deviations(spec: Spec, dispatches: Mapping[str, float], tolerance: float) -> list[str]:
+    """Where ``spec``'s dispatches are off the measured ones by more than ``tolerance`` and :data:`HOP_TOLERANCE_MS`."""
+    found = []
+    for head, measured in sorted(dispatches.items()):
+        written = spec.dispatch_ms.get(head, 0.0)
+        if abs(measured - written) > max(tolerance * written, HOP_TOLERANCE_MS):
+            where = _where(spec, ("dispatch_ms", head) if head in spec.dispatch_ms else ("subchains",))
+            found.append(
+                f"{where}dispatch_ms.{head}: {written:g} ms planned, {measured:g} ms measured "
+                f"(more than {tolerance:.0%} and {HOP_TOLERANCE_MS:g} ms off)"
+            )
+    return found
+
+
+def dispatch_edits(spec: Spec, dispatches: Mapping[str, float]) -> tuple[list[Edit], list[tuple[str, str]]]:
+    """The spec's dispatches to rewrite where it gives them, and the ``(head, value)`` entries to add."""
+    edits, entries = [], []
+    for head, ms in sorted(dispatches.items()):
+        if head in spec.dispatch_ms:
+            edits.append(Edit(("dispatch_ms", head), format_hop(ms)))
+        else:
+            entries.append((head, format_hop(ms)))
+    return edits, entries
+
+
+def dispatch_lines(spec: Spec, dispatches: Mapping[str, float], measured: LogSamples) -> tuple[str, ...]:
+    """One line per measured head: samples, the spec's dispatch and the measured p95."""
+    return tuple(
+        f"  dispatch {head}: {measured.dispatches[head].count} samples; spec {spec.dispatch_ms.get(head, 0.0):.4g} ms, "
+        f"measured p95 {ms:.4g} ms"
+        for head, ms in sorted(dispatches.items())
+    )
 
 
 def spec_hops(spec: Spec) -> dict[tuple[str, str], tuple[str, float]]:
@@ -531,6 +579,7 @@ class Profiled:
 
     proposals: Mapping[str, Proposal]
     hops: Mapping[tuple[str, str], float]  # measured hop per edge inside a subchain (p95, as written)
+    dispatches: Mapping[str, float]  # measured dispatch per subchain head (p95, as written)
     summary: tuple[str, ...]  # one line per node, then its notes; one per hop
     text: str  # the spec's text with the proposals written in
     diff: str  # unified diff of the spec's text to ``text`` ("" when they are the same)
@@ -552,17 +601,21 @@ def profile_spec(spec_text: str, spec_file: str, log_text: str, log_file: str, *
     measured = read_samples(log_text, log_file)
     proposals = propose(spec, measured)
     hops = propose_hops(spec, measured)
+    dispatches = propose_dispatches(spec, measured)
     source = spec.source
     if source is None:  # pragma: no cover - check_text always keeps the source map
         raise MeasurementsError(f"{spec_file}: no source positions to edit")
     rewrites, entries = hop_edits(spec, hops)
-    text = apply_edits(spec_text, source, [*spec_edits(spec, proposals), *rewrites])
+    dispatch_rewrites, dispatch_entries = dispatch_edits(spec, dispatches)
+    text = apply_edits(spec_text, source, [*spec_edits(spec, proposals), *rewrites, *dispatch_rewrites])
     rewritten, _ = check_text(text, spec_file)
-    if entries and rewritten.source is not None:  # new keys go in at the positions of the edited text
-        text = add_entries(text, rewritten.source, ("hops_ms",), entries)
-        rewritten, _ = check_text(text, spec_file)
+    for field_name, added in (("hops_ms", entries), ("dispatch_ms", dispatch_entries)):
+        if added and rewritten.source is not None:  # new keys go in at the positions of the edited text
+            text = add_entries(text, rewritten.source, (field_name,), added)
+            rewritten, _ = check_text(text, spec_file)
     wrong = matches(rewritten, proposals)
     wrong += [key for key, (_, ms) in _written_hops(rewritten, hops).items() if ms != hops[parse_arrow(key)]]
+    wrong += [f"dispatch_ms.{head}" for head, ms in dispatches.items() if rewritten.dispatch_ms.get(head) != ms]
     if wrong:
         raise CatancError(f"{spec_file}: rewriting {', '.join(wrong)} did not give the proposed values (a bug)")
     name = spec_file
@@ -574,14 +627,16 @@ def profile_spec(spec_text: str, spec_file: str, log_text: str, log_file: str, *
     off = [
         *deviations(spec, proposals, tolerance),
         *hop_deviations(spec, hops, tolerance),
+        *dispatch_deviations(spec, dispatches, tolerance),
         *chain_deviations(spec, problem, measured),
     ]
     summary = (
         *summary_lines(spec, proposals, measured),
         *hop_lines(spec, hops, measured),
+        *dispatch_lines(spec, dispatches, measured),
         *chain_lines(problem, measured),
     )
-    return Profiled(proposals, hops, summary, text, diff, tuple(off))
+    return Profiled(proposals, hops, dispatches, summary, text, diff, tuple(off))
 
 
 def _written_hops(spec: Spec, hops: Mapping[tuple[str, str], float]) -> dict[str, tuple[str, float]]:
