@@ -9,8 +9,25 @@ from pathlib import Path
 from rich.console import Console
 
 from catanc.control.run_summary import summarise
-from catanc.runtime.enforcer.costs import Costs
+from catanc.model.load import parse_spec
+from catanc.runtime.enforcer.costs import Costs, measured_profile, planned_hops
 from catanc.runtime.logs.report import render_summary, summary_payload
+from catanc.spec.machine import MeasuredOn, RtLimit
+
+NAV_LIKE = """catan: 1
+app: nav
+nodes:
+  scan: {compute_ms: 0.2}
+  LM: {compute_ms: 0.8}
+  LP: {compute_ms: 0.5}
+  GL: {compute_ms: 3}
+edges: [[scan, LM], [LM, LP], [scan, GL]]
+hops_ms: {"scan->LM": 1.0}
+dispatch_ms: {scan: 2.4}
+subchains: {local: [scan, LM, LP], GL: [GL]}
+objective: [{chain: [scan, LM, LP], weight: 1}]
+"""
+_MACHINE = MeasuredOn(host="h", cpu=None, kernel="k", cpus=2)
 
 
 def test_hops_are_kept_together_and_apart_by_kind() -> None:
@@ -136,3 +153,27 @@ def test_an_older_log_without_the_split_still_reports(tmp_path: Path) -> None:
     assert costs["hop_ms"]["p50"] == 0.1
     assert costs["hop_inside_ms"] is None
     assert costs["hop_head_ms"] is None
+
+
+def test_a_hop_the_spec_budgets_in_a_c_of_s_raises_no_switch() -> None:
+    # nav2d's local subchain with scan's dispatch and scan -> LM in the spec; LM -> LP and GL's dispatch not.
+    costs = Costs(planned=planned_hops(parse_spec(NAV_LIKE)))
+    costs.switch(0, 0.1)
+    for _ in range(10):
+        costs.hop(2.4, False, None, "scan")  # planned: in local's c(S)
+        costs.hop(1.0, True, ("scan", "LM"), "LM")  # planned
+    costs.hop(0.3, True, ("LM", "LP"), "LP")  # not planned
+    costs.hop(0.5, False, None, "GL")  # not planned
+    summary = costs.summary(1)
+    # The two unplanned hops, 0.3 and 0.5: p95 at rank 0.95, 0.3 + 0.95 * 0.2.
+    assert summary["hop_unplanned"] == {"p50_ms": 0.4, "p95_ms": 0.49, "max_ms": 0.5, "count": 2}
+    profile = measured_profile(
+        summary, rt=RtLimit(runtime_us=950_000, period_us=1_000_000), machine=_MACHINE, minimum=1
+    )
+    assert profile is not None
+    assert profile.hop_ms == 0.49
+    # A summary of an older enforcer, without the split: every hop.
+    del summary["hop_unplanned"]
+    older = measured_profile(summary, rt=RtLimit(runtime_us=950_000, period_us=1_000_000), machine=_MACHINE, minimum=1)
+    assert older is not None
+    assert older.hop_ms == summary["hop"]["p95_ms"]

@@ -13,7 +13,9 @@
 :meth:`Costs.summary` gives the figures the log, the status, ``catanc report`` and a machine
 profile (``catanc calibrate``) use: p50, p95 and max of each, and the share.  A plan charges each
 once (:func:`catanc.spec.machine.costs`): the overhead as slack, each slot's hop beyond the
-enforcer's CPU per wake-up as its switch_ms.
+enforcer's CPU per wake-up as its switch_ms; but not a hop the spec budgets in a c(S) already (an
+edge of its ``hops_ms``, a head of its ``dispatch_ms``: :attr:`Costs.planned`), which would count
+twice on a shared core.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from catanc.control.measure import percentile
+from catanc.spec.language import Spec, parse_arrow
 from catanc.spec.machine import MACHINE_FORMAT, MachineProfile, MeasuredOn, RtLimit
 
 SAMPLES = 1024
@@ -59,6 +62,8 @@ class Costs:
     heads: deque[float] = field(default_factory=lambda: deque(maxlen=SAMPLES))  # a head's trigger to its start
     edges: dict[tuple[str, str], deque[float]] = field(default_factory=dict)  # (producer, consumer) -> its hops
     dispatches: dict[str, deque[float]] = field(default_factory=dict)  # head -> its triggers' delays to its starts
+    planned: frozenset[str] = frozenset()  # edges ("a -> b") and heads whose hop the spec's c(S) holds
+    unplanned: deque[float] = field(default_factory=lambda: deque(maxlen=SAMPLES))  # the other hops: a slot's
     wakes: int = 0
     cpu_ns: int = 0  # the loop thread's CPU time at the last reading
     wall_ns: int = 0  # when it was read
@@ -76,10 +81,15 @@ class Costs:
         to its start (``head``: which one)."""
         self.hops.append(delay_ms)
         (self.inside if inside else self.heads).append(delay_ms)
+        key = None
         if edge is not None:
             _kept(self.edges, edge).append(delay_ms)
+            key = edge_key(*edge)
         if head is not None and not inside:
             _kept(self.dispatches, head).append(delay_ms)
+            key = head
+        if key not in self.planned:
+            self.unplanned.append(delay_ms)
 
     def cpu(self, wall_ns: int, cpu_ns: int) -> None:
         """A reading of the loop thread's CPU clock (once a second or so)."""
@@ -107,6 +117,7 @@ class Costs:
             "hop": quantiles(self.hops),
             "hop_inside": quantiles(self.inside),
             "hop_head": quantiles(self.heads),
+            "hop_unplanned": quantiles(self.unplanned),
             "hop_by_edge": {edge_key(*edge): quantiles(samples) for edge, samples in sorted(self.edges.items())},
             "dispatch_by_head": {head: quantiles(samples) for head, samples in sorted(self.dispatches.items())},
             "overhead": overhead,
@@ -125,6 +136,12 @@ def _kept(by_key: dict[K, deque[float]], key: K) -> deque[float]:
     if samples is None:
         samples = by_key[key] = deque(maxlen=SAMPLES)
     return samples
+
+
+def planned_hops(spec: Spec) -> frozenset[str]:
+    """The hops ``spec`` budgets in a subchain's c(S): its ``hops_ms`` edges (as :func:`edge_key` names them) and
+    its ``dispatch_ms`` heads."""
+    return frozenset({edge_key(*parse_arrow(key)) for key in spec.hops_ms} | set(spec.dispatch_ms))
 
 
 def edge_key(producer: str, consumer: str) -> str:
@@ -154,12 +171,13 @@ def this_machine() -> MeasuredOn:
 def measured_profile(
     summary: dict[str, Any], *, rt: RtLimit, machine: MeasuredOn, minimum: int = MIN_SWITCHES
 ) -> MachineProfile | None:
-    """A machine profile of what :meth:`Costs.summary` measured: p95 switch and hop, the enforcer's CPU per
-    wake-up, the share of each core.
+    """A machine profile of what :meth:`Costs.summary` measured: p95 switch and hop (of the hops no c(S) holds),
+    the enforcer's CPU per wake-up, the share of each core.
 
     None until ``minimum`` switches were measured (a few seconds of a busy core).
     """
-    switch, hop = summary.get("switch"), summary.get("hop")
+    switch = summary.get("switch")
+    hop = summary["hop_unplanned"] if "hop_unplanned" in summary else summary.get("hop")  # an older summary: all
     if not switch or int(switch["count"]) < minimum:
         return None
     return MachineProfile(

@@ -49,7 +49,7 @@ from catanc.extras import require
 from catanc.runtime.compiled import ready as compiled_ready
 from catanc.runtime.compiled.ready import BackgroundBuild, LoopChoice
 from catanc.runtime.enforcer.cores import SharedCores
-from catanc.runtime.enforcer.costs import Costs
+from catanc.runtime.enforcer.costs import Costs, planned_hops
 from catanc.runtime.enforcer.nodes import NodeThreads, Wiring
 from catanc.runtime.enforcer.reoptimiser import PlannerProcess
 from catanc.runtime.enforcer.replanning import Replanning
@@ -152,7 +152,7 @@ class Enforcer:
             note=self.notes.throttled,
             log=self.notes.write,
         )
-        self.costs = Costs()
+        self.costs = Costs(planned=planned_hops(self.spec))
         self.reader = Reader(
             self.book,
             readers=self._readers,
