@@ -1,5 +1,5 @@
-"""``catanc profile``: a spec's compute times and hops from what ``catanc run`` measured (a diff, ``--write``,
-``--check``)."""
+"""``catanc profile``: a spec's compute times, hops and dispatches from what ``catanc run`` measured (a diff,
+``--write``, ``--check``)."""
 
 from __future__ import annotations
 
@@ -22,14 +22,14 @@ def profile(
         bool,
         typer.Option(
             "--check",
-            help="Exit 1 if a compute time, speedup or hop is more than --tolerance off, or a bounded chain's "
-            "p95 response from origins is over its max_response_ms.",
+            help="Exit 1 if a compute time, speedup, hop or dispatch is more than --tolerance off, or a bounded "
+            "chain's p95 response from origins is over its max_response_ms.",
         ),
     ] = False,
     tolerance: Annotated[float, typer.Option(min=0.0, help="--check's relative tolerance (0.15: 15%).")] = 0.15,
 ) -> None:
-    """Propose each node's compute_ms (the p95 the runtime plans with, modes, speedups) and each hop inside a
-    subchain (hops_ms, its p95) from a run's log."""
+    """Propose each node's compute_ms (the p95 the runtime plans with, modes, speedups), each hop inside a
+    subchain (hops_ms, its p95) and each head's dispatch (dispatch_ms, its p95) from a run's log."""
     from catanc.artifacts.output import replace_file
     from catanc.errors import UsageError
     from catanc.runtime.logs.writer import read_log_text
