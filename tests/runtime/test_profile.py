@@ -363,3 +363,19 @@ def test_too_few_dispatches_are_not_proposed_and_check_flags_one_off_by_more_tha
     assert any(
         "dispatch_ms.cam: 0 ms planned" in line for line in profile_spec(SPEC, "d.yaml", log, "r", tolerance=0.15).off
     )
+
+
+def test_a_head_sharing_its_thread_with_another_subchain_gets_no_dispatch() -> None:
+    # cam and a second head, radar, in one executor thread: radar's trigger waits for cam's runs there, so
+    # neither delay is a dispatch; the summary says why.
+    spec = SPEC.replace("  motor: {scheduled: false}\n", "  motor: {scheduled: false}\n  radar: {compute_ms: 1}\n")
+    spec = spec.replace(EDGES, "edges: [[cam, det], [det, plan], [plan, motor], [radar, motor]]\n")
+    spec = spec.replace("  main: [cam, det, plan]\n", "  main: [cam, det, plan]\n  ranging: [radar]\n")
+    spec += "executors: {sensors: [cam, radar]}\n"
+    log = log_text(*every_node(), ("radar", [1.0] * 20, None, None), dispatches={"cam": (0.7, 40), "radar": (9.0, 40)})
+    result = profile_spec(spec, "demo.yaml", log, "run.jsonl", tolerance=0.15)
+    assert result.dispatches == {}
+    assert "dispatch_ms" not in result.text
+    assert "  dispatch radar: 40 samples, p95 9 ms: not proposed, its thread runs subchain main too" in "\n".join(
+        result.summary
+    )

@@ -47,7 +47,10 @@ subchains are not proposed: no plan counts them.
 
 And per subchain head, its **dispatch** (``dispatch_ms``): the p95 of the delays from the enforcer's
 trigger to the head's start (its last ``dispatch_by_head`` figures), where it measured at least
-:data:`MIN_SAMPLES`, written and checked as a hop is (a head not in the spec reads as 0 ms).
+:data:`MIN_SAMPLES`, written and checked as a hop is (a head not in the spec reads as 0 ms).  Not for a
+head whose executor thread also runs another subchain's nodes (nav2d's GM beside GL in the Mapper):
+its trigger waits there for their runs too (11 ms p95 for GM behind GL's 12 ms mode), which is no
+cost of its dispatch; the plan's executor model (``explain``) speaks of that wait.
 
 ``--check`` also fails where a chain with a bound (``max_response_ms``) was measured slower than
 it: the p95 of its response from origins (:func:`~catanc.control.run_summary.chain_response`,
@@ -244,14 +247,25 @@ def propose_hops(spec: Spec, measured: LogSamples) -> dict[tuple[str, str], floa
     }
 
 
-def propose_dispatches(spec: Spec, measured: LogSamples) -> dict[str, float]:
-    """Per subchain head of ``spec`` with :data:`MIN_SAMPLES` dispatches measured: their p95, as written."""
-    heads = {nodes[0] for nodes in spec.subchains.values() if nodes}
+def propose_dispatches(spec: Spec, problem: Problem, measured: LogSamples) -> dict[str, float]:
+    """Per subchain head of ``spec`` with :data:`MIN_SAMPLES` dispatches measured: their p95, as written; none for a
+    head whose thread runs another subchain's nodes too (:func:`thread_sharing_heads`)."""
+    heads = {nodes[0] for nodes in spec.subchains.values() if nodes} - set(thread_sharing_heads(problem))
     return {
         head: float(format_hop(figures.p95_ms))
         for head, figures in sorted(measured.dispatches.items())
         if head in heads and figures.count >= MIN_SAMPLES
     }
+
+
+def thread_sharing_heads(problem: Problem) -> dict[str, tuple[str, ...]]:
+    """Each subchain head whose executor thread runs nodes of other subchains too: those subchains."""
+    found = {}
+    for executor in problem.executors:
+        for sub in problem.subchains:
+            if sub.nodes[0] in executor.nodes and len(executor.subchains) > 1:
+                found[sub.nodes[0]] = tuple(other for other in executor.subchains if other != sub.name)
+    return found
 
 
 def dispatch_deviations(spec: Spec, dispatches: Mapping[str, float], tolerance: float) -> list[str]:
@@ -285,6 +299,17 @@ def dispatch_lines(spec: Spec, dispatches: Mapping[str, float], measured: LogSam
         f"  dispatch {head}: {measured.dispatches[head].count} samples; spec {spec.dispatch_ms.get(head, 0.0):.4g} ms, "
         f"measured p95 {ms:.4g} ms"
         for head, ms in sorted(dispatches.items())
+    )
+
+
+def unproposed_dispatch_lines(problem: Problem, measured: LogSamples) -> tuple[str, ...]:
+    """One line per measured head whose thread runs other subchains' nodes: why its dispatch is not proposed."""
+    sharing = thread_sharing_heads(problem)
+    return tuple(
+        f"  dispatch {head}: {figures.count} samples, p95 {figures.p95_ms:.4g} ms: not proposed, its thread runs "
+        f"subchain{'s' if len(sharing[head]) > 1 else ''} {', '.join(sharing[head])} too (the delay holds their runs)"
+        for head, figures in sorted(measured.dispatches.items())
+        if head in sharing
     )
 
 
@@ -601,7 +626,7 @@ def profile_spec(spec_text: str, spec_file: str, log_text: str, log_file: str, *
     measured = read_samples(log_text, log_file)
     proposals = propose(spec, measured)
     hops = propose_hops(spec, measured)
-    dispatches = propose_dispatches(spec, measured)
+    dispatches = propose_dispatches(spec, problem, measured)
     source = spec.source
     if source is None:  # pragma: no cover - check_text always keeps the source map
         raise MeasurementsError(f"{spec_file}: no source positions to edit")
@@ -634,6 +659,7 @@ def profile_spec(spec_text: str, spec_file: str, log_text: str, log_file: str, *
         *summary_lines(spec, proposals, measured),
         *hop_lines(spec, hops, measured),
         *dispatch_lines(spec, dispatches, measured),
+        *unproposed_dispatch_lines(problem, measured),
         *chain_lines(problem, measured),
     )
     return Profiled(proposals, hops, dispatches, summary, text, diff, tuple(off))
