@@ -29,7 +29,8 @@ CLOCK_REALTIME, the clock of the messages' stamps):
   ``--duration`` seconds), each plan for as long as it was in force;
 - stale runs: runs of a later node of the local subchain whose input is older than the head's
   newest run before them (``scan`` ended before LM's / LP's run started, with a newer stamp);
-- for catanc: late runs (the enforcer's counters, whole run) and the enforcer's CPU (every thread
+- for catanc: late runs (the enforcer's counters, whole run, and within the window: from its
+  per-second status counters and the runs it logged between them) and the enforcer's CPU (every thread
   of the ``catanc run`` process over the window, /proc schedstat; its planner and watchdog
   processes not counted), with its own figures (share, hop inside a subchain) from its log.
 
@@ -301,6 +302,28 @@ def hop_ms(rows: Sequence[Record], producer: str, consumer: str) -> list[float]:
     ]
 
 
+def late_within(events: Sequence[Mapping[str, Any]], from_s: float) -> dict[str, tuple[int, int]]:
+    """Per subchain, ``(late, runs)`` from the last status event before ``from_s`` (log time) to the last one: the
+    difference of its cumulative late counters, and the run events logged between the two."""
+    statuses = [event for event in events if event.get("event") == "status"]
+    if not statuses:
+        return {}
+    first = max((event for event in statuses if event["t"] <= from_s), key=lambda event: event["t"], default=None)
+    last = statuses[-1]
+    start_s = first["t"] if first is not None else 0.0
+    before = first["subchains"] if first is not None else {}
+    found = {}
+    for name, row in last["subchains"].items():
+        late = int(row.get("late") or 0) - int(before.get(name, {}).get("late") or 0)
+        runs = sum(
+            1
+            for event in events
+            if event.get("event") == "run" and event.get("subchain") == name and start_s < event["t"] <= last["t"]
+        )
+        found[name] = (late, runs)
+    return found
+
+
 def stale_runs(rows: Sequence[Record], head: str, later: str) -> tuple[int, int]:
     """``later``'s runs whose input is older than ``head``'s newest run that ended before them, of all its runs.
 
@@ -366,6 +389,8 @@ class SubchainRate:
     planned_hz: float | None
     late: int | None = None
     runs: int | None = None  # catanc: runs the enforcer counted over the whole run
+    window_late: int | None = None  # catanc: late runs between the enforcer's status events that span the window
+    window_runs: int | None = None  # catanc: runs it logged between them
 
     @property
     def off(self) -> float | None:
@@ -443,7 +468,8 @@ def measure_case(
         table = table_of(app.folder, cores)
         window = within(rows, start_ns, end_ns)
         window_s = (end_ns - start_ns) / 1e9
-        log_summary = summarise(read_log(app.log)) if mode != "plain" and app.log.exists() else None
+        events = read_log(app.log) if mode != "plain" and app.log.exists() else None
+        log_summary = summarise(events) if events is not None else None
         if keep is not None and log_summary is not None:  # for `catanc report` and `catanc profile`
             keep.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(app.log, keep / f"{mode}-cores-{cores}.jsonl")
@@ -457,8 +483,15 @@ def measure_case(
         for row in log_summary.subchains:
             planned[row.name] = mean_planned_hz(row.planned, window_end_s - window_s, window_end_s)
             counters[row.name] = (row.late, row.runs)
+    in_window = late_within(events or [], log_summary.length_s - window_s) if log_summary is not None else {}
     subchains = tuple(
-        SubchainRate(name, rate_hz(window, node, window_s), planned.get(name), *counters.get(name, (None, None)))
+        SubchainRate(
+            name,
+            rate_hz(window, node, window_s),
+            planned.get(name),
+            *counters.get(name, (None, None)),
+            *in_window.get(name, (None, None)),
+        )
         for name, node in SUBCHAIN_LAST.items()
     )
     costs = None if log_summary is None else log_summary.costs
@@ -521,6 +554,8 @@ def render(cases: Sequence[Case]) -> str:
         for row in case.subchains:
             off = "-" if row.off is None else f"{100 * row.off:+.1f}%"
             late = "" if row.late is None else f", late {row.late} of {row.runs} runs"
+            if row.window_late is not None:
+                late += f" ({row.window_late} of {row.window_runs} in the window)"
             lines.append(
                 f"  subchain {row.name:<5} {row.measured_hz:8.2f} Hz, plan {_ms(row.planned_hz):>8} Hz ({off}){late}"
             )
