@@ -196,6 +196,7 @@ class AppRun:
     def stop(self) -> dict[str, int | None]:
         """Ctrl-C for each process group, as a terminal sends it; each one's exit status (None: killed)."""
         codes: dict[str, int | None] = {}
+        launched = descendants(self.launcher.pid)  # catanc run --launch starts each in a session of its own
         for _, process in self.processes():
             with contextlib.suppress(ProcessLookupError):
                 os.killpg(process.pid, signal.SIGINT)
@@ -209,6 +210,10 @@ class AppRun:
             with contextlib.suppress(ProcessLookupError):
                 os.killpg(process.pid, signal.SIGKILL)
             process.wait()
+        for pid in launched:  # a node an enforcer killed here left behind: on its own timer, at SCHED_FIFO, for ever
+            if str(self.folder) in _cmdline(pid):
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGKILL)
         return codes
 
 
@@ -421,6 +426,14 @@ class Case:
     load_after: str
 
 
+def _cmdline(pid: int) -> str:
+    """A process's command line ("" once it is gone)."""
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+    except OSError:
+        return ""
+
+
 def descendants(pid: int) -> list[int]:
     """Every process below ``pid`` (from /proc's children lists)."""
     found: list[int] = []
@@ -473,6 +486,8 @@ def measure_case(
         if keep is not None and log_summary is not None:  # for `catanc report` and `catanc profile`
             keep.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(app.log, keep / f"{mode}-cores-{cores}.jsonl")
+            for text in app.output.glob("*.txt"):  # what the launcher and the robot said (a stop that hung)
+                shutil.copyfile(text, keep / f"{mode}-cores-{cores}-{text.name}")
     planned: dict[str, float | None]
     counters: dict[str, tuple[int | None, int | None]] = {}
     if log_summary is None:
@@ -589,7 +604,10 @@ def main(argv: Sequence[str] | None = None) -> None:
         help="an experiment: put the app's middleware threads back to SCHED_OTHER once it runs (catanc mode)",
     )
     parser.add_argument(
-        "--keep-logs", type=Path, metavar="DIR", help="copy each catanc case's run log to DIR/<mode>-cores-<K>.jsonl"
+        "--keep-logs",
+        type=Path,
+        metavar="DIR",
+        help="copy each catanc case's run log (and output) to DIR/<mode>-cores-<K>*",
     )
     args = parser.parse_args(argv)
     os.environ.setdefault("ROS_DOMAIN_ID", str(101 + os.getpid() % 100))  # apart from the tests' 1..100
