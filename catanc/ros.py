@@ -27,6 +27,11 @@ Under ``catanc run``:
   message's ``header.stamp`` (when it has one) as the run's origin.  It registers at the first
   spin (before the first message; at the latest in the first message's callback), saying it
   runs on its input, so no node sends it triggers.
+- A run's compute time is its executor thread's CPU since that thread's previous run of a DAG node ended
+  (:class:`_ThreadCpu`), not only its callback's: the executor's own work to take, deserialise and start it
+  (and to go back to waiting after the run before) is CPU on the node's core that the plan must budget, a
+  node's cost of receiving its input (docs/explanation/model.md section 5).  The first run on a thread counts
+  its callback only.
 - ``name`` defaults to the ROS node's ``catan.node`` parameter (declared if it is not).
 - The executor must run every callback of a DAG node in one thread: a
   ``SingleThreadedExecutor`` (``rclpy.spin``), one per thread.  A ``MultiThreadedExecutor``
@@ -114,6 +119,32 @@ def _check_executor(node: Any, dag: str) -> None:
             "runs callbacks in any of its threads; catanc schedules the one thread that runs a DAG node. Spin it "
             "with a SingleThreadedExecutor (rclpy.spin), one per thread if the process needs several."
         )
+
+
+class _ThreadCpu:
+    """The calling thread's CPU time (``time.thread_time``) when its last run of a DAG node ended, per thread.
+
+    Between two runs an executor thread blocks (no CPU) or does the executor's own work for them: back to
+    its wait set after a run, then taking, deserialising and dispatching the next one.  That work runs on
+    the node's core at its level, so a run is charged with it: its compute is the thread's CPU from the end
+    of the run before (or its callback's start, the first time) to its own end.
+    """
+
+    _local = threading.local()
+
+    @classmethod
+    def since(cls) -> float:
+        """Where the calling thread's current run counts its CPU from."""
+        now = time.thread_time()
+        last = getattr(cls._local, "end", None)
+        return now if last is None or last > now else last
+
+    @classmethod
+    def spent_ms(cls, since: float) -> float:
+        """The calling thread's CPU since ``since``, in ms; the current run ends now (the next counts from here)."""
+        now = time.thread_time()
+        cls._local.end = now
+        return max(now - since, 0.0) * 1000.0
 
 
 class _ShutdownWatch:
@@ -312,11 +343,12 @@ class CatancTimer:
                 trigger = client.wait(0)
                 if trigger is None:
                     break
+                since = _ThreadCpu.since()
                 try:
                     self.callback()
                 finally:
                     if registration.holds(client):  # unless the callback shut the context down
-                        client.done()
+                        client.done(_ThreadCpu.spent_ms(since))
         if client.stopped and not registration.closed:
             self._fall_back(client.lost or "the enforcer stopped")
 
@@ -426,11 +458,12 @@ def reported(node: Any, callback: Callable[[T], Any], *, name: str | None = None
         with registration.lock:
             if not registration.holds(client):
                 return callback(message)
+            since = _ThreadCpu.since()
             client.begin(_stamp_ns(message))
             try:
                 return callback(message)
             finally:
                 if registration.holds(client):  # unless the callback shut the context down
-                    client.done()
+                    client.done(_ThreadCpu.spent_ms(since))
 
     return run

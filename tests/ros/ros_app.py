@@ -7,6 +7,9 @@
 - ``sub``: a ROS node whose subscription (``catanc_ros.reported``) burns ``--burn-ms`` per message;
 - ``plain``: a head on a plain ``node.create_timer`` (the benchmark's baseline).
 
+``--busy-ms B --busy-period-ms P``: also a plain rclpy timer in the same executor, no DAG node's, that
+burns ``B`` ms of CPU every ``P`` ms (other work of the executor's thread: an odometry callback).
+
 Each callback prints one JSON line to stdout: ``{"event": "tick" | "message", "tid": its thread,
 "main": the spinning thread, "mono_ns": CLOCK_MONOTONIC at its start, "expected_ns": when a plain
 timer was due}``, so the tests read what ran where and when without asking catanc.  The DAG node
@@ -55,6 +58,8 @@ class App(Node):  # type: ignore[misc]
             callback = catanc_ros.reported(self, self.on_point, name=options.name)
             self.create_subscription(PointStamped, TOPIC, callback, 10)
             return
+        if options.busy_ms > 0:
+            self.busy_timer = self.create_timer(options.busy_period_ms / 1000.0, self.busy)
         self.publisher = self.create_publisher(PointStamped, TOPIC, 10)
         period_s = options.period_ms / 1000.0
         if options.role == "plain":
@@ -76,6 +81,10 @@ class App(Node):  # type: ignore[misc]
         self.ticks += 1
         if self.ticks == self.options.shutdown_after:
             rclpy.try_shutdown()  # from inside the callback, as a node that is done would
+
+    def busy(self) -> None:
+        say(event="busy", mono_ns=time.monotonic_ns())
+        burn(self.options.busy_ms)
 
     def on_point(self, message: PointStamped) -> None:
         stamp_ns = message.header.stamp.sec * 1_000_000_000 + message.header.stamp.nanosec
@@ -100,6 +109,8 @@ def main() -> int:
     parser.add_argument("--period-ms", type=float, default=20.0)
     parser.add_argument("--burn-ms", type=float, default=1.0)
     parser.add_argument("--on-loss", default="timer")
+    parser.add_argument("--busy-ms", type=float, default=0.0, help="CPU a plain timer of the same executor burns")
+    parser.add_argument("--busy-period-ms", type=float, default=50.0)
     parser.add_argument("--shutdown-after", type=int, default=0, help="ticks, then rclpy.try_shutdown()")
     parser.add_argument("--executor", choices=["single", "multi"], default="single")
     parser.add_argument("--cpu", type=int, default=None, help="run every thread on this CPU (as a launch pins it)")
