@@ -148,7 +148,8 @@ def launcher_argv(mode: str, cores: int, log: Path) -> list[str]:
     if mode == "plain":
         return ["bash", "plain.sh", cpus]
     if mode == "catanc":
-        run = ["run", table, "--launch", "--start", "spec", "--quiet", "--log", str(log)]
+        socket = log.with_name("catanc.sock")  # its own: never another enforcer's (a test's) default one
+        run = ["run", table, "--launch", "--start", "spec", "--quiet", "--log", str(log), "--socket", str(socket)]
         return ["taskset", "-c", cpus, catanc_program(), *run]
     if mode == "launch.sh":
         return ["bash", f"out/cores-{cores}/launch.sh"]
