@@ -20,7 +20,9 @@ from pathlib import Path
 
 import pytest
 
+from catanc.model.load import parse_spec as load_spec_text
 from catanc.runtime.linux.watchdog import WATCHDOG_PRIORITY
+from catanc.runtime.profile.propose import format_hop, profile_spec
 from tests.support.enforcer_runs import compile_table
 from tests.support.ros_runs import CHAIN_SPEC, PLANNED_HZ, RosRun, exits_within, ros_run
 
@@ -101,6 +103,27 @@ def test_a_runs_compute_holds_its_executor_threads_work_since_the_run_before(run
     # And not the time between runs: at most the burnt CPU and 2 ms of the executor's own work a run (rclpy's
     # executor, in Python, for cam's run and the busy callbacks: ~1 ms a run measured on the loaded VM).
     assert math.fsum(reported[1:]) <= burnt_ms + (len(reported) - 1) * 2.0
+
+
+def test_the_log_gives_the_heads_dispatch_and_profile_writes_it(run: RosRun, table: Path) -> None:
+    # cam, a head on a thread of its own, is triggered through catanc.ros: the enforcer logs each of its
+    # triggers' delays to its start apart (dispatch_by_head), det (on its input) has none, and catanc profile
+    # writes cam's p95 into the spec.  The delay is a wake-up and a little Python: more than nothing, and its
+    # median less than cam's 20 ms period (its p95 was 11 ms with another app's SCHED_FIFO threads on the CPU).
+    run.start(table, duration=6.0)
+    run.node("head", dag="cam")
+    run.node("sub", dag="det")
+    run.wait(30.0)
+    log_text = run.log.read_text()
+    (stop,) = [event for event in run.events() if event["event"] == "stop"]
+    dispatches = stop["summary"]["costs"]["dispatch_by_head"]
+    assert set(dispatches) == {"cam"}
+    assert dispatches["cam"]["count"] >= 100
+    assert 0.0 < dispatches["cam"]["p50_ms"] < 1000.0 / PLANNED_HZ
+    assert dispatches["cam"]["p50_ms"] <= dispatches["cam"]["p95_ms"] <= dispatches["cam"]["max_ms"]
+    result = profile_spec(CHAIN_SPEC, "roschain.yaml", log_text, str(run.log), tolerance=0.15)
+    assert result.dispatches == {"cam": float(format_hop(dispatches["cam"]["p95_ms"]))}
+    assert load_spec_text(result.text).dispatch_ms == result.dispatches
 
 
 def test_a_killed_enforcer_leaves_the_head_on_its_own_timer_within_a_second(run: RosRun, table: Path) -> None:
