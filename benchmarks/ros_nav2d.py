@@ -7,7 +7,7 @@
 Each case runs the example as its README says, from a scratch copy of its folder, with the robot
 (``robot_sim.py``: odometry, and the base that records each command; at SCHED_FIFO 3 as root, as
 docs/explanation/model.md section 6 runs unscheduled nodes, in every mode), all pinned to the case's CPUs
-(``taskset``; plan core ``i`` is CPU ``i``):
+(``taskset``; plan core ``i`` is CPU ``i``, or ``--first-cpu`` + ``i``):
 
 - **plain**: ``bash plain.sh CPUS``: every node on its own timer at the spec's baseline rates,
   Linux's default scheduling;
@@ -131,8 +131,16 @@ def app_environment(records: Path) -> dict[str, str]:
     return env
 
 
+FIRST_CPU = [0]
+"""The case's first CPU (``--first-cpu``): a case on ``cores`` cores runs on the CPUs from it on."""
+
+
+def case_cpus(cores: int) -> range:
+    return range(FIRST_CPU[0], FIRST_CPU[0] + cores)
+
+
 def cpu_list(cores: int) -> str:
-    return ",".join(str(cpu) for cpu in range(cores))
+    return ",".join(str(cpu) for cpu in case_cpus(cores))
 
 
 def robot_priority() -> list[str]:
@@ -469,7 +477,7 @@ def measure_case(
             app.wait_ready()
             if dds_other and mode != "plain":
                 time.sleep(2.0)  # the enforcer places them once a second: after that, they stay put
-                lowered = lower_middleware(descendants(app.launcher.pid), range(cores))
+                lowered = lower_middleware(descendants(app.launcher.pid), case_cpus(cores))
                 print(f"# {lowered} middleware threads back at SCHED_OTHER", file=sys.stderr, flush=True)
             time.sleep(warmup_s)
             start_ns = time.time_ns()
@@ -610,7 +618,14 @@ def main(argv: Sequence[str] | None = None) -> None:
         metavar="DIR",
         help="copy each catanc case's run log (and output) to DIR/<mode>-cores-<K>*",
     )
+    parser.add_argument(
+        "--first-cpu",
+        type=int,
+        default=0,
+        help="run each case on the CPUs from this one on (default 0; the enforcer plans on the CPUs it may use)",
+    )
     args = parser.parse_args(argv)
+    FIRST_CPU[0] = args.first_cpu
     os.environ.setdefault("ROS_DOMAIN_ID", str(101 + os.getpid() % 100))  # apart from the tests' 1..100
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     os.environ.pop("ROS_LOCALHOST_ONLY", None)
