@@ -33,7 +33,8 @@ from catanc.planning.stage2.integer import most_runs
 from catanc.planning.stage2.onebatch import OneBatchRuns
 from catanc.planning.stage2.whole import WholeRuns
 from catanc.spec.language import Schedule, Spec
-from tests.planning.test_stage2_conic import apps
+from tests.planning.test_stage2_conic import app_documents, batch_heads, capped
+from tests.support.strategies import spec_of
 
 # a (1 ms, at most 1000/7 Hz: p >= 7 ms) and b (2 ms) on one core, no slack or switch cost, both
 # periods weighted 1, slices of at least 1 ms (n_a = 1, n_b <= 2). With n = (1, 1) the slots fit
@@ -171,13 +172,17 @@ def oracle_best(
 
 @st.composite
 def capped_one_batch_apps(draw: st.DrawFn) -> tuple[Spec, Layout, dict[str, int]]:
-    spec, layout = draw(apps(max_subchains=4))
-    problem = build_problem(spec)
-    batch = [name for core in layout.shared for name in core.subchains if problem.subchain(name).batch]
+    document, layout = draw(app_documents(max_subchains=4))
+    # Filtered on the document, before its parse: most apps drawn are filtered out.
+    batch = [name for core in layout.shared for name in core.subchains if name in batch_heads(document)]
     assume(len(batch) == 1)
     shared = [name for core in layout.shared for name in core.subchains if name not in batch]
     # One capped subchain keeps the oracle's enumeration small (its k up to p_min / T).
-    assume(sum(problem.subchain(name).min_period_ms > 0 for name in shared) == 1)
+    assume(len(capped(document).intersection(shared)) == 1)
+    spec = spec_of(document)
+    problem = build_problem(spec)
+    assert [name for core in layout.shared for name in core.subchains if problem.subchain(name).batch] == batch
+    assert sum(problem.subchain(name).min_period_ms > 0 for name in shared) == 1
     runs = {
         name: draw(st.integers(1, min(most_runs(problem.subchain(name).compute_ms, spec.schedule), 6)))
         for name in shared
@@ -215,11 +220,15 @@ def test_one_batch_with_caps_against_enumeration(app: tuple[Spec, Layout, dict[s
 
 @st.composite
 def capped_whole_apps(draw: st.DrawFn) -> tuple[Spec, Layout, dict[str, int]]:
-    spec, layout = draw(apps(max_subchains=5))
-    problem = build_problem(spec)
+    document, layout = draw(app_documents(max_subchains=5))
     shared = [name for core in layout.shared for name in core.subchains]
-    assume(not any(problem.subchain(name).batch for name in shared))
-    assume(any(problem.subchain(name).min_period_ms > 0 for name in shared))  # lengths are searched
+    # Filtered on the document, before its parse: most apps drawn are filtered out.
+    assume(not batch_heads(document).intersection(shared))
+    assume(bool(capped(document).intersection(shared)))  # lengths are searched
+    spec = spec_of(document)
+    problem = build_problem(spec)
+    assert not any(problem.subchain(name).batch for name in shared)
+    assert any(problem.subchain(name).min_period_ms > 0 for name in shared)
     runs = {
         name: draw(st.integers(1, min(most_runs(problem.subchain(name).compute_ms, spec.schedule), 8)))
         for name in shared

@@ -41,11 +41,14 @@ Box = dict[str, tuple[int, int]]
 
 
 @st.composite
-def apps(draw: st.DrawFn, max_subchains: int = 5, longest_runs: int | None = None) -> tuple[Spec, Layout]:
-    """A random app (batch heads, rate caps and floors, chain bounds) and where its subchains run.
+def app_documents(
+    draw: st.DrawFn, max_subchains: int = 5, longest_runs: int | None = None
+) -> tuple[dict[str, Any], Layout]:
+    """A random app's document (batch heads, rate caps and floors, chain bounds) and where its subchains run.
 
     Each subchain is dedicated (1-2 cores) or on one of 1-3 shared cores, at least one shared.
-    With ``longest_runs``, the minimum slice keeps every ``n = 1/f`` at most that.
+    With ``longest_runs``, the minimum slice keeps every ``n = 1/f`` at most that.  The document is not
+    parsed here: a strategy that filters on what the document says rejects an app before paying its parse.
     """
     document: dict[str, Any] = draw(spec_documents(max_subchains=max_subchains, max_threads=2))
     subchains: dict[str, list[str]] = document["subchains"]
@@ -63,7 +66,6 @@ def apps(draw: st.DrawFn, max_subchains: int = 5, longest_runs: int | None = Non
         "slack": draw(st.sampled_from([0.0, 0.05])),
         "switch_ms": draw(st.sampled_from([0.0, 0.12])),
     }
-    spec = spec_of(document)
     places = draw(st.lists(st.integers(0, 3), min_size=len(names), max_size=len(names)))
     if all(place == 0 for place in places):
         places[draw(st.integers(0, len(names) - 1))] = 1
@@ -72,7 +74,30 @@ def apps(draw: st.DrawFn, max_subchains: int = 5, longest_runs: int | None = Non
         SharedCore(core, tuple(name for name, place in zip(names, places, strict=True) if place == core))
         for core in sorted(set(places) - {0})
     )
-    return spec, Layout(dedicated, shared)
+    return document, Layout(dedicated, shared)
+
+
+@st.composite
+def apps(draw: st.DrawFn, max_subchains: int = 5, longest_runs: int | None = None) -> tuple[Spec, Layout]:
+    """:func:`app_documents`, parsed: the app's spec and where its subchains run."""
+    document, layout = draw(app_documents(max_subchains, longest_runs))
+    return spec_of(document), layout
+
+
+def batch_heads(document: dict[str, Any]) -> set[str]:
+    """The subchains of an :func:`app_documents` document whose head is a batch node (``Subchain.batch``)."""
+    return {name for name, members in document["subchains"].items() if document["nodes"][members[0]].get("batch")}
+
+
+def capped(document: dict[str, Any]) -> set[str]:
+    """The subchains of an :func:`app_documents` document with a node capped in rate (``min_period_ms > 0``):
+    a node constraint with a finite highest rate."""
+    member_of = {node: name for name, members in document["subchains"].items() for node in members}
+    return {
+        member_of[constraint["node"]]
+        for constraint in document.get("constraints", [])
+        if constraint.get("node") in member_of and ("max_rate_hz" in constraint or "rate_hz" in constraint)
+    }
 
 
 def models(spec: Spec, problem: Problem, layout: Layout) -> tuple[ConicStage2, RelaxedStage2]:

@@ -30,7 +30,8 @@ from catanc.planning.stage2.convex import OPEN
 from catanc.planning.stage2.integer import most_runs, solve_integer
 from catanc.planning.stage2.onebatch import OneBatchRuns
 from catanc.spec.language import Schedule, Spec
-from tests.planning.test_stage2_conic import AGREE, apps
+from tests.planning.test_stage2_conic import AGREE, app_documents, batch_heads
+from tests.support.strategies import spec_of
 
 SPECS = Path(__file__).parents[2] / "specs"
 GRID = np.geomspace(1e-4, 1e4, 4001)
@@ -164,10 +165,13 @@ def test_no_unique_optimum_is_left_to_the_solver() -> None:
 @st.composite
 def one_batch_apps(draw: st.DrawFn) -> tuple[Spec, Layout, dict[str, int]]:
     """A random app whose layout shares exactly one batch subchain, and fixed runs within the slices."""
-    spec, layout = draw(apps(max_subchains=5))
-    problem = build_problem(spec)
-    batch = [name for core in layout.shared for name in core.subchains if problem.subchain(name).batch]
+    document, layout = draw(app_documents(max_subchains=5))
+    # Filtered on the document, before its parse: most apps drawn are filtered out.
+    batch = [name for core in layout.shared for name in core.subchains if name in batch_heads(document)]
     assume(len(batch) == 1)
+    spec = spec_of(document)
+    problem = build_problem(spec)
+    assert [name for core in layout.shared for name in core.subchains if problem.subchain(name).batch] == batch
     runs = {
         name: draw(st.integers(1, min(most_runs(problem.subchain(name).compute_ms, spec.schedule), 50)))
         for core in layout.shared
