@@ -7,8 +7,7 @@ from typing import Any
 
 from hypothesis import strategies as st
 
-from catanc.model.build import build_problem
-from catanc.model.load import parse_spec
+from catanc.model.load import check_text, parse_spec
 from catanc.model.problem import Problem
 from catanc.spec.language import Spec
 
@@ -95,12 +94,20 @@ def spec_documents(
     return document
 
 
-def spec_of(document: dict[str, Any]) -> Spec:
+def spec_text(document: dict[str, Any]) -> str:
+    """The document as a spec file: ``yaml.safe_dump``'s text, written by libyaml's emitter where PyYAML has it
+    (the same text, ~4x faster; the spec's own loader then reads it as any file)."""
     import yaml
 
-    return parse_spec(yaml.safe_dump(document, sort_keys=False), "random.yaml")
+    dumper = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
+    return str(yaml.dump(document, Dumper=dumper, sort_keys=False))
+
+
+def spec_of(document: dict[str, Any]) -> Spec:
+    return parse_spec(spec_text(document), "random.yaml")
 
 
 @st.composite
 def problems(draw: st.DrawFn, max_subchains: int = 7, with_bounds: bool = True) -> Problem:
-    return build_problem(spec_of(draw(spec_documents(max_subchains, with_bounds))))
+    _, problem = check_text(spec_text(draw(spec_documents(max_subchains, with_bounds))), "random.yaml")
+    return problem  # the problem the check built: building it again would give the same
