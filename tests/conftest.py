@@ -142,6 +142,16 @@ def compiled_loop(compiled_loop_built: None) -> WalkEntry:
     return load()
 
 
+@pytest.fixture(scope="session")
+def cpp_example(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The C++ example node, compiled once for every module that runs it (g++ takes seconds of CPU).
+
+    Skips where there is no C++ compiler."""
+    from tests.support.client_nodes import build_cpp_example  # only the client tests load the client helpers
+
+    return build_cpp_example(tmp_path_factory.mktemp("cpp"))
+
+
 @pytest.fixture(scope="module")
 def nobody(real_kernel: None) -> tuple[int, int]:
     """``nobody``'s uid and gid; skips unless the tests may switch to it (root, setpriv, prlimit)."""

@@ -25,7 +25,7 @@ import pytest
 from catanc.runtime.protocol import messages as protocol
 from catanc.runtime.protocol import ring
 from catanc.runtime.protocol.messages import Bye, Done, Hello, Reject, Route, Stop, trigger_datagram
-from tests.support.client_nodes import Run, build_cpp_example, finish, parse_runs, without_enforcer
+from tests.support.client_nodes import Run, finish, parse_runs, without_enforcer
 from tests.support.fake_enforcer import TIMEOUT_S, FakeEnforcer
 
 HEADER = Path(__file__).resolve().parents[1] / "catanc" / "include" / "catanc" / "client.hpp"
@@ -34,8 +34,8 @@ Start = Callable[..., "subprocess.Popen[str]"]
 
 
 @pytest.fixture(scope="module")
-def example(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return build_cpp_example(tmp_path_factory.mktemp("cpp"))
+def example(cpp_example: Path) -> Path:
+    return cpp_example
 
 
 @pytest.fixture

@@ -26,7 +26,6 @@ from catanc.model.priorities import RUNNING_FIFO
 from catanc.runtime.linux.watchdog import WATCHDOG_PRIORITY
 from tests.support.client_nodes import (
     Run,
-    build_cpp_example,
     client_run,
     finish,
     parse_runs,
@@ -76,11 +75,10 @@ CLIENTS = [
 @pytest.fixture(scope="module", params=CLIENTS)
 def node_argv(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> list[str]:
     """The command that starts a node process of this client, before its NAME:MS arguments."""
-    folder = tmp_path_factory.mktemp(str(request.param))
     if request.param == "cpp":
-        return [str(build_cpp_example(folder))]
+        return [str(request.getfixturevalue("cpp_example"))]  # built once for the test modules that run it
     assert PYTHON_38 is not None
-    return python_node(folder, PYTHON_38)
+    return python_node(tmp_path_factory.mktemp(str(request.param)), PYTHON_38)
 
 
 def served(compute: dict[str, float]) -> list[str]:
