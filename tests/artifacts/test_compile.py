@@ -17,7 +17,7 @@ import re
 import shlex
 import subprocess
 import sys
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -73,9 +73,10 @@ deploy:
 
 
 @pytest.fixture(scope="module")
-def compiled() -> dict[tuple[str, int], Target]:
-    """Every example spec at 1 and 2 cores, compiled in memory."""
-    return {(path.stem, cores): compile_spec(path, cores) for path in SPECS for cores in (1, 2)}
+def compiled(example_targets: Mapping[tuple[str, int], Target]) -> dict[tuple[str, int], Target]:
+    """Every example spec at 1 and 2 cores, compiled in memory (once for the session: tests/artifacts/conftest.py)."""
+    assert sorted(example_targets) == sorted((path.stem, cores) for path in SPECS for cores in (1, 2))
+    return dict(example_targets)
 
 
 def targets(compiled: dict[tuple[str, int], Target]) -> Iterator[Target]:

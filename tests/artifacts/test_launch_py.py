@@ -19,6 +19,7 @@ import socket
 import subprocess
 import tempfile
 import time
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -125,11 +126,15 @@ def own_tmp(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     return folder
 
 
-def target_of(example: str, robot: Target) -> Target:
-    return robot if example == "robot" else compile_spec(ROOT / "specs" / f"{example[:-2]}.yaml", int(example[-1]))
-
-
 EXAMPLES = ["robot", *[f"{p.stem}-{k}" for p in SPECS for k in (1, 2)]]
+
+
+@pytest.fixture(scope="module")
+def targets(robot: Target, example_targets: Mapping[tuple[str, int], Target]) -> dict[str, Target]:
+    """Each of :data:`EXAMPLES`, compiled: the robot, and the example specs (once: tests/artifacts/conftest.py)."""
+    found = {"robot": robot, **{f"{stem}-{cores}": target for (stem, cores), target in example_targets.items()}}
+    assert sorted(found) == sorted(EXAMPLES)
+    return found
 
 
 # --------------------------------------------------------------------------- the tests
@@ -148,9 +153,9 @@ def test_the_robot_has_every_kind_of_process(robot: Target) -> None:
 @pytest.mark.parametrize("example", EXAMPLES)
 @pytest.mark.parametrize("no_rt", ["false", "true"])
 def test_by_default_the_enforcer_runs_and_every_process_waits_for_its_socket(  # noqa: PLR0917  fixtures
-    example: str, no_rt: str, robot: Target, tmp_path: Path, own_tmp: Path, monkeypatch: pytest.MonkeyPatch
+    example: str, no_rt: str, targets: dict[str, Target], tmp_path: Path, own_tmp: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    target = target_of(example, robot)
+    target = targets[example]
     launch_file = write(target, tmp_path / "out")
     folder = launch_file.parent
     table = json.loads(target.files["runtime.json"])
@@ -190,9 +195,9 @@ def test_by_default_the_enforcer_runs_and_every_process_waits_for_its_socket(  #
 
 @pytest.mark.parametrize("example", EXAMPLES)
 def test_static_runs_shared_core_processes_under_sched_other_and_no_enforcer(
-    example: str, robot: Target, tmp_path: Path, own_tmp: Path, monkeypatch: pytest.MonkeyPatch
+    example: str, targets: dict[str, Target], tmp_path: Path, own_tmp: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    target = target_of(example, robot)
+    target = targets[example]
     launch_file = write(target, tmp_path / "out")
     table = json.loads(target.files["runtime.json"])
     shared = shared_processes(table)
@@ -244,8 +249,8 @@ def test_a_flag_that_is_not_true_or_false_is_an_error(
         describe(launch_file, monkeypatch, no_rt="yes")
 
 
-def test_the_file_is_python_and_imports_only_the_launch_api(robot: Target) -> None:
-    for target in [robot, *[compile_spec(path, cores) for path in SPECS for cores in (1, 2)]]:
+def test_the_file_is_python_and_imports_only_the_launch_api(targets: dict[str, Target]) -> None:
+    for target in targets.values():
         tree = ast.parse(target.files["launch.py"])
         modules = {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
         modules |= {alias.name for n in ast.walk(tree) if isinstance(n, ast.Import) for alias in n.names}

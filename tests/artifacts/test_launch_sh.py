@@ -37,7 +37,7 @@ from typing import Any
 import pytest
 import yaml
 
-from catanc.artifacts.compile import compile_spec
+from catanc.artifacts.compile import Target
 from catanc.artifacts.deploy import Process, processes
 from catanc.artifacts.emit import emit
 from catanc.artifacts.provenance import Provenance
@@ -655,14 +655,16 @@ def test_cpus_this_machine_lacks_stop_it_before_it_starts_anything(
 
 
 @pytest.fixture(scope="module")
-def example_scripts(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    """launch.sh of every example spec on 1 and 2 cores, written out once."""
+def example_scripts(
+    tmp_path_factory: pytest.TempPathFactory, example_targets: Mapping[tuple[str, int], Target]
+) -> dict[str, Path]:
+    """launch.sh of every example spec on 1 and 2 cores (compiled once: tests/artifacts/conftest.py), written out."""
     folder = tmp_path_factory.mktemp("examples")
     scripts = {}
     for spec in SPECS:
         for cores in (1, 2):
             path = folder / f"{spec.stem}-{cores}.sh"
-            path.write_text(compile_spec(spec, cores).files["launch.sh"])
+            path.write_text(example_targets[spec.stem, cores].files["launch.sh"])
             scripts[path.stem] = path
     return scripts
 
