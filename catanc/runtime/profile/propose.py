@@ -273,13 +273,22 @@ def dispatch_deviations(spec: Spec, dispatches: Mapping[str, float], tolerance: 
     found = []
     for head, measured in sorted(dispatches.items()):
         written = spec.dispatch_ms.get(head, 0.0)
-        if abs(measured - written) > max(tolerance * written, HOP_TOLERANCE_MS):
+        if _delay_off(measured, written, tolerance):
             where = _where(spec, ("dispatch_ms", head) if head in spec.dispatch_ms else ("subchains",))
-            found.append(
-                f"{where}dispatch_ms.{head}: {written:g} ms planned, {measured:g} ms measured "
-                f"(more than {tolerance:.0%} and {HOP_TOLERANCE_MS:g} ms off)"
-            )
+            found.append(_delay_deviation(f"{where}dispatch_ms.{head}", written, measured, tolerance))
     return found
+
+
+def _delay_off(measured: float, written: float, tolerance: float) -> bool:
+    """Whether a measured hop or dispatch is off the spec's by more than ``tolerance`` and :data:`HOP_TOLERANCE_MS`."""
+    return abs(measured - written) > max(tolerance * written, HOP_TOLERANCE_MS)
+
+
+def _delay_deviation(field: str, written: float, measured: float, tolerance: float) -> str:
+    return (
+        f"{field}: {written:g} ms planned, {measured:g} ms measured "
+        f"(more than {tolerance:.0%} and {HOP_TOLERANCE_MS:g} ms off)"
+    )
 
 
 def dispatch_edits(spec: Spec, dispatches: Mapping[str, float]) -> tuple[list[Edit], list[tuple[str, str]]]:
@@ -484,12 +493,9 @@ def hop_deviations(spec: Spec, hops: Mapping[tuple[str, str], float], tolerance:
     found = []
     for (a, b), measured in sorted(hops.items()):
         key, hop = written.get((a, b), (edge_key(a, b), 0.0))
-        if abs(measured - hop) > max(tolerance * hop, HOP_TOLERANCE_MS):
+        if _delay_off(measured, hop, tolerance):
             where = _where(spec, ("hops_ms", key)) if (a, b) in written else _where(spec, ("edges",))
-            found.append(
-                f"{where}hops_ms.{key}: {hop:g} ms planned, {measured:g} ms measured "
-                f"(more than {tolerance:.0%} and {HOP_TOLERANCE_MS:g} ms off)"
-            )
+            found.append(_delay_deviation(f"{where}hops_ms.{key}", hop, measured, tolerance))
     return found
 
 
