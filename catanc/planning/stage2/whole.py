@@ -313,7 +313,7 @@ class WholeRuns:
                     every = np.ceil(sub.min_period_ms / length * (1 - EVERY_TOLERANCE))
                     period[name] = np.maximum(column[name], every) * length
                 else:
-                    period[name] = np.maximum(latency[name], sub.min_period_ms) if not aligned else latency[name]
+                    period[name] = np.maximum(latency[name], sub.min_period_ms)  # = the latency without a cap
         responses = {}
         needed: Floats = np.ones(count)
         for index in {term.chain for term in self.problem.response_terms} | {
