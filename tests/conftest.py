@@ -7,6 +7,10 @@ Markers (registered in pyproject.toml; pytest runs with ``--strict-markers``):
   :func:`nobody` fixture gets it here, so ``pytest -m "not realtime"`` runs
   anywhere.  Such a test also skips, with the reason, where the machine
   lacks the part.
+- ``serial``: runs with the CPUs to itself, never beside another test (``pytest -n``): the
+  ``realtime`` and ``ros`` tests, and those that hold the measured timing of real processes to
+  numbers (:data:`TIMED_MODULES`).  The README runs the suite in two passes: ``-m "not serial"``
+  on every CPU (pytest-xdist), then ``-m serial`` one test at a time.
 - ``slow``: out of the fast tier, ``pytest -m "not slow and not realtime and not ros"``:
   takes more than ~10 s on the 2-core development VM, or belongs to a module whose
   tests each start processes (the CLI, node processes, ``catanc run``) or run numba-compiled
@@ -83,6 +87,15 @@ SLOW_MODULES = frozenset(
     }
 )
 """Modules (under tests/) out of the fast tier as a whole."""
+TIMED_MODULES = frozenset(
+    {
+        # real processes' periods and compute times measured and held to numbers, without the real kernel
+        "runtime/test_observe.py",
+        "test_clients_on_the_kernel.py",
+    }
+)
+"""Modules (under tests/) whose tests are ``serial`` though not ``realtime``: another test beside them skews
+what they measure."""
 
 # On Hypothesis' own default, not on the profile loaded now (its built-in ci one where CI is set).
 settings.register_profile(
@@ -174,8 +187,12 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
         fixtures = set(getattr(item, "fixturenames", ()))
         if REALTIME_FIXTURES & fixtures:
             item.add_marker(pytest.mark.realtime)
-        if COMPILED_FIXTURES & fixtures or module_of(item) in SLOW_MODULES:
+        module = module_of(item)
+        if COMPILED_FIXTURES & fixtures or module in SLOW_MODULES:
             item.add_marker(pytest.mark.slow)
+        # tests/ros/conftest.py marks its tests ros too, maybe after this hook: its folder decides here
+        if REALTIME_FIXTURES & fixtures or module.startswith("ros/") or module in TIMED_MODULES:
+            item.add_marker(pytest.mark.serial)
 
 
 def module_of(item: pytest.Item) -> str:
