@@ -195,6 +195,19 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
             item.add_marker(pytest.mark.serial)
 
 
+def pytest_collection_finish(session: pytest.Session) -> None:
+    """numba's two builds first, side by side, where a selected test may need them (the fast tier needs
+    neither): :mod:`tests.support.numba_builds`."""
+    if session.config.option.collectonly or not any(item.get_closest_marker("slow") for item in session.items):
+        return
+    from tests.support.numba_builds import build_both  # imports catanc's compiled-loop module
+
+    reporter = session.config.pluginmanager.get_plugin("terminalreporter")
+    if reporter is not None:
+        reporter.write_line("building numba's caches where they are not built (a minute on a fresh checkout)")
+    build_both()
+
+
 def module_of(item: pytest.Item) -> str:
     """The item's file relative to tests/, as :data:`SLOW_MODULES` names it ("" outside it)."""
     return item.path.relative_to(TESTS).as_posix() if item.path.is_relative_to(TESTS) else ""
