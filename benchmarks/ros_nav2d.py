@@ -497,6 +497,7 @@ def measure_case(
             shutil.copyfile(app.log, keep / f"{mode}-cores-{cores}.jsonl")
             for text in app.output.glob("*.txt"):  # what the launcher and the robot said (a stop that hung)
                 shutil.copyfile(text, keep / f"{mode}-cores-{cores}-{text.name}")
+            shutil.copytree(app.records, keep / f"{mode}-cores-{cores}-records", dirs_exist_ok=True)  # runs, traced
     planned: dict[str, float | None]
     counters: dict[str, tuple[int | None, int | None]] = {}
     if log_summary is None:
@@ -616,7 +617,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         "--keep-logs",
         type=Path,
         metavar="DIR",
-        help="copy each catanc case's run log (and output) to DIR/<mode>-cores-<K>*",
+        help="copy each catanc case's run log, output and the nodes' run records to DIR/<mode>-cores-<K>*",
     )
     parser.add_argument(
         "--first-cpu",
