@@ -28,7 +28,8 @@ CLOCK_REALTIME, the clock of the messages' stamps):
   for plain; for catanc the rate the enforcer's plans promised over the window (the log's last
   ``--duration`` seconds), each plan for as long as it was in force;
 - stale runs: runs of a later node of the local subchain whose input is older than the head's
-  newest run before them (``scan`` ended before LM's / LP's run started, with a newer stamp);
+  newest run before them (``scan`` ended before LM's / LP's run started, with a newer stamp), in the
+  window, and over the whole run beside it (the start-up included);
 - for catanc: late runs (the enforcer's counters, whole run, and within the window: from its
   per-second status counters and the runs it logged between them) and the enforcer's CPU (every thread
   of the ``catanc run`` process over the window, /proc schedstat; its planner and watchdog
@@ -338,11 +339,14 @@ def late_within(events: Sequence[Mapping[str, Any]], from_s: float) -> dict[str,
     return found
 
 
-def stale_runs(rows: Sequence[Record], head: str, later: str) -> tuple[int, int]:
-    """``later``'s runs whose input is older than ``head``'s newest run that ended before them, of all its runs.
+def stale_runs(rows: Sequence[Record], head: str, later: str, start_ns: int, end_ns: int) -> tuple[int, int]:
+    """``later``'s runs that started in ``[start_ns, end_ns)`` whose input is older than ``head``'s newest run that
+    ended before them, of all such runs.
 
-    Every run of ``later`` is compared with the head runs recorded in ``rows`` (all of them, so the
-    window's first runs have their predecessors).
+    Each is compared with every head run recorded in ``rows`` (those before the window too, so the window's
+    first runs have their predecessors).  Runs of ``later`` before the window are not counted: like every other
+    figure here, the target is the measured window's (the start-up, before the first re-plans and while the
+    enforcer places the threads, is not; :func:`stale_runs` over the whole run shows it).
     """
     heads = sorted((row["end_ns"], row["origin_ns"]) for row in of_node(rows, head))
     stale = total = 0
@@ -351,7 +355,7 @@ def stale_runs(rows: Sequence[Record], head: str, later: str) -> tuple[int, int]
         while index < len(heads) and heads[index][0] <= run["start_ns"]:
             newest = heads[index][1] if newest is None else max(newest, heads[index][1])
             index += 1
-        if run["origin_ns"] is None or newest is None:
+        if run["origin_ns"] is None or newest is None or not start_ns <= run["start_ns"] < end_ns:
             continue
         total += 1
         stale += run["origin_ns"] < newest
@@ -424,8 +428,10 @@ class Case:
     subchains: tuple[SubchainRate, ...]
     hop_scan_lm: Spread | None
     hop_lm_lp: Spread | None
-    stale_lm: tuple[int, int]
+    stale_lm: tuple[int, int]  # in the window
     stale_lp: tuple[int, int]
+    stale_lm_run: tuple[int, int]  # over the whole run, the start-up included
+    stale_lp_run: tuple[int, int]
     enforcer_cores: float | None
     enforcer_share: float | None
     hop_inside: Spread | None
@@ -532,8 +538,10 @@ def measure_case(
         subchains=subchains,
         hop_scan_lm=spread(hop_ms(window, "scan", "LM")),
         hop_lm_lp=spread(hop_ms(window, "LM", "LP")),
-        stale_lm=stale_runs(rows, "scan", "LM") if window else (0, 0),
-        stale_lp=stale_runs(rows, "scan", "LP") if window else (0, 0),
+        stale_lm=stale_runs(rows, "scan", "LM", start_ns, end_ns),
+        stale_lp=stale_runs(rows, "scan", "LP", start_ns, end_ns),
+        stale_lm_run=stale_runs(rows, "scan", "LM", 0, end_ns),
+        stale_lp_run=stale_runs(rows, "scan", "LP", 0, end_ns),
         enforcer_cores=None if enforcer_cpu_ns is None else enforcer_cpu_ns / (end_ns - start_ns),
         enforcer_share=None if costs is None else costs.share,
         hop_inside=None if hop is None else Spread(hop.count, hop.p50_ms, hop.p95_ms, hop.max_ms),
@@ -575,7 +583,10 @@ def render(cases: Sequence[Case]) -> str:
         lines.append(f"  GL -> NC -> LP, ms p50 / p95 / max:          {_spread(case.navigation)}")
         lines.append(f"  hop scan -> LM, ms:  {_spread(case.hop_scan_lm)}")
         lines.append(f"  hop LM -> LP, ms:    {_spread(case.hop_lm_lp)}")
-        lines.append(f"  stale runs: LM {_stale(case.stale_lm)}, LP {_stale(case.stale_lp)}")
+        lines.append(
+            f"  stale runs: LM {_stale(case.stale_lm)}, LP {_stale(case.stale_lp)} (whole run, start-up included: "
+            f"LM {_stale(case.stale_lm_run)}, LP {_stale(case.stale_lp_run)})"
+        )
         for row in case.subchains:
             off = "-" if row.off is None else f"{100 * row.off:+.1f}%"
             late = "" if row.late is None else f", late {row.late} of {row.runs} runs"
