@@ -17,7 +17,13 @@ sections 5 and 6):
 - priority stealing: a slot goes to the highest-priority subchain on the
   core whose output is late (triggered, not done, past its planned
   latency), when that one outranks the slot's owner (unless the spec turns
-  stealing off: ``schedule.stealing: false``, the paper's ablation).
+  stealing off: ``schedule.stealing: false``, the paper's ablation);
+- a run is *counted* late only past the latency the plan gives it (:attr:`SubchainRun.late_after_ms`): its
+  subchain's latency, plus, where a node of it shares an executor's thread with another subchain's
+  node on its core group, the longest wait behind that node's run which the executor model
+  predicts (:attr:`~catanc.model.executor_thread.MemberRate.longest_wait_ms`: the slot model's
+  latencies leave it out, and PLAN.md says so).  It steals from its planned latency on, as the
+  executor model has it steal (its hold ``S_ij`` counts on that).
 """
 
 from __future__ import annotations
@@ -27,6 +33,7 @@ from dataclasses import dataclass
 from functools import cached_property
 from typing import TYPE_CHECKING
 
+from catanc.explain.executors import plan_turns
 from catanc.model.priorities import resting_fifo
 from catanc.model.problem import Problem
 from catanc.planning.order import slot_starts
@@ -50,6 +57,12 @@ class SubchainRun:
     runs: int | None  # k: triggered at its slot every k periods; None: on its own clock
     priority: int  # stealing priority: higher steals from lower
     node_threads: tuple[tuple[int, float], ...] = ()  # per node, its threads (Eq. 1's q) and their speedup
+    wait_ms: float = 0.0  # a run's planned wait for an executor's thread behind another subchain's node
+
+    @property
+    def late_after_ms(self) -> float:
+        """A run that takes longer is counted late: its latency and its planned wait for an executor's thread."""
+        return self.latency_ms + self.wait_ms
 
     def threads_of(self, index: int) -> tuple[int, float]:
         """Node ``index``'s threads and the speedup they give (a measured run times it is one thread's time)."""
@@ -106,6 +119,7 @@ def runtime_schedule(plan: Plan, problem: Problem, schedule: Schedule) -> Runtim
     """The schedule the enforcer runs for ``plan`` (``problem`` gives each subchain's ``c(S)``)."""
     compute = {sub.name: sub.compute_ms for sub in problem.subchains}
     speedups = {sub.name: sub.node_speedups for sub in problem.subchains}
+    waits = executor_waits_ms(plan, problem, schedule)
     subchains = {}
     for name, sub in plan.subchains.items():
         runs = None  # dedicated, or batch (a continuous fraction): its own clock
@@ -121,6 +135,7 @@ def runtime_schedule(plan: Plan, problem: Problem, schedule: Schedule) -> Runtim
             runs=runs,
             priority=sub.priority,
             node_threads=tuple(threads_and_speedup(s, sub.threads) for s in speedups[name]),
+            wait_ms=waits.get(name, 0.0),
         )
     shared = []
     for core in sorted(plan.shared_cores, key=lambda c: c.core):
@@ -129,6 +144,20 @@ def runtime_schedule(plan: Plan, problem: Problem, schedule: Schedule) -> Runtim
         slots = tuple(Slot(name, starts[name], slices[name]) for name in core.order)
         shared.append(CoreSchedule(core.core, core.period_ms, schedule.switch_ms, slots, schedule.stealing))
     return RuntimeSchedule(plan.cores, subchains, tuple(shared))
+
+
+def executor_waits_ms(plan: Plan, problem: Problem, schedule: Schedule) -> dict[str, float]:
+    """Per subchain, how long a run of it may wait for an executor's thread behind another subchain's node under
+    ``plan``: each of its nodes' longest wait (:func:`~catanc.explain.executors.plan_turns`), added up over its
+    nodes; subchains without one are left out."""
+    sub_of = {node: sub.name for sub in plan.subchains.values() for node in sub.nodes}
+    waits: dict[str, float] = {}
+    for executor in problem.executors:
+        turns = plan_turns(executor, plan, problem, schedule)
+        for rate in () if turns is None else turns.rates:
+            name = sub_of[rate.node]
+            waits[name] = waits.get(name, 0.0) + rate.longest_wait_ms
+    return waits
 
 
 # --------------------------------------------------------------------------- per-period decisions

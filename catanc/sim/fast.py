@@ -161,6 +161,7 @@ class ScheduleTable:
             "sub_shared": np.zeros((v, subs), np.bool_),
             "sub_period": np.zeros((v, subs)),
             "sub_latency": np.zeros((v, subs)),
+            "sub_late_after": np.zeros((v, subs)),
             "sub_runs": np.full((v, subs), -1, np.int64),
             "node_threads": np.ones((v, nodes), np.int64),
             "node_speedup": np.ones((v, nodes)),
@@ -194,6 +195,7 @@ class ScheduleTable:
             a.sub_shared[v, s] = run.shared
             a.sub_period[v, s] = run.period_ms
             a.sub_latency[v, s] = run.latency_ms
+            a.sub_late_after[v, s] = run.late_after_ms
             a.sub_runs[v, s] = -1 if run.runs is None else run.runs
             for i, node in enumerate(run.nodes):
                 threads, speedup = run.threads_of(i)
@@ -493,6 +495,7 @@ def no_schedules() -> Fields:
         "sub_shared": bools2,
         "sub_period": floats2,
         "sub_latency": floats2,
+        "sub_late_after": floats2,
         "sub_runs": ints2,
         "node_threads": ints2,
         "node_speedup": floats2,

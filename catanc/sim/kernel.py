@@ -122,7 +122,8 @@ class SimProxy(structref.StructRefProxy):  # type: ignore[misc]
 
     The schedules, by version ``[V, ...]`` (a switch keeps the version it was
     scheduled in): ``sub_ncores``, ``sub_cores``, ``sub_shared``,
-    ``sub_period``, ``sub_latency``, ``sub_runs`` (-1: own clock),
+    ``sub_period``, ``sub_latency`` (late beyond it: it steals), ``sub_late_after`` (a run that takes longer
+    counts as late: :attr:`~catanc.control.schedule.SubchainRun.late_after_ms`), ``sub_runs`` (-1: own clock),
     ``node_threads``, ``node_speedup``, ``clocked`` (in the
     schedule's order, then -1), ``n_shared``, ``core_id``, ``core_period``,
     ``core_switch``, ``core_nslots``, ``slot_start``, ``slot_length``, and the slot rules
@@ -159,7 +160,7 @@ FIELDS = (
     "sub_nodes", "sensor_period", "sensor_order", "timer_period", "timer_order", "trig_ptr", "trig", "priority",
     "cores", "executor_of",
     # the schedules
-    "sub_ncores", "sub_cores", "sub_shared", "sub_period", "sub_latency", "sub_runs",
+    "sub_ncores", "sub_cores", "sub_shared", "sub_period", "sub_latency", "sub_late_after", "sub_runs",
     "node_threads", "node_speedup", "clocked", "n_shared", "core_id", "core_period", "core_switch",
     "core_nslots", "slot_start", "slot_length", "rule_sub", "rule_every", "rule_thieves",
     # the draws
@@ -950,7 +951,7 @@ def catan_done(sim: Sim, node: int) -> None:
         catan_trigger(sim, sim.sub_nodes[sim.sub_ptr[sub] + index + 1], seq)
     else:
         sim.flight_live[sub, seq % cap] = False
-        if sim.now - sim.flight_at[sub, seq % cap] > sim.sub_latency[sim.version, sub]:
+        if sim.now - sim.flight_at[sub, seq % cap] > sim.sub_late_after[sim.version, sub]:
             sim.sub_late[sub] += 1
     if head_done and sim.sub_pending[sub]:
         trigger_head(sim, sub)

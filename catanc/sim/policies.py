@@ -327,7 +327,7 @@ class CatanPolicy:
         if handoff.next_index is not None:
             self._trigger(run.nodes[handoff.next_index], seq)
         else:
-            state.over(handoff.flight, self.engine.now, run.latency_ms)
+            state.over(handoff.flight, self.engine.now, run.late_after_ms)
         if handoff.head_done:  # a trigger that came while the head ran starts its run now
             pending = state.start_pending(Flight(0, self.engine.now))
             if pending is not None:

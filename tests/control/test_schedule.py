@@ -112,3 +112,35 @@ def test_lateness() -> None:
     assert not is_late(None, 100.0, late)
     assert not is_late(95.0, 100.0, late)
     assert is_late(89.0, 100.0, late)
+
+
+def test_a_run_is_judged_late_past_its_latency_and_its_planned_wait_for_an_executors_thread() -> None:
+    """nav2d on 2 cores (the committed plan), worked by hand (docs/explanation/executor-planning.md, "The model").
+
+    Core 1 runs GL, GP, NC, GM (priorities 4, 3, 2, 1 as GL > NC > GP > GM) with 5% slack; the Mapper's thread
+    runs GL and GM, the Navigator's GP and NC.  GL waiting for GM's 150 ms run: the thread gets what GP
+    and NC leave, s0 = 0.95 - 100 / p_GP - 1 / p_NC; GL steals from d = p_GL / 2 + l_GL on, and outranks
+    everything else there: s1 = 0.95.  NC waiting for GP's 100 ms: s0 = 0.95 - 3.2 / p_GL - 150 / p_GM; it
+    steals from GP and GM but not GL: s1 = 0.95 - 3.2 / p_GL.
+    """
+    spec = load_spec(ROOT / "specs" / "nav2d.yaml")
+    table = json.loads((ROOT / "out" / "nav2d" / "cores-2" / "runtime.json").read_text())["plan"]["subchains"]
+    period = {name: row["period_ms"] for name, row in table.items()}
+    latency = {name: row["latency_ms"] for name, row in table.items()}
+    schedule = runtime_schedule(plan(spec, 2), build_problem(spec), spec.schedule)
+
+    def hold(compute: float, s0: float, s1: float, delay: float) -> float:
+        return delay + (compute - s0 * delay) / s1 if compute > s0 * delay else compute / s0
+
+    gl_behind_gm = hold(150.0, 0.95 - 100.0 / period["GP"] - 1.0 / period["NC"], 0.95, 10.0 + latency["GL"])
+    nc_delay = period["NC"] / 2 + latency["NC"]
+    nc_behind_gp = hold(100.0, 0.95 - 3.2 / period["GL"] - 150.0 / period["GM"], 0.95 - 3.2 / period["GL"], nc_delay)
+    assert gl_behind_gm == pytest.approx(162.56, abs=0.01)  # PLAN.md: "up to about 162.6 ms for GL behind GM"
+    assert nc_behind_gp == pytest.approx(136.08, abs=0.01)  # "up to about 136.1 ms for NC behind GP"
+    runs = schedule.subchains
+    assert runs["GL"].wait_ms == pytest.approx(gl_behind_gm, rel=1e-6)
+    assert runs["NC"].wait_ms == pytest.approx(nc_behind_gp, rel=1e-6)
+    assert runs["GL"].late_after_ms == pytest.approx(latency["GL"] + gl_behind_gm, rel=1e-6)
+    assert runs["local"].wait_ms == 0.0  # LM and LP share a thread, but in one subchain: its latency has them
+    assert runs["local"].late_after_ms == runs["local"].latency_ms
+    assert is_late(0.0, latency["GL"] + 1.0, runs["GL"])  # stealing still starts at the planned latency

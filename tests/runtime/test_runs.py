@@ -327,3 +327,26 @@ def test_a_run_nothing_triggered_goes_with_the_run_its_data_came_from(two_nodes:
     assert seen.hops == []  # triggered behind the first run: no hop of its own
     assert list(book.state("s").in_flight) == [first.seq]
     assert book.state("s").late == 0
+
+
+def test_a_run_is_counted_late_only_past_its_planned_wait_for_an_executors_thread(two_nodes: TwoNodes) -> None:
+    """Latency 10 ms and a planned wait of 30 ms behind another subchain's node in the thread: a run that ends 35 ms
+    after its trigger is on time, one that ends 45 ms after is late; both steal once past the 10 ms."""
+    book, plain, (a, b), readers = two_nodes
+    run = SubchainRun("s", ("a", "b"), (0,), True, 20.0, 10.0, 1, 1, wait_ms=30.0)
+    assert run.late_after_ms == 40.0
+    for trigger, end in ((100.0, 135.0), (200.0, 245.0)):
+        started = book.trigger(run, trigger, None)
+        assert started is not None
+        assert not book.late("s", trigger + 9.0, run)
+        assert book.late("s", trigger + 11.0, run)  # it steals from its planned latency on
+        a.append(started.seq, int((end - 2.0) * MS), int((end - 1.0) * MS), MS)
+        b.append(started.seq, int((end - 1.0) * MS), int(end * MS), MS)
+        seen = read(book, run, readers, end + 0.5)
+        assert [round(r.latency_ms, 6) for r in seen.runs] == [end - trigger]
+        assert book.state("s").late == (0 if end - trigger < 40.0 else 1)
+    book.trigger(plain, 300.0, None)  # without a wait: late past its latency
+    a.append(3, 303 * MS, 309 * MS, MS)
+    b.append(3, 309 * MS, 312 * MS, MS)
+    read(book, plain, readers, 313.0)
+    assert book.state("s").late == 2

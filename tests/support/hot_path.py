@@ -59,6 +59,7 @@ def random_schedule(rng: random.Random, *, scale: float = 1.0, dedicated: bool =
                 every,
                 rng.randint(0, 3),
                 threads,
+                wait_ms=rng.uniform(0.0, 2.0) * period if rng.random() < 0.3 else 0.0,  # an executor's thread
             )
         cores.append(CoreSchedule(core, period, switch, tuple(slots), stealing=rng.random() < 0.8))
     least = 0 if cores else 1

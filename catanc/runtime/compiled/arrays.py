@@ -75,7 +75,8 @@ class Walk(NamedTuple):
     raised_from: IntArray  # [C]: its threads are raised from this node on (NONE: not yet)
     raised_count: IntArray  # [C]: threads raised above their resting level there
     # subchains
-    latency: FloatArray  # [S]: planned (late beyond it)
+    latency: FloatArray  # [S]: planned (late beyond it: it steals)
+    late_after: FloatArray  # [S]: a run that takes longer counts as late (SubchainRun.late_after_ms)
     length: IntArray  # [S]: its nodes
     shared: IntArray  # [S]: 1 if on a shared core
     seq: IntArray  # [S]: the last seq given

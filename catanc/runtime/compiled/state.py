@@ -145,6 +145,7 @@ def install(
         raised_from=np.full(n_cores, wa.NONE, dtype=np.int64),
         raised_count=raised_count,
         latency=np.zeros(n_subs),
+        late_after=np.zeros(n_subs),
         length=np.array([len(schedule.subchains[name].nodes) for name in names], dtype=np.int64),
         shared=np.array([int(schedule.subchains[name].shared) for name in names], dtype=np.int64),
         seq=np.array([state.seq for state in states], dtype=np.int64),
@@ -247,6 +248,7 @@ def _lay_out(
         walk.latest[c] = v
     for name, s in sub.items():
         walk.latency[s] = schedule.subchains[name].latency_ms
+        walk.late_after[s] = schedule.subchains[name].late_after_ms
         walk.head_threads[s] = schedule.subchains[name].threads_of(0)[0]
 
 

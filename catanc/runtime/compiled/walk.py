@@ -398,7 +398,7 @@ def take(w: Walk, s: int, r: int, entry: int, now: float, last: bool) -> None:
     else:
         drop_flight(w, s, k)
         took = end_ms - triggered
-        if took > w.latency[s]:
+        if took > w.late_after[s]:
             w.late[s] += 1
         log(w, EV_RUN, end_ms, s, seq, took, 0.0, 0.0, 0.0)
     if head_done and w.pending[s] != NONE:  # a trigger that came while the head ran starts now

@@ -268,7 +268,7 @@ class RunBook:
         flight.last_end_ms = end_ms
         if handoff.next_index is None:
             state.ends_ms.append(end_ms)
-            seen.runs.append(RunSample(end_ms, run.name, seq, state.over(handoff.flight, end_ms, run.latency_ms)))
+            seen.runs.append(RunSample(end_ms, run.name, seq, state.over(handoff.flight, end_ms, run.late_after_ms)))
         if handoff.head_done:  # a trigger that came while the head ran is running since the head finished
             state.start_pending(RunFlight(0, end_ms, until_ms=flight.until_ms if not run.shared else None))
 
