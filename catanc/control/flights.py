@@ -8,7 +8,9 @@ it is *in flight* until its last node finishes.
   head finishes (the enforcer sends its trigger at once, and the head takes it
   when it is done).  One trigger is deferred at most; those that come meanwhile
   count once as skipped.
-- A run that ends later than the subchain's planned latency counts as late.
+- A run that ends later than the latency the plan gives it counts as late: its subchain's
+  latency and its planned wait for an executor's thread
+  (:attr:`~catanc.control.schedule.SubchainRun.late_after_ms`).
 - A node never gets a second run while it runs (:class:`NodeQueues`): the
   runs of a pipelined subchain wait at each node, in order.
 

@@ -169,7 +169,8 @@ def triggers_at_slot(run: SubchainRun, period_index: int) -> bool:
 
 
 def is_late(triggered_ms: float | None, now_ms: float, run: SubchainRun) -> bool:
-    """A run triggered at ``triggered_ms`` and not done is late once its planned latency has passed."""
+    """A run triggered at ``triggered_ms`` and not done is late once its planned latency has passed: its subchain
+    steals (it is *counted* late at its end only past :attr:`SubchainRun.late_after_ms`)."""
     return triggered_ms is not None and now_ms - triggered_ms > run.latency_ms
 
 
