@@ -312,8 +312,12 @@ def as_run_objective(
     shapes: tuple[ThreadShape, ...] | None = None,
 ) -> float:
     """The objective at ``timings`` with each period as it runs (:func:`periods_as_run`), latencies as planned."""
-    as_run = periods_as_run(problem, timings, groups, shapes=shapes)
-    return objective(problem, {name: Timing(as_run[name], timing.latency_ms) for name, timing in timings.items()})
+    return objective_with_periods(problem, timings, periods_as_run(problem, timings, groups, shapes=shapes))
+
+
+def objective_with_periods(problem: Problem, timings: Mapping[str, Timing], periods: Mapping[str, float]) -> float:
+    """The objective at ``timings`` with each period as in ``periods`` (as run), latencies as planned."""
+    return objective(problem, {name: Timing(periods[name], timing.latency_ms) for name, timing in timings.items()})
 
 
 def _period(rate_hz: float) -> float:

@@ -350,11 +350,16 @@ def slot_order(core: SharedCore, result: Stage2Result, problem: Problem, schedul
 
 
 def periods_as_run(problem: Problem, schedule: Schedule, result: Stage2Result) -> dict[str, float]:
-    """The periods an executor's thread changes (:meth:`LayoutTurns.periods`), by subchain; the rest run as planned."""
-    turns = LayoutTurns.of(problem, result.layout, schedule) if result.layout.shared else None
-    if turns is None:
-        return {}
-    periods = turns.periods(problem, result.timings)
+    """The periods an executor's thread changes (:meth:`LayoutTurns.periods`), by subchain; the rest run as planned.
+
+    Where Stage II's executor trade scored them at the plan's timings, they are its.
+    """
+    periods = result.periods_as_run
+    if periods is None:
+        turns = LayoutTurns.of(problem, result.layout, schedule) if result.layout.shared else None
+        if turns is None:
+            return {}
+        periods = turns.periods(problem, result.timings)
     planned = result.timings
     return {name: period for name, period in periods.items() if period > planned[name].period_ms * (1 + 1e-9)}
 

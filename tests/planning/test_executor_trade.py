@@ -124,11 +124,12 @@ def test_the_trade_is_the_best_spacing_by_enumeration(document: dict[str, Any], 
     allowed = max(1.0, bound_scale(problem, timings)) * (1 + 1e-6)
     found = turns.best_spacing(problem, timings, dict.fromkeys(names, length), least, allowed)
     assert found is not None
-    value, spacing = found
+    value, spacing, periods = found
     assert all(least[name] <= spacing[name] <= least[name] + MOST_STEPS for name in names)
     chosen = {**timings, **{name: Timing(spacing[name] * length, timings[name].latency_ms) for name in names}}
     assert bound_scale(problem, chosen) <= allowed
     assert value == pytest.approx(as_run_objective(problem, chosen, turns.groups), rel=1e-12)
+    assert periods == periods_as_run(problem, chosen, turns.groups)  # the periods as run handed over are these
     best = math.inf
     window = WINDOW[len(names)]
     for ks in itertools.product(*(range(least[name], least[name] + window + 1) for name in names)):
@@ -230,7 +231,7 @@ def test_a_member_nothing_weighs_gets_the_least_k_as_good_as_any_up_to_the_cap(d
     (zero,) = (name for name in names if problem.importance()[name] == 0.0)
     found = turns.best_spacing(problem, timings, dict.fromkeys(names, length), least, allowed)
     assert found is not None
-    value, spacing = found
+    value, spacing, _ = found
     best, best_shorter = math.inf, math.inf
     ranges = [range(least[n], least[n] + (MOST_STEPS if n == zero else WINDOW[3]) + 1) for n in names]
     for ks in itertools.product(*ranges):

@@ -19,6 +19,7 @@ from catanc.planning.replan import RUNTIME_GAP, Replanner
 from catanc.planning.stage2.base import Layout, SharedCore
 from catanc.planning.stage2.relaxed import RelaxedStage2
 from catanc.planning.stage2.solve import solve_layout
+from catanc.planning.stage2.turns import LayoutTurns
 from catanc.planning.types import Plan
 from tests.planning.test_stage2_integer import enumerate_best
 
@@ -260,3 +261,31 @@ def test_the_first_plan_is_exact_whatever_the_gap() -> None:
 def test_gap_out_of_range_is_a_usage_error() -> None:
     with pytest.raises(UsageError, match="gap must be in"):
         Replanner(load_spec(SPECS / "face_tracking.yaml"), 1, gap=1.5)
+
+
+@pytest.mark.parametrize("cores", [1, 2, 3])
+def test_a_replans_periods_as_run_are_its_timings_scored_afresh(cores: int) -> None:
+    # Stage II's executor trade hands the plan the periods as run it scored; here they are scored again from the
+    # plan's own numbers (its timings, its layout's executor threads), for the first plan and each re-solve.
+    spec = load_spec(SPECS / "nav2d.yaml")
+    replanner = Replanner(spec, cores)
+    spec_times = {
+        node: c
+        for sub in replanner.spec_problem.subchains
+        for node, c in zip(sub.nodes, sub.node_compute_ms, strict=True)
+    }
+    longer = 0
+    for step in range(5):
+        if step:
+            replanner.resolve({node: c * (1 + 0.02 * (step - 2.5)) for node, c in spec_times.items()})
+        result = replanner.plan
+        turns = LayoutTurns.of(replanner.problem, layout_of(result), spec.schedule)
+        assert turns is not None
+        periods = turns.periods(
+            replanner.problem, {n: Timing(s.period_ms, s.latency_ms) for n, s in result.subchains.items()}
+        )
+        for name, sub in result.subchains.items():
+            slower = periods[name] > sub.period_ms * (1 + 1e-9)
+            assert sub.period_as_run_ms == (periods[name] if slower else None), name
+            longer += slower
+    assert longer  # the Mapper's thread makes some period longer as run

@@ -64,6 +64,8 @@ class Stage2Result:
     gap: float = 0.0  # proven relative distance to this layout's optimum (0 unless the search was capped)
     every: dict[str, int] = field(default_factory=dict)  # k per non-batch shared subchain: p = k T
     offered: dict[str, float] = field(default_factory=dict)  # the offered period picked per subchain offering some
+    # Every subchain's period as run, where the executor trade scored them (None: not scored here)
+    periods_as_run: dict[str, float] | None = None
 
 
 def dedicated_timings(problem: Problem, layout: Layout) -> tuple[dict[str, Timing], dict[str, int]]:
@@ -297,13 +299,13 @@ def solve_layout(
                 every[name] = aligned_every(runs[name], length, sub.min_period_ms)
                 timings[name] = Timing(every[name] * length, runs[name] * length)
     turns = LayoutTurns.of(problem, layout, schedule) if layout.shared and problem.weighted else None
-    as_run = None
+    as_run = periods_as_run = None
     if turns is not None:
         scale = max(1.0, bound_scale(problem, timings)) * (1 + SCALE_PRECISION)
         lengths_of = {name: lengths[core.core] for core in layout.shared for name in core.subchains}
         traded = turns.best_spacing(problem, timings, lengths_of, every, scale, hint=spacing)
         if traded is not None:
-            as_run, every = traded
+            as_run, every, periods_as_run = traded
             for name in turns.members:
                 timings[name] = Timing(every[name] * lengths_of[name], timings[name].latency_ms)
     planned = objective(problem, timings)
@@ -320,6 +322,7 @@ def solve_layout(
         relaxations=relaxations,
         gap=search_gap,
         every=every,
+        periods_as_run=periods_as_run,
     )
     if beat is not None and not better(result, beat):
         return None

@@ -48,8 +48,16 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import NamedTuple
 
-from catanc.model.executor_thread import CoreGroup, ThreadShape, as_run_objective, periods_as_run, thread_shapes
+from catanc.model.executor_thread import (
+    CoreGroup,
+    ThreadShape,
+    as_run_objective,
+    objective_with_periods,
+    periods_as_run,
+    thread_shapes,
+)
 from catanc.model.metrics import Timing, bound_scale, objective
 from catanc.model.problem import Problem
 from catanc.planning.order import priorities
@@ -64,6 +72,15 @@ MOST_ROUNDS = 4
 
 ROUND_GAIN = 1e-9
 """A round that lowers the objective as run by less than this share ends the rounds."""
+
+
+class Spacing(NamedTuple):
+    """The trade's answer: the objective as run, each member's ``k``, and every subchain's period as run there
+    (what the objective as run scored: the plan reports them without scoring them again)."""
+
+    as_run: float
+    every: dict[str, int]
+    periods: dict[str, float]
 
 
 def member_blocks(problem: Problem, members: tuple[str, ...]) -> list[tuple[str, ...]]:
@@ -134,9 +151,10 @@ class LayoutTurns:
         allowed_scale: float,
         *,
         hint: Mapping[str, int] | None = None,
-    ) -> tuple[float, dict[str, int]] | None:
-        """The least objective as run over the members' ``k >= least`` and those ``k``, each member's period
-        ``k T`` with ``T = lengths[member]`` (None: ``least`` itself misses the bounds scaled by ``allowed_scale``).
+    ) -> Spacing | None:
+        """The least objective as run over the members' ``k >= least``, those ``k`` and the periods as run there,
+        each member's period ``k T`` with ``T = lengths[member]`` (None: ``least`` itself misses the bounds scaled
+        by ``allowed_scale``).
 
         ``timings`` holds every subchain's timing with the members at ``least``; latencies do not change.
         ``hint`` (a re-solve's last ``k``): where the last member loses no trigger at its least, the objective
@@ -147,12 +165,13 @@ class LayoutTurns:
         if not self.members:  # nothing to trade: the objective as run at ``timings``
             if bound_scale(problem, timings) > allowed_scale:
                 return None
-            return self.as_run(problem, timings), dict(least)
+            periods = self.periods(problem, timings)
+            return Spacing(objective_with_periods(problem, timings, periods), dict(least), periods)
         blocks = member_blocks(problem, self.members)
         if len(blocks) == 1:
             return self._exact(problem, timings, lengths, least, allowed_scale, names=self.members, hint=hint)
         # One thread's members at a time, the others where the last search left them, until none gains.
-        best: tuple[float, dict[str, int]] | None = None
+        best: Spacing | None = None
         spacing = dict(least)
         searched_at: dict[tuple[str, ...], dict[str, int]] = {}  # per block: the others' k when it was searched
         for _ in range(MOST_ROUNDS):
@@ -167,8 +186,8 @@ class LayoutTurns:
                     for name, timing in timings.items()
                 }
                 found = self._exact(problem, placed, lengths, {**least, **fixed}, allowed_scale, names=block, hint=hint)
-                if found is not None and (best is None or found[0] < best[0] * (1 - ROUND_GAIN)):
-                    best, spacing, gained = found, dict(found[1]), True
+                if found is not None and (best is None or found.as_run < best.as_run * (1 - ROUND_GAIN)):
+                    best, spacing, gained = found, dict(found.every), True
             if not gained:
                 break
         return best
@@ -200,10 +219,10 @@ class LayoutTurns:
         *,
         names: tuple[str, ...],
         hint: Mapping[str, int] | None,
-    ) -> tuple[float, dict[str, int]] | None:
+    ) -> Spacing | None:
         """:meth:`best_spacing` over ``names`` alone, depth first; every other member stays at ``least``."""
         trial = dict(timings)
-        best: tuple[float, dict[str, int]] | None = None
+        best: Spacing | None = None
         spacing = dict(least)
         importance = problem.importance()
         weightless = {name for name in names if importance[name] == 0.0}
@@ -233,8 +252,7 @@ class LayoutTurns:
             key = tuple(spacing[name] for name in names)
             if key not in scored:
                 periods = self.periods(problem, trial)
-                value = objective(problem, {name: Timing(periods[name], t.latency_ms) for name, t in trial.items()})
-                scored[key] = value, periods
+                scored[key] = objective_with_periods(problem, trial, periods), periods
             return scored[key]
 
         def as_run_at(name: str, every: int) -> tuple[float, bool] | None:
@@ -246,10 +264,12 @@ class LayoutTurns:
             value, periods = as_run_now()
             return value, periods[name] <= trial[name].period_ms
 
-        def offer(value: float) -> None:
+        def offer() -> None:
+            """The spacing placed, scored already, if it is the best so far."""
             nonlocal best
-            if best is None or value < best[0]:
-                best = (value, dict(spacing))
+            value, periods = as_run_now()
+            if best is None or value < best.as_run:
+                best = Spacing(value, dict(spacing), periods)
 
         def descend(name: str, start: int) -> bool:
             """The last member's best ``k`` by walking downhill from ``start``; False where its objective as
@@ -276,7 +296,7 @@ class LayoutTurns:
                 every += 1
             if math.isfinite(at(every)):
                 place(name, every)
-                offer(at(every))
+                offer()
             place(name, low)
             return True
 
@@ -292,7 +312,7 @@ class LayoutTurns:
             outer, best = best, None
             visit(level + 1)
             found, best = best, outer
-            return math.inf if found is None else found[0]
+            return math.inf if found is None else found.as_run
 
         def spread(level: int) -> None:
             """A member whose period nothing weighs: the objective as run only falls with its ``k`` (the others
@@ -310,7 +330,7 @@ class LayoutTurns:
                 return exact_below(level)
 
             low, high = least[name], least[name] + MOST_STEPS
-            if not fits(low) or (best is not None and lower_bound() >= best[0]):
+            if not fits(low) or (best is not None and lower_bound() >= best.as_run):
                 place(name, low)  # no k meets the bounds; or none beats the best (its planned objective is flat)
                 return
             while low < high:  # the longest k that meets the bounds (they only tighten with periods)
@@ -323,7 +343,7 @@ class LayoutTurns:
                 low, high = (low, middle) if value(middle) <= target else (middle + 1, high)
             fits(low)
             if level == len(names) - 1:
-                offer(exact_below(level))
+                offer()
             else:
                 visit(level + 1)
             place(name, least[name])
@@ -343,14 +363,14 @@ class LayoutTurns:
                 if bound_scale(problem, trial) > allowed_scale:
                     break  # and every longer k: bounds only tighten with periods
                 if not last:
-                    if best is not None and lower_bound() >= best[0]:
+                    if best is not None and lower_bound() >= best.as_run:
                         break  # and every longer k: the planned objective grows, the one as run is above it
                     visit(level + 1)
                     continue
                 value, periods = as_run_now()
-                if best is None or value < best[0]:
-                    offer(value)  # its planned objective is below it: no need to look
-                elif lower_bound() >= best[0]:
+                if best is None or value < best.as_run:
+                    offer()  # its planned objective is below it: no need to look
+                elif lower_bound() >= best.as_run:
                     break  # as above
                 if value >= previous and periods[name] <= trial[name].period_ms:
                     break  # convex from here on (the module's docstring): past its least
