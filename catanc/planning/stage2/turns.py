@@ -168,8 +168,13 @@ class LayoutTurns:
             periods = self.periods(problem, timings)
             return Spacing(objective_with_periods(problem, timings, periods), dict(least), periods)
         blocks = member_blocks(problem, self.members)
+        # Scored spacings by every member's k: one block's search meets points of another's (its start, at
+        # least: the others where their search left them).
+        scored: dict[tuple[int, ...], tuple[float, dict[str, float]]] = {}
         if len(blocks) == 1:
-            return self._exact(problem, timings, lengths, least, allowed_scale, names=self.members, hint=hint)
+            return self._exact(
+                problem, timings, lengths, least, allowed_scale, names=self.members, hint=hint, scored=scored
+            )
         # One thread's members at a time, the others where the last search left them, until none gains.
         best: Spacing | None = None
         spacing = dict(least)
@@ -185,7 +190,9 @@ class LayoutTurns:
                     name: Timing(spacing[name] * lengths[name], timing.latency_ms) if name in self.members else timing
                     for name, timing in timings.items()
                 }
-                found = self._exact(problem, placed, lengths, {**least, **fixed}, allowed_scale, names=block, hint=hint)
+                found = self._exact(
+                    problem, placed, lengths, {**least, **fixed}, allowed_scale, names=block, hint=hint, scored=scored
+                )
                 if found is not None and (best is None or found.as_run < best.as_run * (1 - ROUND_GAIN)):
                     best, spacing, gained = found, dict(found.every), True
             if not gained:
@@ -219,8 +226,12 @@ class LayoutTurns:
         *,
         names: tuple[str, ...],
         hint: Mapping[str, int] | None,
+        scored: dict[tuple[int, ...], tuple[float, dict[str, float]]],
     ) -> Spacing | None:
-        """:meth:`best_spacing` over ``names`` alone, depth first; every other member stays at ``least``."""
+        """:meth:`best_spacing` over ``names`` alone, depth first; every other member stays at ``least``.
+
+        ``scored`` holds the objectives and periods as run already scored, by every member's ``k`` (``timings``
+        is the same at the same ``k``: each member's period is its ``k`` times its ``T``)."""
         trial = dict(timings)
         best: Spacing | None = None
         spacing = dict(least)
@@ -245,11 +256,9 @@ class LayoutTurns:
             spacing[name] = every
             trial[name] = Timing(every * lengths[name], trial[name].latency_ms)
 
-        scored: dict[tuple[int, ...], tuple[float, dict[str, float]]] = {}  # by ``names``' k: walks meet again
-
         def as_run_now() -> tuple[float, dict[str, float]]:
             """The objective as run at ``trial``, and the periods as run it scores."""
-            key = tuple(spacing[name] for name in names)
+            key = tuple(spacing[name] for name in self.members)  # walks meet again
             if key not in scored:
                 periods = self.periods(problem, trial)
                 scored[key] = objective_with_periods(problem, trial, periods), periods
