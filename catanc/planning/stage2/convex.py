@@ -12,6 +12,7 @@ optimum is not one attained point they answer :data:`OPEN`.
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 from dataclasses import dataclass
@@ -58,14 +59,20 @@ class Convex:
         a, b, c = self.at(x)
         return a * x + b / x + c
 
-    def edges(self, least: float) -> list[float]:
-        """``least``, the breakpoints above it (where two pieces of a maximum cross), then infinity."""
+    @functools.cached_property
+    def breakpoints(self) -> tuple[float, ...]:
+        """Where two pieces of a maximum cross, ascending (each once): computed once, as the closed form asks
+        for the edges above several ``least``."""
         crossings: set[float] = set()
         for pieces in self.maxima:
             for i, first in enumerate(pieces):
                 for second in pieces[i + 1 :]:
                     crossings.update(_crossings(first, second))
-        return [least, *sorted(x for x in crossings if x > least), math.inf]
+        return tuple(sorted(crossings))
+
+    def edges(self, least: float) -> list[float]:
+        """``least``, the breakpoints above it (where two pieces of a maximum cross), then infinity."""
+        return [least, *(x for x in self.breakpoints if x > least), math.inf]
 
     def scaled(self, factor: float) -> Convex:
         def times(piece: Piece) -> Piece:
