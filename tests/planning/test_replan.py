@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import pytest
 from hypothesis import HealthCheck, example, given, settings
@@ -16,7 +17,9 @@ from catanc.model.metrics import Timing, bound_scale, objective
 from catanc.model.problem import Problem
 from catanc.planning.planner import plan, plan_problem
 from catanc.planning.replan import RUNTIME_GAP, Replanner
+from catanc.planning.stage2 import solve as solve_module
 from catanc.planning.stage2.base import Layout, SharedCore
+from catanc.planning.stage2.integer import solve_integer
 from catanc.planning.stage2.relaxed import RelaxedStage2
 from catanc.planning.stage2.solve import solve_layout
 from catanc.planning.stage2.turns import LayoutTurns
@@ -289,3 +292,52 @@ def test_a_replans_periods_as_run_are_its_timings_scored_afresh(cores: int) -> N
             assert sub.period_as_run_ms == (periods[name] if slower else None), name
             longer += slower
     assert longer  # the Mapper's thread makes some period longer as run
+
+
+@pytest.mark.parametrize(("cores", "gap"), [(1, 0.0), (1, RUNTIME_GAP), (2, 0.0), (2, RUNTIME_GAP)])
+def test_a_resolve_the_bound_settles_is_the_one_the_relaxation_settles(
+    monkeypatch: pytest.MonkeyPatch, cores: int, gap: float
+) -> None:
+    # nav2d on 2 cores: the solver-free bound is the root relaxation's value, so a re-solve's search stops at its
+    # start without a conic solve; the oracle is the same re-solves with the relaxation alone.
+    spec = load_spec(SPECS / "nav2d.yaml")
+    replanners = [Replanner(spec, cores, gap=gap), Replanner(spec, cores, gap=gap)]
+    solves = [0, 0]
+    searched = solve_integer
+
+    def counted(which: int) -> Any:
+        def search(model: Any, *args: Any, **kwargs: Any) -> Any:
+            original = model.solve
+
+            def solve(scale: float = 1.0) -> Any:
+                solves[which] += 1
+                return original(scale)
+
+            model.solve = solve
+            try:
+                return searched(model, *args, **({**kwargs, "floor": None} if which else kwargs))
+            finally:
+                del model.solve
+
+        return search
+
+    times = {
+        node: c
+        for sub in replanners[0].spec_problem.subchains
+        for node, c in zip(sub.nodes, sub.node_compute_ms, strict=True)
+    }
+    for step in range(8):
+        drifted = {node: c * (1 + 0.01 * ((step * 7 + index) % 5 - 2)) for index, (node, c) in enumerate(times.items())}
+        found = []
+        for which, replanner in enumerate(replanners):
+            monkeypatch.setattr(solve_module, "solve_integer", counted(which))
+            found.append(replanner.resolve(drifted))
+        with_bound, relaxed = found
+        assert (with_bound.objective, with_bound.runs, with_bound.every) == (
+            relaxed.objective,
+            relaxed.runs,
+            relaxed.every,
+        )
+        assert with_bound.subchains == relaxed.subchains
+    if (cores, gap) == (2, RUNTIME_GAP):
+        assert solves[0] < solves[1]  # the bound settled some re-solves

@@ -25,6 +25,7 @@ from catanc.model.problem import Problem
 from catanc.planning.planner import conic_model, ordered_layout
 from catanc.planning.stage1.exhaustive import every_allocation
 from catanc.planning.stage2.base import Layout, SharedCore, Stage2Model
+from catanc.planning.stage2.integer import IntegerSolution, most_runs, solve_integer
 from catanc.planning.stage2.solve import SCALE_PRECISION, load_bound, lower_bound, solve_layout
 from catanc.spec.language import Schedule
 from tests.support.strategies import spec_documents, spec_of
@@ -48,6 +49,61 @@ def test_no_plan_of_an_allocation_beats_its_lower_bound(document: dict[str, obje
         assert scale <= plan.scale * (1 + SCALE_PRECISION)
         # The plan's objective is exact for its whole runs; the bound may not exceed it beyond rounding.
         assert value <= plan.objective * (1 + 1e-9) + 1e-9, (allocation, value, plan.objective)
+
+
+def same_search(first: IntegerSolution | None, second: IntegerSolution | None) -> bool:
+    if first is None or second is None:
+        return first is second
+    return (first.runs, first.objective, first.gap) == (second.runs, second.objective, second.gap)
+
+
+@settings(deadline=None, suppress_health_check=[HealthCheck.too_slow], max_examples=60)
+@given(
+    document=spec_documents(max_subchains=4),
+    cores=st.integers(1, 3),
+    drift=st.floats(0.8, 1.25),
+    gap=st.sampled_from([0.0, 1e-3, 1e-2, 5e-2]),
+)
+def test_the_bound_stops_a_search_at_its_root_only_where_the_relaxation_would(
+    document: dict[str, object], cores: int, drift: float, gap: float
+) -> None:
+    """A re-solve's search may stop at its start where :func:`lower_bound` proves it within the gap (no solver):
+    the bound is below the root relaxation (the oracle: the conic model solved at the root box), so the
+    relaxation would stop it too, and the search with the bound finds what the search without it does."""
+    spec = spec_of(document)
+    problem = build_problem(spec)
+    if not problem.weighted:
+        return
+    importance = problem.importance()
+    models: dict[Layout, Stage2Model] = {}
+    node = problem.subchains[0].nodes[0]
+    drifted = problem.with_compute({node: problem.subchains[0].node_compute_ms[0] * drift})
+    for allocation in itertools.islice(every_allocation(problem, cores), 8):
+        layout = ordered_layout(Layout.from_allocation(allocation), spec.schedule, importance, problem)
+        model = conic_model(models, problem, layout, spec.schedule)
+        if model is None:
+            continue
+        try:
+            planned = solve_layout(problem, layout, spec.schedule, model)
+        except InfeasibleError:
+            continue
+        assert planned is not None
+        value = lower_bound(drifted, layout, spec.schedule)[1]
+        model.set_numbers(drifted)
+        model.set_box(
+            {name: (1, most_runs(drifted.subchain(name).compute_ms, spec.schedule)) for name in model.integral}
+        )
+        relaxed = model.solve(1.0)
+        if relaxed is not None:
+            # Within the solver's accuracy (~3e-8: catanc/planning/stage2/conic.py); the search's margin is 1e-6.
+            assert value <= relaxed.objective * (1 + 1e-7), (allocation, value, relaxed.objective)
+        if planned.scale > 1.0 + SCALE_PRECISION:
+            continue
+        found = [
+            solve_integer(model, drifted, 1.0, start=planned.runs, gap=gap, floor=floor)
+            for floor in (lambda value=value: value, None)
+        ]
+        assert same_search(*found), (allocation, found)
 
 
 def one_core(compute: tuple[float, float], weights: tuple[float, float]) -> tuple[Problem, Schedule]:

@@ -416,8 +416,20 @@ def _integer_plan(
     """The integer optimum at scale 1, else at the smallest scale an integer plan can meet."""
     if beat is None or beat[0] <= 1.0 + SCALE_PRECISION:
         cutoff = beat[1] if beat is not None and problem.weighted else None
+
+        def floor() -> float:
+            return lower_bound(problem, model.layout, model.schedule)[1]
+
         found = solve_integer(
-            model, problem, 1.0, cutoff=cutoff, start=start, gap=gap, node_limit=node_limit, effort=effort
+            model,
+            problem,
+            1.0,
+            cutoff=cutoff,
+            start=start,
+            gap=gap,
+            node_limit=node_limit,
+            effort=effort,
+            floor=floor if problem.weighted else None,
         )
         if found is not None or beat is not None:
             return found  # None with ``beat``: worse, or infeasible where ``beat`` is feasible
