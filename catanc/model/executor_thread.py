@@ -109,21 +109,14 @@ def member_rates(members: Sequence[Member]) -> list[MemberRate]:
                 raise ValueError(f"{member.node}: a thread's share of a core is in (0, 1], not {share}")
     rates = []
     for member in members:
-        others = [other for other in members if other is not member]
-        lost_hz = math.fsum(
-            1000.0 / other.period_ms * lost_per_hold(held_ms(other, member), member.period_ms) for other in others
-        )
-        longest = max(others, key=lambda other: held_ms(other, member))
+        holds = [(held_ms(other, member), other) for other in members if other is not member]
+        lost_hz = math.fsum(1000.0 / other.period_ms * lost_per_hold(hold, member.period_ms) for hold, other in holds)
+        longest_ms, longest = holds[0]
+        for hold, other in holds[1:]:  # the longest hold, the first of equal ones
+            if hold > longest_ms:
+                longest_ms, longest = hold, other
         planned = 1000.0 / member.period_ms
-        rates.append(
-            MemberRate(
-                node=member.node,
-                planned_hz=planned,
-                rate_hz=max(0.0, planned - lost_hz),
-                longest_wait_ms=held_ms(longest, member),
-                blocked_by=longest.node,
-            )
-        )
+        rates.append(MemberRate(member.node, planned, max(0.0, planned - lost_hz), longest_ms, longest.node))
     return rates
 
 
