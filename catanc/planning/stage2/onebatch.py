@@ -156,6 +156,7 @@ class OneBatchRuns:
         (self.batch,) = [name for name in model.shared_names if problem.subchain(name).batch]
         (self.core,) = [core for core in model.layout.shared if self.batch in core.subchains]
         self.core_of = {name: core.core for core in model.layout.shared for name in core.subchains}
+        self.capped = self.whole.capped(self.core)  # the batch core's members whose k can exceed n
         self.usable = 1.0 - model.schedule.slack
         self.switch_ms = model.schedule.switch_ms
         self.least_fraction = 0.0
@@ -243,7 +244,7 @@ class OneBatchRuns:
         first = max(index for index, (low, _, _) in enumerate(windows) if low <= centre)
         best: RelaxedSolution | None = None
         for order in (windows[first:], windows[:first][::-1]):  # outward from the relaxed optimum
-            for low, high, every in order:
+            for low, high, length in order:
                 bound_x = self._choose(relaxed, scale, least_scale=least_scale, window=(low, high))
                 if bound_x is None:
                     break  # the relaxation's feasible x form one interval around ``centre``
@@ -251,7 +252,7 @@ class OneBatchRuns:
                     raise _OpenError
                 if best is not None and self._value(relaxed, bound_x, least_scale=least_scale) >= best.objective:
                     break
-                exact = self._convex(runs, lengths, every)
+                exact = self._convex(runs, lengths, self._every(runs, length))
                 if exact is None:
                     raise _OpenError
                 x = self._choose(exact, scale, least_scale=least_scale, window=(low, high))
@@ -264,20 +265,24 @@ class OneBatchRuns:
                     best = found
         return best
 
-    def _windows(self, runs: dict[str, int]) -> list[tuple[float, float, dict[str, int]]]:
-        """The batch core's ``x`` intervals on which every ``k`` there is constant: (low, high, k by subchain)."""
+    def _windows(self, runs: dict[str, int]) -> list[tuple[float, float, float]]:
+        """The batch core's ``x`` intervals on which every ``k`` there is constant: (low, high, the ``T`` at
+        low, whose :meth:`_every` they are; the search visits a few of them, so ``k`` waits for it)."""
         load, slope = self._load_slope(runs)
-        capped = self.whole.capped(self.core)
         least = load + slope * self.least_fraction
-        members = [(runs[name], self.whole.by_name[name].min_period_ms) for name in capped]
+        members = [(runs[name], self.whole.by_name[name].min_period_ms) for name in self.capped]
         points = length_candidates(least, members)
         lows = [self.least_fraction] + [(length - load) / slope for length in points[1:]]
         highs = [*lows[1:], math.inf]
-        return [
-            (low, high, {name: aligned_every(runs[name], length, self.whole.by_name[name].min_period_ms)
-                         for name in capped})
-            for low, high, length in zip(lows, highs, points, strict=True)
-        ]  # fmt: skip
+        return list(zip(lows, highs, points, strict=True))
+
+    def _every(self, runs: dict[str, int], length: float) -> dict[str, int]:
+        """Each capped member's ``k`` on the batch core at schedule length ``length``."""
+        by_name = self.whole.by_name
+        return {
+            name: aligned_every(runs[name], length, by_name[name].min_period_ms)
+            for name in self.whole.capped(self.core)
+        }
 
     def _load_slope(self, runs: dict[str, int]) -> tuple[float, float]:
         """The batch core's ``T = load + slope x``."""
