@@ -163,6 +163,7 @@ class MemberShape:
     compute_ms: float
     above: tuple[str, ...]  # the group's other subchains outranking it (their load is what it keeps out)
     outranked: tuple[str, ...]  # those its late run steals from (none without stealing)
+    heads: bool = True  # whether its node heads its subchain (a trigger it loses is one its subchain loses)
 
 
 @dataclass(frozen=True)
@@ -175,6 +176,7 @@ class ThreadShape:
     others: tuple[str, ...]  # the group's subchains outside the executor, in group order
     members: tuple[MemberShape, ...]  # in the executor's node order
     others_compute_ms: tuple[float, ...]  # per other subchain, its compute per run
+    batch: frozenset[str] = frozenset()  # the batch ones among them (they lose slot time, not triggers)
 
 
 def thread_shape(problem: Problem, executor: Executor, groups: Iterable[CoreGroup]) -> ThreadShape | None:
@@ -195,13 +197,14 @@ def thread_shape(problem: Problem, executor: Executor, groups: Iterable[CoreGrou
         outranked = tuple(other for other in others if group.priorities[other] < rank) if group.stealing else ()
         for node, compute in zip(sub.nodes, sub.node_compute_ms, strict=True):
             if node in executor.nodes:
-                members[node] = MemberShape(node, name, compute, above, outranked)
+                members[node] = MemberShape(node, name, compute, above, outranked, sub.nodes[0] == node)
     return ThreadShape(
         executor,
         group,
         others,
         tuple(members[node] for node in executor.nodes),
         tuple(problem.subchain(name).compute_ms for name in others),
+        frozenset(name for name in others if problem.subchain(name).batch),
     )
 
 
@@ -219,19 +222,14 @@ def turns_of(shape: ThreadShape, timings: Mapping[str, Timing]) -> ExecutorTurns
         for name, compute in zip(shape.others, shape.others_compute_ms, strict=True)
     }
     share = thread_share(math.fsum(load.values()), group.cores, group.slack)
-    ordered = tuple(
-        Member(
-            member.node,
-            timings[member.subchain].period_ms,
-            member.compute_ms,
-            timings[member.subchain].latency_ms,
-            share=share,
-            stealing_share=thread_share(math.fsum(load[other] for other in member.above), group.cores, group.slack)
-            if member.outranked
-            else None,
-        )
-        for member in shape.members
-    )
+    built = []
+    for member in shape.members:
+        timing = timings[member.subchain]
+        stealing = None
+        if member.outranked:
+            stealing = thread_share(math.fsum([load[other] for other in member.above]), group.cores, group.slack)
+        built.append(Member(member.node, timing.period_ms, member.compute_ms, timing.latency_ms, share, stealing))
+    ordered = tuple(built)
     stolen_hz: dict[str, float] = {}
     stolen_share: dict[str, float] = {}
     for waiter, waiter_shape in zip(ordered, shape.members, strict=True):
@@ -281,11 +279,10 @@ def periods_as_run(
     for shape in shapes:
         turns = turns_of(shape, timings)
         for rate, member in zip(turns.rates, shape.members, strict=True):
-            sub = problem.subchain(member.subchain)
-            if sub.nodes[0] == rate.node and rate.rate_hz < rate.planned_hz:
-                lost_hz[sub.name] = lost_hz.get(sub.name, 0.0) + rate.planned_hz - rate.rate_hz
+            if member.heads and rate.rate_hz < rate.planned_hz:
+                lost_hz[member.subchain] = lost_hz.get(member.subchain, 0.0) + rate.planned_hz - rate.rate_hz
         for name, lost in turns.stolen_hz.items():
-            if problem.subchain(name).batch:  # it runs whenever it has its slots: it loses time, not triggers
+            if name in shape.batch:  # it runs whenever it has its slots: it loses time, not triggers
                 lost_share[name] = lost_share.get(name, 0.0) + turns.stolen_share[name]
             elif lost > 0.0:
                 lost_hz[name] = lost_hz.get(name, 0.0) + lost
