@@ -58,6 +58,9 @@ def resolve_speed(name: str, cores: int, repeats: int, gap: float) -> dict[str, 
     }
     rng = random.Random(1)
     drifts = [{node: c * rng.uniform(1 - DRIFT, 1 + DRIFT) for node, c in times.items()} for _ in range(repeats)]
+    # Untimed: the first re-solve builds the conic model of the layout in slot order, which re-solves keep;
+    # the first plan's models are keyed by its layouts in the spec's order (so before it: no model found).
+    replanner.resolve(times)
     layout = replanner.layout
     model = replanner.models.get(layout)
     in_solver = 0.0
