@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import ast
 import contextlib
+import itertools
 import json
 import os
 import shutil
@@ -868,10 +869,12 @@ def test_workload_usage_errors(argv: list[str], error: str, capsys: pytest.Captu
 
 
 def test_run_records_round_trip(tmp_path: Path) -> None:
-    records = [RunRecord("LM", 10, 20, 9), RunRecord("a node", 30, 45, 15)]
+    records = [RunRecord("LM", 10, 20, 9, 100, 112), RunRecord("a node", 30, 45, 15)]
     write_records(tmp_path / "runs", records)
     assert read_records(tmp_path / "runs") == records
     assert [p.name for p in tmp_path.iterdir()] == ["runs"]  # no temporary file left
+    (tmp_path / "old").write_text('{"node":"LM","start_ns":10,"end_ns":20,"cpu_ns":9}\n')  # before the thread clocks
+    assert read_records(tmp_path / "old") == [RunRecord("LM", 10, 20, 9, 0, 0)]
     (tmp_path / "bad").write_text('{"node": "LM", "start_ns": 1}\n')
     with pytest.raises(ValueError, match="bad:1: not a run record"):
         read_records(tmp_path / "bad")
@@ -909,6 +912,13 @@ def test_worker_draws_from_the_specs_workload_and_records_every_run(
     for r in runs:
         assert began <= r.start_ns < r.end_ns <= ended
         assert r.cpu_ns <= r.end_ns - r.start_ns + 1_000_000  # CPU time never exceeds the run by much
+    for node in ("M", "G"):  # the thread's clock: the run's CPU lies between its start and its done, in order
+        mine = sorted(r for r in runs if r.node == node)
+        for run in mine:
+            assert run.thread_cpu_start_ns > 0
+            assert run.thread_cpu_start_ns + run.cpu_ns <= run.thread_cpu_done_ns
+        for earlier, later in itertools.pairwise(mine):
+            assert earlier.thread_cpu_done_ns <= later.thread_cpu_start_ns
     m_cpu = [r.cpu_ns / 1e6 for r in sorted(runs) if r.node == "M"]
     assert m_cpu == pytest.approx(drawn, rel=0.5, abs=1.0)
 

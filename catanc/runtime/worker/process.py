@@ -175,8 +175,8 @@ def _run(
         compute_ms *= scale_after[1]
     threads = burn_parallel(compute_ms, trigger.threads, speedups, since_s=cpu_before / 1e9)
     ended_ns = time.monotonic_ns()
-    if records is not None:  # each helper thread burned as long as this one
-        cpu_ns = (time.thread_time_ns() - cpu_before) * threads
-        records.append(RunRecord(node.name, started_ns, ended_ns, cpu_ns))
+    cpu_ns = (time.thread_time_ns() - cpu_before) * threads  # each helper thread burned as long as this one
     # On one thread, its CPU time (the client's default); on more, the run's wall time.
     node.done(None if trigger.threads == 1 else (ended_ns - started_ns) / 1e6)
+    if records is not None:
+        records.append(RunRecord(node.name, started_ns, ended_ns, cpu_ns, cpu_before, time.thread_time_ns()))

@@ -16,16 +16,23 @@ class RunRecord(NamedTuple):
     start_ns: int  # the trigger arrived: the run reads its inputs
     end_ns: int  # the work is done (just before the node reports done)
     cpu_ns: int  # CPU time the run used, over all the threads it burned on
+    # The node's thread's CPU clock (CLOCK_THREAD_CPUTIME_ID) at the start and once it has reported
+    # the run done (0: not recorded): the CPU it spends around its runs is what lies between.
+    thread_cpu_start_ns: int = 0
+    thread_cpu_done_ns: int = 0
 
 
 def write_records(path: str | os.PathLike[str], records: Iterable[RunRecord]) -> None:
     """Write ``records`` as JSON lines, atomically (a temporary file renamed over ``path``)."""
     target = Path(path)
     partial = target.with_name(f".{target.name}.{os.getpid()}.tmp")
-    with partial.open("w", encoding="utf-8") as out:
-        for record in records:
-            out.write(json.dumps(record._asdict(), separators=(",", ":")) + "\n")
+    partial.write_text(records_text(records), encoding="utf-8")
     partial.replace(target)
+
+
+def records_text(records: Iterable[RunRecord]) -> str:
+    """``records`` as the JSON lines :func:`write_records` writes."""
+    return "".join(json.dumps(record._asdict(), separators=(",", ":")) + "\n" for record in records)
 
 
 def read_records(path: str | os.PathLike[str]) -> list[RunRecord]:
@@ -34,7 +41,14 @@ def read_records(path: str | os.PathLike[str]) -> list[RunRecord]:
     for number, line in enumerate(Path(path).read_text(encoding="utf-8").splitlines(), start=1):
         try:
             data = json.loads(line)
-            record = RunRecord(str(data["node"]), int(data["start_ns"]), int(data["end_ns"]), int(data["cpu_ns"]))
+            record = RunRecord(
+                str(data["node"]),
+                int(data["start_ns"]),
+                int(data["end_ns"]),
+                int(data["cpu_ns"]),
+                int(data.get("thread_cpu_start_ns", 0)),
+                int(data.get("thread_cpu_done_ns", 0)),
+            )
         except (ValueError, KeyError, TypeError) as exc:
             raise ValueError(f"{path}:{number}: not a run record ({exc})") from None
         records.append(record)
