@@ -110,7 +110,7 @@ def bench(
             "--log",
             metavar="DIR",
             help="Also keep each enforced policy's run log in DIR (created if missing) as <policy>.jsonl, "
-            "for catanc report.",
+            "for catanc report, and every policy's worker records as <policy>.runs.jsonl.",
         ),
     ] = None,
     quiet: QuietOpt = False,

@@ -64,7 +64,7 @@ from catanc.runtime.linux.sched import (
 )
 from catanc.runtime.protocol import messages as protocol
 from catanc.runtime.worker.command import worker_groups, workload_worker_command
-from catanc.runtime.worker.records import RunRecord, read_records
+from catanc.runtime.worker.records import RunRecord, read_records, records_text
 from catanc.sim.metrics import PolicyResult
 from catanc.sim.simulate import CATAN_POLICIES, Setup, policy_spec, promised_rates, reported_chains, static_profile
 from catanc.spec.executors import executor_nodes
@@ -94,7 +94,9 @@ class BenchSetup:
     cores: int
     duration_s: float
     seed: int
-    log_dir: Path | None = None  # --log: each enforced policy's run log, as <policy>.jsonl (catanc report reads it)
+    # --log: each enforced policy's run log, as <policy>.jsonl (catanc report reads it), and every
+    # policy's worker records, as <policy>.runs.jsonl
+    log_dir: Path | None = None
     loop: LoopChoice = "python"  # --loop: the enforcer's loop (catanc run --loop)
 
 
@@ -201,6 +203,9 @@ def bench_policy(setup: BenchSetup, policy: str) -> PolicyResult:
             else:
                 measured = run_timers(setup, policy, folder, workers)
             measured.runs = workers.finish()
+            if setup.log_dir is not None:
+                runs = records_text(sorted(measured.runs)).encode()
+                write_files(setup.log_dir, {f"{policy}.runs.jsonl": runs}, kind="worker records")
         finally:
             workers.children.stop()
     window = {"start_ns": measured.start_ns, "end_ns": measured.end_ns}

@@ -39,7 +39,7 @@ from catanc.runtime.linux.sched import read_policy
 from catanc.runtime.logs.report import load_events
 from catanc.runtime.protocol import messages as protocol
 from catanc.runtime.protocol.messages import Address
-from catanc.runtime.worker.records import RunRecord
+from catanc.runtime.worker.records import RunRecord, read_records
 from catanc.sim.simulate import Setup, prepare, reported_chains, simulate_policies, workload_sampler
 from catanc.spec.language import Spec
 from tests.support.linux import WAIT_S, as_user, nobody_ids, poll
@@ -596,9 +596,16 @@ def test_a_static_bench_runs_under_the_enforcer_without_re_solving(tmp_path: Pat
 def test_a_bench_keeps_each_enforced_policys_run_log_for_report(
     bench_json: tuple[dict[str, Any], str, list[int]], bench_folder: Path
 ) -> None:
-    # catan runs under the enforcer, the baselines under the bench's own timers: one log, catan's.
+    # catan runs under the enforcer, the baselines under the bench's own timers: one log, catan's;
+    # every policy's worker records.
     logs = bench_folder / "logs"
-    assert sorted(path.name for path in logs.iterdir()) == ["catan.jsonl"]
+    policies = ("baseline", "catan", "fifo-static")
+    kept = sorted(["catan.jsonl", *(f"{policy}.runs.jsonl" for policy in policies)])
+    assert sorted(path.name for path in logs.iterdir()) == kept
+    for policy in policies:  # at least the runs the JSON counts in its window, with their thread clocks
+        cam_runs = [run for run in read_records(logs / f"{policy}.runs.jsonl") if run.node == "cam"]
+        assert len(cam_runs) >= 0.9 * bench_json[0]["policies"][policy]["nodes"]["cam"]["rate_hz"] * DURATION_S
+        assert all(run.thread_cpu_start_ns + run.cpu_ns <= run.thread_cpu_done_ns for run in cam_runs)
     summary = summarise(load_events(logs / "catan.jsonl"))
     assert summary.complete
     runs = {sub.name: sub.runs for sub in summary.subchains}
