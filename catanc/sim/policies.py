@@ -27,7 +27,7 @@ from catanc.control.measure import Measurements
 from catanc.control.policy import Cadence, SlotRule, boundary_ms, decide, hand_over, replanned, slot_rules
 from catanc.control.schedule import CoreSchedule, RuntimeSchedule, SubchainRun, is_late, runtime_schedule
 from catanc.control.timers import Triggers, trigger_rules
-from catanc.model.priorities import RUNNING_FIFO, SHARED_FIFO
+from catanc.model.priorities import ENFORCER_FIFO, RUNNING_FIFO, SHARED_FIFO
 from catanc.planning.replan import Replanner
 from catanc.sim.cpu import Discipline, Job, Pool
 from catanc.sim.dataflow import Dataflow, Origins
@@ -52,21 +52,52 @@ class Delays:
       (``catanc report``'s "hop delay"; for ``catanc bench``'s driver, its timer's lateness too);
     - ``switch_late_ms``: how late the enforcer makes each slot switch (``catanc report``'s
       "switch latency"): the owner's raise and its head's trigger both come that much later.
+    - ``before_run_ms`` and ``after_run_ms``: CPU a node's thread spends around each run that its
+      measured compute time leaves out (``benchmarks.vr_run_cpu`` measures it from the workers'
+      thread clocks), at the run's priority: *before*, from its trigger on (the wake-up, the
+      receive: the run's job takes that much more, and reads its inputs when it first runs, as
+      before); *after*, once its output is out (its record, its done report): its successors are
+      triggered at the run's end, but the node's thread holds its core, and takes no new run,
+      until that CPU is spent too.  Neither is in the compute times a re-plan measures.
+    - ``switch_cpu_ms``: catanc's enforcer's CPU at each slot switch (``catanc report``'s CPU per
+      wake-up), at its own level above every node, on the switch's core from the slot's boundary
+      (it wakes on time; its raise and trigger come ``switch_late_ms`` after, inside that CPU).
     """
 
     wake_ms: float = 0.0
     switch_late_ms: float = 0.0
+    before_run_ms: float = 0.0
+    after_run_ms: float = 0.0
+    switch_cpu_ms: float = 0.0
 
     def __post_init__(self) -> None:
-        if self.wake_ms < 0 or self.switch_late_ms < 0:
+        if min(self.wake_ms, self.switch_late_ms, self.before_run_ms, self.after_run_ms, self.switch_cpu_ms) < 0:
             raise ValueError(f"delays are never negative: {self}")
 
     @property
     def none(self) -> bool:
-        return self.wake_ms == 0.0 and self.switch_late_ms == 0.0
+        return self == NO_DELAYS
 
 
 NO_DELAYS = Delays()
+ENFORCER = "<enforcer>"
+"""The node name of the enforcer's own CPU jobs (no node is named so: names are identifiers)."""
+
+
+def _nothing(_job: Job) -> None:
+    pass
+
+
+def after_run(engine: Engine, pool: Pool, delays: Delays, job: Job, release: Callable[[], None]) -> None:
+    """``job``'s run has produced its output: ``release`` its node's thread once ``delays.after_run_ms`` of
+    CPU more is spent at its priority (at once without it).  The thread was running, so it stays at the front
+    of its level."""
+    if delays.after_run_ms == 0.0:
+        release()
+        return
+    tail = Job(job.node, delays.after_run_ms, 1, job.priority, 0, lambda _job: release())
+    engine.submit(pool, tail)
+    tail.since = -engine.arrival()
 
 
 def after_wake(engine: Engine, delays: Delays, start: Callable[[], None]) -> Callable[[], None]:
@@ -223,11 +254,24 @@ class CatanPolicy:
             if core is None or not core.slots:
                 return
             for position in range(len(core.slots) + 1):  # each slot's switch, then the end of the last slice
-                when = boundary_ms(core, start_ms, position) + self.delays.switch_late_ms
+                boundary = boundary_ms(core, start_ms, position)
+                if self.delays.switch_cpu_ms:
+                    self.engine.at(boundary, self._enforcer_wakes(core.core, generation))
+                when = boundary + self.delays.switch_late_ms
                 self.engine.at(when, self._switcher(core, position, generation, index))
             self._period(core_id, generation, start_ms + core.period_ms, index + 1)
 
         self.engine.at(start_ms, begin)
+
+    def _enforcer_wakes(self, core_id: int, generation: int) -> Callable[[], None]:
+        """The enforcer's CPU for one switch on ``core_id``: a job above every node's level."""
+
+        def wake() -> None:
+            pool = next((p for p in self.engine.pools if p.cores == (core_id,)), None)
+            if generation == self.generation and pool is not None:
+                self.engine.submit(pool, Job(ENFORCER, self.delays.switch_cpu_ms, 1, ENFORCER_FIFO, 0, _nothing))
+
+        return wake
 
     def _switcher(self, core: CoreSchedule, position: int, generation: int, index: int) -> Callable[[], None]:
         def switch() -> None:
@@ -305,19 +349,29 @@ class CatanPolicy:
             priority = RAISED if self.raised.get(run.cores[0]) == run.name else RESTING_SHARED
         reading = Reading(self.engine, self.flow, node)
 
-        def done(_job: Job) -> None:
-            self._done(node, seq, reading.origins, compute)
+        def done(job: Job) -> None:
+            self._done(job, seq, reading.origins, compute)
 
-        job = Job(node, compute / speedup, threads, priority, 0, done, on_start=reading.read)
+        work = self.delays.before_run_ms + compute / speedup
+        job = Job(node, work, threads, priority, 0, done, on_start=reading.read)
         self.engine.submit(self.pools[run.name], job)
 
-    def _done(self, node: str, seq: int, origins: Origins, compute_ms: float) -> None:
+    def _done(self, job: Job, seq: int, origins: Origins, compute_ms: float) -> None:
+        node = job.node
         if self.measurements is not None:
             self.measurements.record(node, compute_ms)
         self.flow.produce(node, origins, self.engine.now)
-        self.gate.leave(node)
         run = self.schedule.subchain_of(node)
-        self._free(node)
+
+        def release() -> None:
+            self.gate.leave(node)
+            self._free(node)
+
+        pool = self.pools.get(run.name) if run is not None else None
+        if pool is None:  # pragma: no cover - every scheduled node is in a subchain
+            release()
+        else:
+            after_run(self.engine, pool, self.delays, job, release)
         if run is None:  # pragma: no cover
             return
         state = self.states[run.name]
@@ -428,10 +482,14 @@ class TimerPolicy:
         compute = self.sample(node, self.engine.now / 1000.0)
         reading = Reading(self.engine, self.flow, node)
 
-        def done(_job: Job) -> None:
-            self.flow.produce(node, reading.origins, self.engine.now)  # its output triggers its successors
+        def release() -> None:
             self.gate.leave(node)
             self._begin(self.triggers.free(node))
 
-        job = Job(node, compute, 1, self.priorities.get(node, 0), 0, done, on_start=reading.read)
+        def done(job: Job) -> None:
+            self.flow.produce(node, reading.origins, self.engine.now)  # its output triggers its successors
+            after_run(self.engine, self.pool, self.delays, job, release)
+
+        work = self.delays.before_run_ms + compute
+        job = Job(node, work, 1, self.priorities.get(node, 0), 0, done, on_start=reading.read)
         self.engine.submit(self.pool, job)

@@ -4,7 +4,9 @@
   workers record their start then), not when it is triggered: fifo-static's VR Render, triggered
   at vsync behind Timewarp, reads the IMU sample that came while it waited.
 - :class:`~catanc.sim.policies.Delays`: the runtime's wake-up (a trigger to its thread running) and
-  the enforcer's late slot switches, each a constant the caller measures (``catanc report``).
+  the enforcer's late slot switches, each a constant the caller measures (``catanc report``); the
+  CPU a node's thread spends before and after each run (``benchmarks.vr_run_cpu``), and the
+  enforcer's CPU at each slot switch.
 
 Both engines read at the first run (the compiled one is held to the Python one); delays are the
 Python engine's only.
@@ -18,6 +20,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from catanc.control.policy import boundary_ms
 from catanc.errors import UsageError
 from catanc.sim.policies import Delays
 from catanc.sim.simulate import Setup, simulate
@@ -126,9 +129,60 @@ def test_switches_all_equally_late_shift_the_schedule_but_no_response(late: floa
     assert figures(Delays(switch_late_ms=late)) == pytest.approx(on_time, abs=1e-6)
 
 
+@settings(max_examples=10, deadline=None)
+@given(before=st.floats(0.0, 2.0), after=st.floats(0.0, 2.0))
+def test_cpu_around_each_run_of_catancs_dedicated_subchain(before: float, after: float) -> None:
+    # cam triggered every 20 ms: it runs b + 4 ms (b before its work, then its output), its thread
+    # goes on for a more at the front of the level, then det runs b + 6: done at 20k + 10 + 2b + a,
+    # measured from the origin before it (20(k-1), cam's first CPU): 30 + 2b + a.
+    got = chain_response(ONE_SUBCHAIN, "catan", "cam", delays=Delays(before_run_ms=before, after_run_ms=after))
+    assert got == pytest.approx((30.0 + 2 * before + after, 30.0 + 2 * before + after))
+
+
+@settings(max_examples=10, deadline=None)
+@given(before=st.floats(0.0, 0.45), after=st.floats(0.0, 0.45))
+def test_cpu_around_each_run_under_fifo_static(before: float, after: float) -> None:
+    # At 10k ms hi runs b + 3 ms, then its thread's a (its level is above lo's), then lo b + 1, reading
+    # imu's tick at 10k + 2 (it first runs at 10k + 3 + b + a < 10k + 4): done at 10k + 4 + 2b + a,
+    # measured from the origin before it, 10(k-1) + 2: 12 + 2b + a.
+    got = chain_response(BEHIND, "fifo-static", "imu", delays=Delays(before_run_ms=before, after_run_ms=after))
+    assert got == pytest.approx((12.0 + 2 * before + after, 12.0 + 2 * before + after))
+
+
+@pytest.mark.parametrize("cpu", [0.005, 0.02])
+def test_the_enforcers_cpu_at_each_switch_fills_the_core_and_never_shortens_a_chain(cpu: float) -> None:
+    # A job of c ms above every node at each boundary: the core is busier by c for every boundary
+    # before the end, less what the app's work, later by a few c, has not done by the end (under
+    # 10 c here); a head first runs c after its switch and a run that crosses its slot's end loses
+    # c more there, so no response gets shorter.
+    spec = spec_of(TWO_SHARED)
+    duration_ms = 1900.0
+
+    def run(delays: Delays) -> tuple[list[float], float, int]:
+        result = simulate(Setup(spec, 1, duration_ms / 1000, 0), "catan", constant, engine="python", delays=delays)
+        assert result.schedule is not None
+        (core,) = result.schedule.shared
+        boundaries = sum(
+            1
+            for k in range(int(duration_ms // core.period_ms) + 1)
+            for position in range(len(core.slots) + 1)
+            if k * core.period_ms < duration_ms and boundary_ms(core, k * core.period_ms, position) < duration_ms
+        )
+        responses = [value for c in result.chains if c.response for value in (c.response.mean, c.response.max)]
+        return responses, result.utilisation[0] * duration_ms, boundaries
+
+    on_time, busy, _ = run(Delays())
+    slower, busy_with, boundaries = run(Delays(switch_cpu_ms=cpu))
+    assert len(slower) == len(on_time) == 4
+    assert all(got >= want - 1e-9 for got, want in zip(slower, on_time, strict=True))
+    assert busy + (boundaries - 10) * cpu <= busy_with <= busy + boundaries * cpu + 1e-6
+
+
 def test_the_compiled_engine_refuses_delays_and_negative_ones_are_refused() -> None:
     spec = spec_of(ONE_SUBCHAIN)
-    with pytest.raises(UsageError, match="delays"):
-        simulate(Setup(spec, 1, 1.0, 0), "baseline", engine="compiled", delays=Delays(wake_ms=0.1))
-    with pytest.raises(ValueError, match="negative"):
-        Delays(wake_ms=-0.1)
+    for delays in (Delays(wake_ms=0.1), Delays(before_run_ms=0.1), Delays(after_run_ms=0.1), Delays(switch_cpu_ms=0.1)):
+        with pytest.raises(UsageError, match="delays"):
+            simulate(Setup(spec, 1, 1.0, 0), "baseline", engine="compiled", delays=delays)
+    for field in ("wake_ms", "switch_late_ms", "before_run_ms", "after_run_ms", "switch_cpu_ms"):
+        with pytest.raises(ValueError, match="negative"):
+            Delays(**{field: -0.1})
