@@ -59,6 +59,9 @@ class Delays:
       before); *after*, once its output is out (its record, its done report): its successors are
       triggered at the run's end, but the node's thread holds its core, and takes no new run,
       until that CPU is spent too.  Neither is in the compute times a re-plan measures.
+    - ``charged``: each run reports the CPU around it in its compute time, so the re-plans count it
+      (``before_run_ms + after_run_ms`` more than its draw: its thread's CPU since its previous
+      run's report, as :mod:`catanc.ros` and ``catanc bench``'s workers report it).
     - ``switch_cpu_ms``: catanc's enforcer's CPU at each slot switch (``catanc report``'s CPU per
       wake-up), at its own level above every node, on the switch's core from the slot's boundary
       (it wakes on time; its raise and trigger come ``switch_late_ms`` after, inside that CPU).
@@ -69,6 +72,7 @@ class Delays:
     before_run_ms: float = 0.0
     after_run_ms: float = 0.0
     switch_cpu_ms: float = 0.0
+    charged: bool = False
 
     def __post_init__(self) -> None:
         if min(self.wake_ms, self.switch_late_ms, self.before_run_ms, self.after_run_ms, self.switch_cpu_ms) < 0:
@@ -359,7 +363,8 @@ class CatanPolicy:
     def _done(self, job: Job, seq: int, origins: Origins, compute_ms: float) -> None:
         node = job.node
         if self.measurements is not None:
-            self.measurements.record(node, compute_ms)
+            around = self.delays.before_run_ms + self.delays.after_run_ms if self.delays.charged else 0.0
+            self.measurements.record(node, compute_ms + around)
         self.flow.produce(node, origins, self.engine.now)
         run = self.schedule.subchain_of(node)
 

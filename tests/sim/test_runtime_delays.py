@@ -178,11 +178,33 @@ def test_the_enforcers_cpu_at_each_switch_fills_the_core_and_never_shortens_a_ch
     assert busy + (boundaries - 10) * cpu <= busy_with <= busy + boundaries * cpu + 1e-6
 
 
+@pytest.mark.parametrize(("before", "after"), [(0.1, 0.05), (0.3, 0.0)])
+def test_a_run_charged_with_the_cpu_around_it_gets_that_much_more_slot_after_the_replan(
+    before: float, after: float
+) -> None:
+    # After the re-solve at 2 s, fast's slot is the p95 of its measured compute: 1 ms when a run
+    # reports its work only (the CPU around it goes unplanned), 1 + b + a when charged with it.
+    spec = spec_of(TWO_SHARED)
+
+    def fast_slot_ms(delays: Delays) -> float:
+        result = simulate(Setup(spec, 1, 2.5, 0), "catan", constant, engine="python", delays=delays)
+        assert result.schedule is not None
+        assert result.replans == 1
+        (core,) = result.schedule.shared
+        (slot,) = [slot for slot in core.slots if slot.subchain == "fast"]
+        return slot.length_ms
+
+    assert fast_slot_ms(Delays(before_run_ms=before, after_run_ms=after)) == pytest.approx(1.0)
+    charged = Delays(before_run_ms=before, after_run_ms=after, charged=True)
+    assert fast_slot_ms(charged) == pytest.approx(1.0 + before + after)
+
+
 def test_the_compiled_engine_refuses_delays_and_negative_ones_are_refused() -> None:
     spec = spec_of(ONE_SUBCHAIN)
-    for delays in (Delays(wake_ms=0.1), Delays(before_run_ms=0.1), Delays(after_run_ms=0.1), Delays(switch_cpu_ms=0.1)):
+    refused = (Delays(wake_ms=0.1), Delays(before_run_ms=0.1), Delays(after_run_ms=0.1), Delays(switch_cpu_ms=0.1))
+    for delays in (*refused, Delays(charged=True)):
         with pytest.raises(UsageError, match="delays"):
             simulate(Setup(spec, 1, 1.0, 0), "baseline", engine="compiled", delays=delays)
     for field in ("wake_ms", "switch_late_ms", "before_run_ms", "after_run_ms", "switch_cpu_ms"):
         with pytest.raises(ValueError, match="negative"):
-            Delays(**{field: -0.1})
+            Delays(**{field: -0.1})  # type: ignore[arg-type]
