@@ -919,13 +919,6 @@ def test_worker_draws_from_the_specs_workload_and_records_every_run(
             assert run.thread_cpu_start_ns + run.cpu_ns <= run.thread_cpu_done_ns
         for earlier, later in itertools.pairwise(mine):
             assert earlier.thread_cpu_done_ns <= later.thread_cpu_start_ns
-    # From its second run on, a run reports its thread's CPU since the previous run's done report: its
-    # own, the wait and wake-up before it, and its report's start, never the part after it.
-    m_runs = sorted(r for r in runs if r.node == "M")
-    for (earlier, later), reported_ms in zip(itertools.pairwise(m_runs), measured[1:], strict=True):
-        charged_ns = reported_ms * 1e6
-        assert later.thread_cpu_start_ns - earlier.thread_cpu_done_ns + later.cpu_ns - 1000 <= charged_ns
-        assert charged_ns <= later.thread_cpu_done_ns - earlier.thread_cpu_done_ns + 1000
     m_cpu = [r.cpu_ns / 1e6 for r in sorted(runs) if r.node == "M"]
     assert m_cpu == pytest.approx(drawn, rel=0.5, abs=1.0)
 

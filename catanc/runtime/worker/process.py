@@ -134,10 +134,9 @@ def _serve(
     try:
         with node:
             registered_at = time.monotonic()
-            last_done_cpu_ns: int | None = None  # the thread's CPU clock when its last run's done report returned
             for trigger in node:
                 with turns.turn() if turns is not None else contextlib.nullcontext():
-                    last_done_cpu_ns = _run(
+                    _run(
                         node,
                         trigger,
                         draw=draw,
@@ -146,7 +145,6 @@ def _serve(
                         clock_start_ns=clock_start_ns,
                         registered_at=registered_at,
                         records=records,
-                        since_cpu_ns=last_done_cpu_ns,
                     )
     except Exception as exc:
         error = exc
@@ -164,17 +162,11 @@ def _run(
     clock_start_ns: int,
     registered_at: float,
     records: list[RunRecord] | None,
-    since_cpu_ns: int | None = None,
-) -> int:
-    """One run: burn the drawn compute time on the threads the trigger gives, record it, report done;
-    return the thread's CPU clock once the done report returned.
+) -> None:
+    """One run: burn the drawn compute time on the threads the trigger gives, record it, report done.
 
     The run's own bookkeeping (the draw, the thread count) comes out of its compute time: the
-    node's thread uses what the profile says from here to ``done``, as a real node would.  On one
-    thread the run reports the thread's CPU since ``since_cpu_ns``, its previous run's done report
-    (else since its trigger), as :mod:`catanc.ros` charges an executor thread's: the wait, wake-up
-    and receive before it and the previous run's report are CPU on the node's core that the plan
-    must budget.
+    node's thread uses what the profile says from here to ``done``, as a real node would.
     """
     started_ns = time.monotonic_ns()
     cpu_before = time.thread_time_ns()
@@ -184,12 +176,7 @@ def _run(
     threads = burn_parallel(compute_ms, trigger.threads, speedups, since_s=cpu_before / 1e9)
     ended_ns = time.monotonic_ns()
     cpu_ns = (time.thread_time_ns() - cpu_before) * threads  # each helper thread burned as long as this one
-    # On one thread, its CPU time since its previous run's report; on more, the run's wall time.
-    if trigger.threads == 1:
-        node.done(None if since_cpu_ns is None else (time.thread_time_ns() - since_cpu_ns) / 1e6)
-    else:
-        node.done((ended_ns - started_ns) / 1e6)
-    done_cpu_ns = time.thread_time_ns()
+    # On one thread, its CPU time (the client's default); on more, the run's wall time.
+    node.done(None if trigger.threads == 1 else (ended_ns - started_ns) / 1e6)
     if records is not None:
-        records.append(RunRecord(node.name, started_ns, ended_ns, cpu_ns, cpu_before, done_cpu_ns))
-    return done_cpu_ns
+        records.append(RunRecord(node.name, started_ns, ended_ns, cpu_ns, cpu_before, time.thread_time_ns()))
