@@ -91,8 +91,12 @@ def spin(make_node: Callable[[], Node]) -> None:
         signal_thread_done()
     except ExternalShutdownException:
         pass
-    except RuntimeError:  # rclpy's RCLError
-        if rclpy.ok():  # else a signal shut the context down while the node was being made
+    except RuntimeError:  # rclpy's RCLError, or a take that Ctrl-C's shutdown cut short
+        # A signal shut the context down while the node was being made, or is shutting it down while the
+        # executor takes a message (seen once in CI: "Unable to convert call argument '0'" in take_message,
+        # in a launch.sh run that Ctrl-C ends): give rclpy's signal thread its time before calling it an error.
+        signal_thread_done()
+        if rclpy.ok():
             raise
     finally:
         if node is not None:
