@@ -23,6 +23,7 @@ from collections import defaultdict
 from pathlib import Path
 
 from benchmarks.scenarios import VR_CHAINS
+from catanc.control.measure import percentile
 from catanc.runtime.worker.records import RunRecord, read_records
 
 POLICIES = ("catan", "fifo-static")
@@ -44,9 +45,8 @@ def around_ms(runs: list[RunRecord]) -> dict[str, tuple[list[float], list[float]
     return out
 
 
-def p95(values: list[float]) -> float:
-    ordered = sorted(values)
-    return ordered[min(len(ordered) - 1, round(0.95 * (len(ordered) - 1)))]
+def spread(values: list[float]) -> str:
+    return f"mean {statistics.mean(values):.3f} p50 {statistics.median(values):.3f} p95 {percentile(values, 95):.3f}"
 
 
 def ratios(path: Path) -> dict[str, tuple[float, float]] | None:
@@ -80,8 +80,7 @@ def main() -> None:
             both = [b + a for b, a in zip(before, after, strict=True)]
             print(
                 f"{policy:12s} {node:9s} runs {len(after):5d}"
-                f"  before mean {statistics.mean(before):.3f} p50 {statistics.median(before):.3f} p95 {p95(before):.3f}"
-                f"  after mean {statistics.mean(after):.3f} p50 {statistics.median(after):.3f} p95 {p95(after):.3f}"
+                f"  before {spread(before)}  after {spread(after)}"
                 f"  both mean {statistics.mean(both):.3f}"
             )
     print("catan against fifo-static, per chain: mean / p95")
